@@ -1,0 +1,315 @@
+"""Typed, frozen configuration loaded from TOML and validated once, at the edge.
+
+A config file has four tables, ``[env]``, ``[ddpg]``, ``[train]`` and ``[grid]``; every field
+below is a key of its table. ``configs/paper.toml`` holds the paper's values and is also the
+built-in default. Overrides are ``table.key=value`` strings (TOML syntax for the value).
+
+Any problem (unknown table or key, wrong type, value out of range) raises ``ConfigError`` with
+one line naming the key and what is allowed; nothing is run with a bad config.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+PAPER_CONFIG = CONFIG_DIR / "paper.toml"
+
+
+class ConfigError(ValueError):
+    """A config value is not allowed; the message names the key and the allowed values."""
+
+
+def _f(
+    default: Any,
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    open_lo: bool = False,
+    doc: str = "",
+) -> Any:
+    """A dataclass field with bounds: ``lo <= v <= hi`` (``lo < v`` when ``open_lo``)."""
+    meta = {"lo": lo, "hi": hi, "open_lo": open_lo, "doc": doc}
+    if isinstance(default, list | tuple):
+        return field(default_factory=lambda: tuple(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Road, traffic, IDM, episode, ego kinematics and reward (SPEC.md)."""
+
+    road_length: float = _f(600.0, 50.0, open_lo=True, doc="m")
+    lanes: int = _f(3, 2, 8, doc="lanes in the ego's direction; the ego starts on lanes // 2")
+    lane_width: float = _f(3.7, 2.0, 6.0, doc="m")
+    curvature: float = _f(0.0, -0.01, 0.01, doc="1/m, a state input")
+    dt: float = _f(0.1, 0.0, 1.0, open_lo=True, doc="s")
+    vehicle_length: float = _f(5.0, 1.0, 20.0)
+    vehicle_width: float = _f(1.8, 1.0, 3.0)
+    entry_speed_min: float = _f(0.0, 0.0, 200.0, doc="km/h")
+    entry_speed_max: float = _f(40.0, 0.0, 200.0, doc="km/h")
+    desired_speed_min: float = _f(80.0, 1.0, 250.0, doc="km/h")
+    desired_speed_max: float = _f(120.0, 1.0, 250.0, doc="km/h")
+    inflow_min: float = _f(800.0, 0.0, 4000.0, open_lo=True, doc="veh/h per lane")
+    inflow_max: float = _f(1600.0, 0.0, 4000.0, open_lo=True, doc="veh/h per lane")
+    slots_per_lane: int = _f(16, 2, 256, doc="static vehicle slots per lane")
+    warmup_time: float = _f(40.0, 0.0, 600.0, doc="s of traffic simulated by reset()")
+    # IDM [S]
+    idm_a_max: float = _f(1.5, 0.0, 10.0, open_lo=True)
+    idm_b: float = _f(2.0, 0.0, 10.0, open_lo=True)
+    idm_time_headway: float = _f(1.5, 0.0, 5.0, open_lo=True)
+    idm_s0: float = _f(2.0, 0.0, 20.0)
+    idm_delta: float = _f(4.0, 1.0, 10.0)
+    idm_b_max: float = _f(9.0, 0.0, 20.0, open_lo=True, doc="braking clip, m/s^2")
+    # episode
+    p_yield: float = _f(0.5, 0.0, 1.0)
+    command_distance: float = _f(80.0, 0.0, 400.0, doc="m travelled before the command")
+    gap_time_limit: float = _f(5.0, 0.0, 60.0, open_lo=True, doc="s to find a gap")
+    gap_x_limit: float = _f(450.0, 0.0, open_lo=True, doc="m; no gap beyond this x")
+    gap_time_headway: float = _f(0.5, 0.0, 5.0, doc="s in s0 + T*v of gap acceptance")
+    b_safe: float = _f(4.0, 0.0, 20.0, open_lo=True, doc="m/s^2, lag deceleration bound")
+    # ego lateral
+    max_yaw_acc: float = _f(0.5, 0.0, 10.0, open_lo=True, doc="A in a_lat = A*action, rad/s^2")
+    manoeuvre_time_limit: float = _f(10.0, 0.0, 120.0, open_lo=True, doc="s")
+    border: float = _f(3.7, 0.0, 20.0, open_lo=True, doc="D, m (paper: = lane width)")
+    success_offset: float = _f(0.2, 0.0, open_lo=True, doc="m")
+    success_heading: float = _f(0.02, 0.0, open_lo=True, doc="rad")
+    success_yaw_rate: float = _f(0.02, 0.0, open_lo=True, doc="rad/s")
+    # reward, eqs. (8)-(11); gamma is ddpg.gamma
+    w1: float = _f(10.0, 0.0)
+    w2: float = _f(5.0, 0.0)
+    w3: float = _f(0.075, 0.0)
+    w4: float = _f(1.0, 0.0)
+    reward_scale: float = _f(1.0, 0.0, open_lo=True, doc="multiplies every reward term")
+
+
+@dataclass(frozen=True)
+class DDPGConfig:
+    """Learner hyperparameters (SPEC.md, DDPG)."""
+
+    hidden: tuple[int, ...] = _f([300, 600], 1, 4096)
+    actor_lr: float = _f(1e-4, 0.0, 1.0, open_lo=True)
+    critic_lr: float = _f(1e-3, 0.0, 1.0, open_lo=True)
+    gamma: float = _f(0.98, 0.0, 1.0, open_lo=True)
+    tau: float = _f(0.001, 0.0, 1.0, open_lo=True)
+    batch_size: int = _f(64, 1, 65536)
+    final_init: float = _f(3e-3, 0.0, open_lo=True)
+    noise_sigma: float = _f(0.2, 0.0, 2.0)
+    noise_clip: float = _f(2.0, 0.0, 10.0, open_lo=True, doc="truncation, in sigmas")
+    updates_per_step: int = _f(1, 1, 64, doc="gradient updates per scan step per model")
+    td3: bool = _f(False)
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """The run: parallel envs, episodes, checkpoints, chunks, seeds."""
+
+    envs_per_model: int = _f(32, 1, 65536)
+    episodes: int = _f(5000, 1)
+    checkpoint_every: int = _f(100, 1)
+    chunk_steps: int = _f(2000, 1, doc="scan steps between host saves")
+    max_steps: int = _f(0, 0, doc="scan-step cap per run; 0 = until every model is done")
+    seeds: int = _f(1, 1, 1024)
+    seed: int = _f(0, 0)
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    """Axes of the model grid; the grid is their Cartesian product, in this order.
+
+    ``actor_lr``/``critic_lr``/``noise_sigma`` empty means the ``[ddpg]`` value for every cell.
+    """
+
+    k: tuple[int, ...] = _f([1, 2, 4], 1, 1000)
+    memory: tuple[int, ...] = _f([2000, 4000, 8000], 1)
+    actor_lr: tuple[float, ...] = _f([], 0.0, 1.0, open_lo=True)
+    critic_lr: tuple[float, ...] = _f([], 0.0, 1.0, open_lo=True)
+    noise_sigma: tuple[float, ...] = _f([], 0.0, 2.0)
+
+
+@dataclass(frozen=True)
+class Config:
+    env: EnvConfig = field(default_factory=EnvConfig)
+    ddpg: DDPGConfig = field(default_factory=DDPGConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    grid: GridConfig = field(default_factory=GridConfig)
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        return {
+            name: {
+                k: list(v) if isinstance(v, tuple) else v
+                for k, v in dataclasses.asdict(getattr(self, name)).items()
+            }
+            for name in _TABLES
+        }
+
+    def hash(self) -> str:
+        """Short stable hash of every value (checkpoints record it)."""
+        blob = json.dumps(self.to_dict(), sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()[:12]
+
+
+_TABLES: dict[str, type] = {
+    "env": EnvConfig,
+    "ddpg": DDPGConfig,
+    "train": TrainConfig,
+    "grid": GridConfig,
+}
+
+
+def _allowed(meta: dict[str, Any]) -> str:
+    lo, hi = meta.get("lo"), meta.get("hi")
+    parts = []
+    if lo is not None:
+        parts.append(f"{'>' if meta.get('open_lo') else '>='} {lo:g}")
+    if hi is not None:
+        parts.append(f"<= {hi:g}")
+    return " and ".join(parts)
+
+
+def _check_scalar(key: str, value: Any, typ: type, meta: dict[str, Any]) -> Any:
+    if typ is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"config key '{key}': must be true or false, got {value!r}")
+        return value
+    if typ is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"config key '{key}': must be an integer, got {value!r}")
+    elif typ is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"config key '{key}': must be a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(f"config key '{key}': must be finite, got {value!r}")
+    lo, hi = meta.get("lo"), meta.get("hi")
+    bad_lo = lo is not None and (value <= lo if meta.get("open_lo") else value < lo)
+    bad_hi = hi is not None and value > hi
+    if bad_lo or bad_hi:
+        raise ConfigError(f"config key '{key}': must be {_allowed(meta)}, got {value!r}")
+    return value
+
+
+def _check_field(key: str, value: Any, f: dataclasses.Field, hints: dict[str, Any]) -> Any:
+    typ = hints[f.name]
+    if typing.get_origin(typ) is tuple:
+        elem = typing.get_args(typ)[0]
+        if not isinstance(value, list | tuple):
+            raise ConfigError(
+                f"config key '{key}': must be a list of {elem.__name__}, got {value!r}"
+            )
+        return tuple(_check_scalar(key, v, elem, f.metadata) for v in value)
+    return _check_scalar(key, value, typ, f.metadata)
+
+
+def _build(table: str, values: dict[str, Any]) -> Any:
+    cls = _TABLES[table]
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    hints = typing.get_type_hints(cls)
+    out = {}
+    for key, value in values.items():
+        if key not in fields:
+            raise ConfigError(
+                f"unknown config key '{table}.{key}'; allowed: {', '.join(sorted(fields))}"
+            )
+        out[key] = _check_field(f"{table}.{key}", value, fields[key], hints)
+    return cls(**out)
+
+
+def _cross_checks(cfg: Config) -> None:
+    e, d, g = cfg.env, cfg.ddpg, cfg.grid
+    if e.entry_speed_min > e.entry_speed_max:
+        raise ConfigError("config key 'env.entry_speed_min': must be <= env.entry_speed_max")
+    if e.desired_speed_min > e.desired_speed_max:
+        raise ConfigError("config key 'env.desired_speed_min': must be <= env.desired_speed_max")
+    if e.inflow_min > e.inflow_max:
+        raise ConfigError("config key 'env.inflow_min': must be <= env.inflow_max")
+    if e.gap_x_limit >= e.road_length:
+        raise ConfigError("config key 'env.gap_x_limit': must be < env.road_length")
+    if e.command_distance >= e.gap_x_limit:
+        raise ConfigError("config key 'env.command_distance': must be < env.gap_x_limit")
+    if not d.hidden:
+        raise ConfigError("config key 'ddpg.hidden': must list at least one layer width")
+    for name in ("k", "memory"):
+        if not getattr(g, name):
+            raise ConfigError(f"config key 'grid.{name}': the grid needs at least one value")
+    for m in g.memory:
+        if m < d.batch_size:
+            raise ConfigError(
+                f"config key 'grid.memory': every size must be >= "
+                f"ddpg.batch_size ({d.batch_size}), got {m}"
+            )
+    if cfg.train.episodes % cfg.train.checkpoint_every:
+        raise ConfigError("config key 'train.checkpoint_every': must divide train.episodes")
+
+
+def from_dict(data: dict[str, Any]) -> Config:
+    """Build and validate a ``Config`` from nested tables (missing keys take defaults)."""
+    for table, values in data.items():
+        if table not in _TABLES:
+            raise ConfigError(f"unknown config table '[{table}]'; allowed: {', '.join(_TABLES)}")
+        if not isinstance(values, dict):
+            raise ConfigError(f"config key '{table}': must be a table")
+    cfg = Config(**{t: _build(t, data.get(t, {})) for t in _TABLES})
+    _cross_checks(cfg)
+    return cfg
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """``"ddpg.actor_lr=3e-4"`` -> ``("ddpg", "actor_lr", 3e-4)``; values use TOML syntax."""
+    if "=" not in text or "." not in text.split("=", 1)[0]:
+        raise ConfigError(
+            f"override '{text}': must look like table.key=value, e.g. train.episodes=200"
+        )
+    lhs, raw = text.split("=", 1)
+    table, key = lhs.strip().split(".", 1)
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()  # a bare word: let type validation name the problem
+    return table, key, value
+
+
+def load(path: str | Path | None = None, overrides: typing.Sequence[str] = ()) -> Config:
+    """Load ``path`` (default ``configs/paper.toml``), apply overrides, validate."""
+    path = Path(path) if path is not None else PAPER_CONFIG
+    data: dict[str, Any] = {}
+    if path.exists() or path != PAPER_CONFIG:
+        try:
+            data = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"config file '{path}' does not exist") from None
+        except tomllib.TOMLDecodeError as err:
+            raise ConfigError(f"config file '{path}' is not valid TOML: {err}") from None
+    for text in overrides:
+        table, key, value = parse_override(text)
+        data.setdefault(table, {})
+        if not isinstance(data[table], dict):
+            raise ConfigError(f"config key '{table}': must be a table")
+        data[table][key] = value
+    return from_dict(data)
+
+
+def to_toml(cfg: Config) -> str:
+    """Serialise a config as TOML (the run directory keeps the resolved config)."""
+
+    def fmt(v: Any) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, list):
+            return "[" + ", ".join(fmt(x) for x in v) + "]"
+        return repr(v)
+
+    lines = []
+    for table, values in cfg.to_dict().items():
+        lines.append(f"[{table}]")
+        lines += [f"{k} = {fmt(v)}" for k, v in values.items()]
+        lines.append("")
+    return "\n".join(lines)

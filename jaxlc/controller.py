@@ -1,0 +1,27 @@
+"""A scripted reference lane-change controller on the same action (yaw acceleration).
+
+The lateral offset e obeys, for small heading, the triple integrator
+    e' = v*psi,  e'' = v*omega,  e''' = v*a_lat,
+so the state feedback  a_lat = -(p^3*e + 3*p^2*v*psi + 3*p*v*omega) / v  places all three
+closed-loop poles at -p: a smooth, overshoot-free lane change lasting about 5/p s. It reads
+only the observation, so it is a drop-in baseline for a learned actor.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+
+from jaxlc.env import _OBS_SCALE, EnvParams
+
+DEFAULT_POLE = 1.2  # 1/s: a lane change of about 4-5 s, inside the 3-8 s of human drivers
+
+
+def scripted_action(obs: Array, params: EnvParams, pole: float = DEFAULT_POLE) -> Array:
+    """``(..., OBS_DIM) -> (..., 1)`` action in [-1, 1] from the pole-placement law."""
+    v = jnp.maximum(obs[..., 0] * _OBS_SCALE[0], 1.0)
+    psi = obs[..., 2] * _OBS_SCALE[2]
+    omega = obs[..., 3] * _OBS_SCALE[3]
+    e = obs[..., 4] * params.lane_width
+    a_lat = -(pole**3 * e + 3 * pole**2 * v * psi + 3 * pole * v * omega) / v
+    return jnp.clip(a_lat / params.max_yaw_acc, -1.0, 1.0)[..., None]

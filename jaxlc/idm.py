@@ -1,0 +1,45 @@
+"""Intelligent Driver Model (Treiber, Hennecke & Helbing 2000), the car-following law of
+every vehicle and of the ego's longitudinal control.
+
+    s* = s0 + max(0, v*T + v*dv / (2*sqrt(a_max*b)))      dv = v - v_lead (closing speed)
+    a  = a_max * (1 - (v/v0)**delta - (s*/s)**2)            clipped below at -b_max
+
+All arguments broadcast, so one call serves every vehicle of every env.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+
+# Net gap standing in for "no leader": large enough that (s*/s)^2 vanishes in float32.
+NO_LEADER_GAP = 1e4
+# Smallest net gap used in the formula: a touching or overlapping leader means full braking,
+# not a division by zero.
+MIN_GAP = 1e-2
+
+
+def idm_acceleration(
+    v: Array,
+    v0: Array,
+    gap: Array,
+    v_lead: Array,
+    a_max: Array | float,
+    b: Array | float,
+    time_headway: Array | float,
+    s0: Array | float,
+    delta: Array | float,
+    b_max: Array | float,
+) -> Array:
+    """IDM acceleration (m/s^2) for speed ``v``, desired speed ``v0`` and net ``gap`` (m)
+    to a leader driving at ``v_lead``; every argument broadcasts (e.g. ``(lanes, slots)``)."""
+    dv = v - v_lead
+    s_star = s0 + jnp.maximum(0.0, v * time_headway + v * dv / (2.0 * jnp.sqrt(a_max * b)))
+    free = jnp.power(jnp.maximum(v, 0.0) / v0, delta)
+    interaction = jnp.square(s_star / jnp.maximum(gap, MIN_GAP))
+    return jnp.maximum(a_max * (1.0 - free - interaction), -b_max)
+
+
+def equilibrium_gap(v: float, v0: float, time_headway: float, s0: float, delta: float) -> float:
+    """Net gap at which a follower at steady speed ``v`` (behind a leader at ``v``) has a = 0."""
+    return (s0 + v * time_headway) / (1.0 - (v / v0) ** delta) ** 0.5

@@ -1,0 +1,391 @@
+"""The simulator: reward, kinematics, IDM, gap selection, episode rules, vmap, controller."""
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxlc
+from jaxlc import env as E
+from jaxlc import gap, idm, kinematics, reward
+from jaxlc.controller import scripted_action
+
+
+@pytest.fixture(scope="module")
+def env_params():
+    return jaxlc.make()
+
+
+@pytest.fixture(scope="module")
+def rollout(env_params):
+    """Jitted ``(states, key, actions_fn_id) -> outputs`` over T steps, shared by tests."""
+    env, p = env_params
+
+    @partial(jax.jit, static_argnames=("steps", "policy"))
+    def run(obs, state, key, params, steps, policy):
+        def body(carry, k):
+            obs, state = carry
+            k_act, k_step = jax.random.split(k)
+            n = obs.shape[0]
+            if policy == "scripted":
+                a = scripted_action(obs, params)
+            elif policy == "random":
+                a = jax.random.uniform(k_act, (n, 1), minval=-1.0, maxval=1.0)
+            else:  # "wild": extreme and non-finite actions
+                pick = jax.random.randint(k_act, (n, 1), 0, 6)
+                wild = jnp.array([jnp.nan, jnp.inf, -jnp.inf, 1e30, -1e30, 0.3])
+                a = wild[pick]
+            keys = jax.random.split(k_step, n)
+            obs, state, r, term, trunc, info = jax.vmap(env.step, (0, 0, 0, None))(
+                keys, state, a, params
+            )
+            tr = state.traffic
+            out = {
+                "reason": info["reason"],
+                "rl": info["rl_step"],
+                "steps": info["episode_steps"],
+                "reward": r,
+                "obs_finite": jnp.all(jnp.isfinite(obs), axis=-1),
+                "x": tr.x,
+                "v": tr.v,
+                "active": tr.active,
+                "tail": tr.tail,
+                "ego_finite": jnp.isfinite(state.ego.x)
+                & jnp.isfinite(state.ego.y)
+                & jnp.isfinite(state.ego.v)
+                & jnp.isfinite(state.ego.psi),
+            }
+            return (obs, state), out
+
+        return jax.lax.scan(body, (obs, state), jax.random.split(key, steps))
+
+    return run
+
+
+@pytest.fixture(scope="module")
+def reset_batch(env_params):
+    env, p = env_params
+    return jax.jit(jax.vmap(env.reset, (0, None)))
+
+
+# --- reward, eqs. (8)-(11) -----------------------------------------------------------------
+
+
+def test_reward_matches_paper_inside_and_beyond_border(env_params):
+    _, p = env_params
+    # Inside D: omega 0.05 rad/s, a_lat 0.2 rad/s^2, offset -1.5 m.
+    r_s, r_e, r_d = reward.reward_terms(
+        jnp.float32(0.05), jnp.float32(0.2), jnp.float32(-1.5), jnp.bool_(False), p
+    )
+    assert r_s == pytest.approx(-10.0 * 0.05 - 5.0 * 0.2, rel=1e-6)
+    assert r_e == pytest.approx(-0.075 * 0.1, rel=1e-6)
+    assert r_d == pytest.approx(-1.5, rel=1e-6)
+    # Beyond D = 3.7 m: the penalty is |dd| * 10 / (1 - 0.98) = 500 |dd|.
+    _, _, r_d = reward.reward_terms(
+        jnp.float32(0.0), jnp.float32(0.0), jnp.float32(3.8), jnp.bool_(False), p
+    )
+    assert r_d == pytest.approx(-3.8 * 10.0 / 0.02, rel=1e-5)
+    # At exactly D the ordinary term applies (eq. 11's first case).
+    _, _, r_d = reward.reward_terms(
+        jnp.float32(0.0), jnp.float32(0.0), jnp.float32(3.7), jnp.bool_(False), p
+    )
+    assert r_d == pytest.approx(-3.7, rel=1e-6)
+    # A collision costs the out-of-bounds penalty at max(|dd|, D).
+    _, _, r_d = reward.reward_terms(
+        jnp.float32(0.0), jnp.float32(0.0), jnp.float32(0.4), jnp.bool_(True), p
+    )
+    assert r_d == pytest.approx(-3.7 * 500.0, rel=1e-5)
+
+
+def test_end_reason_fires_exactly_at_thresholds(env_params):
+    _, p = env_params
+    f32 = jnp.float32
+
+    def reason(offset, psi=0.0, omega=0.0, steps=5, collided=False):
+        return int(
+            reward.end_reason(
+                f32(offset), f32(psi), f32(omega), jnp.int32(steps), jnp.bool_(collided), p
+            )
+        )
+
+    up = lambda x: float(np.nextafter(np.float32(x), np.float32(np.inf)))  # noqa: E731
+    assert reason(3.7) == reward.NONE
+    assert reason(up(3.7)) == reward.OUT_OF_BOUNDS
+    assert reason(-up(3.7)) == reward.OUT_OF_BOUNDS
+    assert reason(0.2, 0.02, -0.02) == reward.SUCCESS
+    assert reason(up(0.2), 0.0, 0.0) == reward.NONE
+    assert reason(0.1, up(0.02), 0.0) == reward.NONE
+    assert reason(0.1, 0.0, up(0.02)) == reward.NONE
+    assert reason(1.0, steps=99) == reward.NONE
+    assert reason(1.0, steps=100) == reward.TIMEOUT
+    assert reason(0.0, collided=True) == reward.COLLISION
+
+
+# --- kinematics ------------------------------------------------------------------------------
+
+
+def test_constant_yaw_acceleration_matches_closed_form():
+    a, v, dt, n = 0.05, 15.0, 0.1, 60
+    step = jax.jit(kinematics.lateral_step)
+    x = y = psi = omega = jnp.float32(0.0)
+    for _ in range(n):
+        x, y, psi, omega = step(x, y, psi, omega, v, a, 0.0, dt)
+    # Semi-implicit Euler, exactly: omega_n = a n dt, psi_n = a dt^2 n (n+1) / 2.
+    assert float(omega) == pytest.approx(a * n * dt, rel=1e-5)
+    assert float(psi) == pytest.approx(a * dt**2 * n * (n + 1) / 2, rel=1e-5)
+    # Position against the continuous closed form x = int v cos(a t^2/2), y = int v sin(...),
+    # evaluated by fine quadrature; semi-implicit Euler is first order, so within O(dt).
+    t = np.linspace(0.0, n * dt, 200001)
+    ang = a * t**2 / 2
+    x_ref = np.trapezoid(v * np.cos(ang), t)
+    y_ref = np.trapezoid(v * np.sin(ang), t)
+    assert float(x) == pytest.approx(x_ref, abs=0.01 * x_ref)
+    assert float(y) == pytest.approx(y_ref, rel=0.08)
+
+
+# --- IDM -----------------------------------------------------------------------------------
+
+
+def test_idm_matches_formula_on_hand_cases(env_params):
+    _, p = env_params
+    f = partial(
+        idm.idm_acceleration, a_max=1.5, b=2.0, time_headway=1.5, s0=2.0, delta=4.0, b_max=9.0
+    )
+    # Free road at half the desired speed: 1.5 * (1 - 0.5^4).
+    assert float(f(10.0, 20.0, idm.NO_LEADER_GAP, 10.0)) == pytest.approx(1.40625, rel=1e-4)
+    # v = 10, leader 8 m/s at 30 m: s* = 2 + 15 + 10*2/(2*sqrt(3)) = 22.7735.
+    s_star = 2 + 15 + 20 / (2 * np.sqrt(3.0))
+    want = 1.5 * (1 - 0.5**4 - (s_star / 30.0) ** 2)
+    assert float(f(10.0, 20.0, 30.0, 8.0)) == pytest.approx(want, rel=1e-5)
+    # Braking is clipped at b_max.
+    assert float(f(30.0, 30.0, 1.0, 0.0)) == pytest.approx(-9.0)
+
+
+def _quiet_state(env, p, key):
+    """A reset state with no traffic and no inflow (timers far in the future)."""
+    _, s = env.reset(key, p.replace(warmup_steps=1))
+    tr = s.traffic
+    return s.replace(
+        traffic=tr.replace(active=jnp.zeros_like(tr.active), timer=jnp.full_like(tr.timer, 1e9))
+    )
+
+
+def test_platoon_settles_to_equilibrium_gap(env_params):
+    env, p = env_params
+    p = p.replace(road_length=1e5)
+    s = _quiet_state(env, p, jax.random.PRNGKey(0))
+    n = 5
+    x = jnp.zeros_like(s.traffic.x).at[0, :n].set(400.0 - 60.0 * jnp.arange(n))
+    v0 = jnp.full_like(x, 30.0).at[0, 0].set(20.0)  # the platoon's head wants 20 m/s
+    tr = s.traffic.replace(
+        x=x,
+        v=jnp.full_like(x, 15.0),
+        v0=v0,
+        active=jnp.zeros_like(s.traffic.active).at[0, :n].set(True),
+        tail=s.traffic.tail.at[0].set(n),
+    )
+    s = s.replace(traffic=tr)
+
+    @jax.jit
+    def run(s):
+        def body(s, k):
+            return E._advance(k, s, jnp.zeros(1), p, spawn=False)[0], None
+
+        return jax.lax.scan(body, s, jax.random.split(jax.random.PRNGKey(1), 3000))[0]
+
+    s = run(s)
+    gaps = np.asarray(s.traffic.x[0, : n - 1] - 5.0 - s.traffic.x[0, 1:n])
+    want = idm.equilibrium_gap(20.0, 30.0, 1.5, 2.0, 4.0)
+    np.testing.assert_allclose(np.asarray(s.traffic.v[0, :n]), 20.0, rtol=1e-3)
+    np.testing.assert_allclose(gaps, want, rtol=5e-3)
+
+
+def test_long_random_run_keeps_traffic_physical(env_params, rollout, reset_batch):
+    env, p = env_params
+    n_env, steps = 128, 400  # 51,200 env-steps
+    obs, state = reset_batch(jax.random.split(jax.random.PRNGKey(3), n_env), p)
+    _, out = rollout(obs, state, jax.random.PRNGKey(4), p, steps=steps, policy="random")
+    x, v, active, tail = (np.asarray(out[k]) for k in ("x", "v", "active", "tail"))
+    assert np.isfinite(x).all() and np.isfinite(v).all()
+    assert (v[active] >= 0.0).all()
+    assert np.asarray(out["obs_finite"]).all() and np.asarray(out["ego_finite"]).all()
+    S = p.slots_per_lane
+    # Slots of a lane: the occupied ones are the newest n written before `tail`, and going
+    # back from the newest the positions increase by at least one vehicle length.
+    n_act = active.sum(-1)  # (T, envs, lanes)
+    age = (tail[..., None] - 1 - np.arange(S)) % S  # slot index of the j-th newest
+    occ_by_age = np.take_along_axis(active, age, axis=-1)
+    assert (occ_by_age == (np.arange(S) < n_act[..., None])).all(), "occupied slots not contiguous"
+    x_by_age = np.take_along_axis(x, age, axis=-1)
+    both = occ_by_age[..., 1:] & occ_by_age[..., :-1]
+    gaps = x_by_age[..., 1:] - x_by_age[..., :-1] - p.vehicle_length
+    assert (gaps[both] >= 0.0).all(), f"IDM vehicles overlap: min net gap {gaps[both].min()}"
+    assert active.sum() > 0.3 * active.size / 2, "the road should carry traffic"
+
+
+def test_wild_actions_keep_the_simulator_finite(env_params, rollout, reset_batch):
+    env, p = env_params
+    obs, state = reset_batch(jax.random.split(jax.random.PRNGKey(5), 64), p)
+    _, out = rollout(obs, state, jax.random.PRNGKey(6), p, steps=400, policy="wild")
+    assert np.asarray(out["obs_finite"]).all()
+    assert np.asarray(out["ego_finite"]).all()
+    assert np.isfinite(np.asarray(out["reward"])).all()
+    assert (np.asarray(out["rl"]).sum()) > 1000, "wild actions must reach the RL phase"
+
+
+# --- gap selection -------------------------------------------------------------------------
+
+
+def _lane(xs, vs, v0s=None, slots=8):
+    x = np.zeros(slots, np.float32)
+    v = np.zeros(slots, np.float32)
+    v0 = np.full(slots, 30.0, np.float32)
+    act = np.zeros(slots, bool)
+    x[: len(xs)], v[: len(vs)], act[: len(xs)] = xs, vs, True
+    if v0s is not None:
+        v0[: len(v0s)] = v0s
+    return jnp.asarray(x), jnp.asarray(v), jnp.asarray(v0), jnp.asarray(act)
+
+
+@pytest.mark.parametrize(
+    "xs, vs, accept",
+    [
+        ([], [], True),  # empty lane
+        ([160.0, 55.0], [20.0, 20.0], True),  # lead 55 m ahead, lag 40 m behind, same speed
+        # Lead net gap = s0 + 0.5 s * v_ego = 12 m exactly: acceptable; 11.9 m: not.
+        ([117.0, 55.0], [20.0, 20.0], True),
+        ([116.9, 55.0], [20.0, 20.0], False),
+        # Lag 20 m behind: enough by the gap rule (>= 2 + 0.5*30 m) but closing at 10 m/s,
+        # so its IDM deceleration with the ego as leader is below -b_safe = -4 m/s^2.
+        ([300.0, 75.0], [20.0, 30.0], False),
+        ([300.0, 75.0], [20.0, 10.0], True),  # same place, slower: it stays behind
+        ([300.0, 93.5], [20.0, 0.0], False),  # stopped lag 1.5 m behind: under s0
+        # 15 m behind at the same speed: gap rule met (>= 12 m) but IDM brakes at -5.6.
+        ([300.0, 80.0], [20.0, 20.0], False),
+    ],
+)
+def test_gap_beside_acceptance(env_params, xs, vs, accept):
+    _, p = env_params
+    x_ego, v_ego = 100.0, 20.0
+    nb = gap.neighbours(*_lane(xs, vs), jnp.float32(x_ego))
+    assert bool(gap.beside_acceptable(nb, jnp.float32(x_ego), jnp.float32(v_ego), p)) is accept
+
+
+def _lag_scene(env, p, yielding):
+    """Ego under RL control at x=200 m, 15 m/s, holding its lane; in the target lane a lag
+    25 m behind at 25 m/s that wants 30 m/s."""
+    s = _quiet_state(env, p, jax.random.PRNGKey(7))
+    tr = s.traffic
+    x = jnp.zeros_like(tr.x).at[0, 0].set(175.0)
+    tr = tr.replace(
+        x=x,
+        v=jnp.zeros_like(x).at[0, 0].set(25.0),
+        v0=jnp.full_like(x, 30.0),
+        active=jnp.zeros_like(tr.active).at[0, 0].set(True),
+        tail=tr.tail.at[0].set(1),
+    )
+    ego = s.ego.replace(
+        phase=jnp.int32(E.RL),
+        x=jnp.float32(200.0),
+        v=jnp.float32(15.0),
+        v0=jnp.float32(15.0),
+        target=jnp.int32(0),
+        yielding=jnp.bool_(yielding),
+    )
+    s = s.replace(traffic=tr, ego=ego)
+    nb, lg, lv = E._observe_lanes(tr, ego, p)
+    return s.replace(nb=nb, leader_gap=lg, leader_v=lv)
+
+
+@pytest.mark.parametrize("yielding", [True, False])
+def test_yielding_lag_opens_the_gap_and_a_non_yielding_one_does_not(env_params, yielding):
+    env, p = env_params
+    s = _lag_scene(env, p, yielding)
+
+    @jax.jit
+    def run(s):
+        def body(s, k):
+            s = E._advance(k, s, jnp.zeros(1), p, spawn=False)[0]
+            return s, s.traffic.x[0, 0] - (s.ego.x - 5.0)
+
+        return jax.lax.scan(body, s, jax.random.split(jax.random.PRNGKey(8), 40))
+
+    s, lag_to_ego_rear = run(s)
+    lag_to_ego_rear = np.asarray(lag_to_ego_rear)
+    if yielding:
+        assert (lag_to_ego_rear < -2.0).all(), "a yielding lag must stay behind the ego"
+    else:
+        assert lag_to_ego_rear[-1] > 5.0, "a non-yielding lag drives past the ego"
+
+
+# --- episode rules -------------------------------------------------------------------------
+
+
+def test_auto_reset_starts_a_new_episode(env_params, rollout, reset_batch):
+    env, p = env_params
+    obs, state = reset_batch(jax.random.split(jax.random.PRNGKey(9), 8), p)
+    (obs, state), out = rollout(obs, state, jax.random.PRNGKey(10), p, steps=600, policy="scripted")
+    reason, rl = np.asarray(out["reason"]), np.asarray(out["rl"])
+    ended = reason != reward.NONE
+    assert (ended.sum(0) >= 2).all(), "every env should finish several episodes"
+    # After each env's first end, a fresh manoeuvre starts (traffic kept running).
+    first_end = ended.argmax(0)
+    rl_start = np.diff(rl.astype(int), axis=0, prepend=0) == 1
+    later_start = rl_start & (np.arange(len(rl))[:, None] > first_end[None, :])
+    assert later_start.any(0).all()
+    # The first RL step of every episode is its first manoeuvre step.
+    assert (np.asarray(out["steps"])[rl_start] == 1).all()
+
+
+def test_action_is_refreshed_only_every_k_steps(env_params):
+    env, p = env_params
+    p = p.replace(k=3)
+    s = _lag_scene(env, p, True)
+    actions = jnp.linspace(-0.1, 0.1, 9)[:, None]
+
+    @jax.jit
+    def run(s):
+        def body(s, a):
+            _, s, _, _, _, info = env.step(jax.random.PRNGKey(0), s, a, p)
+            return s, info["action"]
+
+        return jax.lax.scan(body, s, actions)
+
+    _, executed = run(s)
+    want = np.repeat(np.asarray(actions[::3, 0]), 3)
+    np.testing.assert_allclose(np.asarray(executed), want, rtol=1e-6)
+
+
+# --- batching and the reference controller --------------------------------------------------
+
+
+def test_vmap_equals_envs_stepped_one_by_one(env_params):
+    env, p = env_params
+    keys = jax.random.split(jax.random.PRNGKey(11), 3)
+    step_keys = jax.random.split(jax.random.PRNGKey(12), (20, 3))
+    actions = jax.random.uniform(jax.random.PRNGKey(13), (20, 3, 1), minval=-1, maxval=1)
+    reset1, step1 = jax.jit(env.reset), jax.jit(env.step)
+    obs_b, s_b = jax.vmap(env.reset, (0, None))(keys, p)
+    vstep = jax.jit(jax.vmap(env.step, (0, 0, 0, None)))
+    for t in range(20):
+        obs_b, s_b, *_ = vstep(step_keys[t], s_b, actions[t], p)
+    for i in range(3):
+        obs, s = reset1(keys[i], p)
+        for t in range(20):
+            obs, s, *_ = step1(step_keys[t, i], s, actions[t, i], p)
+        np.testing.assert_allclose(obs, obs_b[i], rtol=1e-5, atol=1e-5)
+        for a, b in zip(jax.tree.leaves(s), jax.tree.leaves(s_b), strict=True):
+            np.testing.assert_allclose(a, b[i], rtol=1e-5, atol=1e-5)
+
+
+def test_scripted_controller_completes_lane_changes(env_params, rollout, reset_batch):
+    env, p = env_params
+    obs, state = reset_batch(jax.random.split(jax.random.PRNGKey(14), 128), p)
+    _, out = rollout(obs, state, jax.random.PRNGKey(15), p, steps=1500, policy="scripted")
+    reason, rl = np.asarray(out["reason"]), np.asarray(out["rl"])
+    ends = np.bincount(reason[rl], minlength=6)
+    performed = ends[1:5].sum()
+    assert performed >= 300, ends
+    assert ends[reward.SUCCESS] / performed >= 0.95, dict(zip(reward.REASONS, ends, strict=True))
