@@ -115,7 +115,7 @@ class TrainConfig:
     envs_per_model: int = _f(32, 1, 65536)
     episodes: int = _f(5000, 1)
     checkpoint_every: int = _f(100, 1)
-    chunk_steps: int = _f(2000, 1, doc="scan steps between host saves")
+    chunk_steps: int = _f(150, 1, doc="scan steps between host saves")
     max_steps: int = _f(0, 0, doc="scan-step cap per run; 0 = until every model is done")
     seeds: int = _f(1, 1, 1024)
     seed: int = _f(0, 0)
@@ -246,8 +246,17 @@ def _cross_checks(cfg: Config) -> None:
                 f"config key 'grid.memory': every size must be >= "
                 f"ddpg.batch_size ({d.batch_size}), got {m}"
             )
-    if cfg.train.episodes % cfg.train.checkpoint_every:
+    t = cfg.train
+    if t.episodes % t.checkpoint_every:
         raise ConfigError("config key 'train.checkpoint_every': must divide train.episodes")
+    # An episode takes >= 50 env-steps (train.MIN_EPISODE_STEPS), so a chunk of this length
+    # passes at most one checkpoint episode and the one snapshot slot per model suffices.
+    if t.chunk_steps * t.envs_per_model > 50 * t.checkpoint_every:
+        raise ConfigError(
+            f"config key 'train.chunk_steps': must be <= 50 * train.checkpoint_every / "
+            f"train.envs_per_model = {50 * t.checkpoint_every // t.envs_per_model}, "
+            f"got {t.chunk_steps}"
+        )
 
 
 def from_dict(data: dict[str, Any]) -> Config:

@@ -1,0 +1,303 @@
+"""The whole training run as pure functions: DDPG and the simulator in one ``lax.scan``.
+
+    train = make_train(config)            # PureJaxRL style
+    state, metrics = train(key, steps)    # every model of the grid, vmapped, in one program
+
+A *model* is one cell of the grid (k, memory, learning rates, noise) with one seed; all models
+share shapes, so the grid is a ``vmap`` over a leading ``(models,)`` axis of one ``TrainState``.
+Each scan step, for every model: the actor (plus truncated-normal noise) acts in all of the
+model's parallel envs; the transitions of envs whose ego is under RL control go into the
+replay memory; once it holds a batch, ``updates_per_step`` DDPG updates follow; episodes that
+ended are appended to a per-model episode log; when the episode count passes a multiple of
+``checkpoint_every`` the actor is copied to a snapshot slot the host saves between chunks.
+A model stops learning (its params freeze) once it has done ``train.episodes`` episodes, so
+its last checkpoint is exactly the params at that episode.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+from functools import partial
+from typing import Any
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from jaxlc import ddpg, replay
+from jaxlc.config import Config
+from jaxlc.env import ACT_DIM, OBS_DIM, EnvParams, EnvState, LaneChangeEnv
+from jaxlc.networks import make_networks
+from jaxlc.reward import SUCCESS
+
+# Fewest env-steps one episode can take: the ego must drive command_distance (80 m) from the
+# entrance at no more than its entry speed plus IDM acceleration; 50 steps (5 s) is below that.
+MIN_EPISODE_STEPS = 50
+
+
+@flax.struct.dataclass
+class ModelHyper:
+    """Per-model values that differ across the grid, traced (``(models,)`` under vmap)."""
+
+    ddpg: ddpg.Hyper
+    k: Array  # () int32 action-update step
+    capacity: Array  # () int32 replay memory size
+
+
+@flax.struct.dataclass
+class EpisodeLog:
+    """One row per finished RL episode, in order of completion: ``(max_episodes,)`` each."""
+
+    ret: Array  # total reward
+    steps: Array  # manoeuvre steps (int32)
+    reason: Array  # jaxlc.reward reason code (int32)
+    r_s: Array  # sum of eq. (8) terms
+    r_e: Array  # sum of eq. (9) terms
+    r_d: Array  # sum of eq. (10)/(11) terms
+    at_step: Array  # scan step at which it ended (int32)
+
+
+@flax.struct.dataclass
+class TrainState:
+    """Everything a model needs to continue; a ``(models, ...)`` stack of these is the run."""
+
+    learner: ddpg.Learner
+    memory: replay.Replay
+    env: EnvState  # (envs,)
+    obs: Array  # (envs, OBS_DIM)
+    terms: Array  # (envs, 3) running sums of r_s, r_e, r_d of the current manoeuvre
+    key: Array
+    step: Array  # () int32 scan steps done
+    episodes: Array  # () int32 RL episodes finished
+    log: EpisodeLog
+    snap_actor: Any  # actor params at the last checkpoint episode passed
+    snap_episode: Array  # () int32 that episode (0 = none yet)
+
+
+@flax.struct.dataclass
+class Grid:
+    """The models of a run: ``hyper`` stacked ``(models,)`` plus host-side descriptions."""
+
+    hyper: ModelHyper
+    cells: tuple[dict[str, Any], ...] = flax.struct.field(pytree_node=False)
+    seeds: tuple[int, ...] = flax.struct.field(pytree_node=False)  # seed index per model
+    cell_of: tuple[int, ...] = flax.struct.field(pytree_node=False)  # cell index per model
+
+    @property
+    def size(self) -> int:
+        return len(self.cell_of)
+
+
+def make_grid(cfg: Config) -> Grid:
+    """Cartesian product of the grid axes (k outermost) times ``train.seeds`` seeds."""
+    g, d = cfg.grid, cfg.ddpg
+    axes = {
+        "k": g.k,
+        "memory": g.memory,
+        "actor_lr": g.actor_lr or (d.actor_lr,),
+        "critic_lr": g.critic_lr or (d.critic_lr,),
+        "noise_sigma": g.noise_sigma or (d.noise_sigma,),
+    }
+    cells = tuple(
+        dict(zip(axes, values, strict=True)) for values in itertools.product(*axes.values())
+    )
+    models = [(c, s) for c in range(len(cells)) for s in range(cfg.train.seeds)]
+
+    def col(name: str, dtype: Any) -> Array:
+        return jnp.asarray([cells[c][name] for c, _ in models], dtype)
+
+    hyper = ModelHyper(
+        ddpg=ddpg.Hyper(
+            actor_lr=col("actor_lr", jnp.float32),
+            critic_lr=col("critic_lr", jnp.float32),
+            noise_sigma=col("noise_sigma", jnp.float32),
+        ),
+        k=col("k", jnp.int32),
+        capacity=col("memory", jnp.int32),
+    )
+    return Grid(
+        hyper=hyper,
+        cells=cells,
+        seeds=tuple(s for _, s in models),
+        cell_of=tuple(c for c, _ in models),
+    )
+
+
+def model_keys(cfg: Config, grid: Grid) -> Array:
+    """``(models,)`` keys: models with the same seed index share initial params and traffic
+    (common random numbers make the grid's comparisons sharper)."""
+    root = jax.random.PRNGKey(cfg.train.seed)
+    return jnp.stack([jax.random.fold_in(root, s) for s in grid.seeds])
+
+
+def _empty_log(n: int) -> EpisodeLog:
+    f, i = jnp.zeros((n,), jnp.float32), jnp.zeros((n,), jnp.int32)
+    return EpisodeLog(ret=f, steps=i, reason=i, r_s=f, r_e=f, r_d=f, at_step=i)
+
+
+def _log_add(log: EpisodeLog, start: Array, ended: Array, rows: dict[str, Array]) -> EpisodeLog:
+    """Append the rows of envs with ``ended`` at ``start, start+1, ...``; rows past the log's
+    end are dropped (a model's last step may finish more episodes than it needs)."""
+    take = ended.astype(jnp.int32)
+    slot = jnp.where(ended, start + jnp.cumsum(take) - take, log.ret.shape[0])
+    return log.replace(
+        **{
+            name: getattr(log, name)
+            .at[slot]
+            .set(value.astype(getattr(log, name).dtype), mode="drop")
+            for name, value in rows.items()
+        }
+    )
+
+
+def _select(pred: Array, new: Any, old: Any) -> Any:
+    return jax.tree.map(lambda n, o: jnp.where(pred, n, o), new, old)
+
+
+def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
+    """``init(key, hyper) -> TrainState`` and ``step(state, hyper) -> (state, metrics)`` for
+    ONE model; the grid vmaps them."""
+    env = LaneChangeEnv()
+    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+    d, t = cfg.ddpg, cfg.train
+    n_envs, cap_max = t.envs_per_model, max(cfg.grid.memory)
+    actor_net, _ = make_networks(d, ACT_DIM)
+    every = t.checkpoint_every
+
+    def init(key: Array, hyper: ModelHyper) -> TrainState:
+        k_learn, k_env, k_run = jax.random.split(key, 3)
+        obs, env_state = jax.vmap(env.reset, (0, None))(jax.random.split(k_env, n_envs), base)
+        learner = ddpg.init_learner(k_learn, OBS_DIM, d, ACT_DIM)
+        return TrainState(
+            learner=learner,
+            memory=replay.init(cap_max, OBS_DIM, ACT_DIM, hyper.capacity),
+            env=env_state,
+            obs=obs,
+            terms=jnp.zeros((n_envs, 3), jnp.float32),
+            key=k_run,
+            step=jnp.int32(0),
+            episodes=jnp.int32(0),
+            log=_empty_log(t.episodes),
+            snap_actor=learner.actor,
+            snap_episode=jnp.int32(0),
+        )
+
+    def step(ts: TrainState, hyper: ModelHyper) -> tuple[TrainState, dict[str, Array]]:
+        params = base.replace(k=hyper.k)
+        key, k_noise, k_env, k_update = jax.random.split(ts.key, 4)
+        learning = ts.episodes < t.episodes
+
+        # Act in every env; only RL-phase steps are transitions.
+        mu = actor_net.apply(ts.learner.actor, ts.obs)  # (envs, 1)
+        action = ddpg.explore(k_noise, mu, hyper.ddpg.noise_sigma, d.noise_clip)
+        obs, env_state, reward, term, trunc, info = jax.vmap(env.step, (0, 0, 0, None))(
+            jax.random.split(k_env, n_envs), ts.env, action, params
+        )
+        rl = info["rl_step"]  # (envs,)
+        memory = replay.add(
+            ts.memory, ts.obs, info["action"][:, None], reward, obs, term.astype(jnp.float32), rl
+        )
+
+        # DDPG updates once the memory holds one batch [P]/[S].
+        def one_update(learner: ddpg.Learner, k: Array):
+            return ddpg.update(learner, replay.sample(memory, k, d.batch_size), hyper.ddpg, d)
+
+        new_learner, losses = jax.lax.scan(
+            one_update, ts.learner, jax.random.split(k_update, d.updates_per_step)
+        )
+        updating = learning & (memory.size >= d.batch_size)
+        learner = _select(updating, new_learner, ts.learner)
+
+        # Episode bookkeeping.
+        terms = ts.terms + jnp.stack([info["r_s"], info["r_e"], info["r_d"]], -1)
+        ended = rl & (term | trunc) & learning
+        log = _log_add(
+            ts.log,
+            ts.episodes,
+            ended,
+            {
+                "ret": info["episode_return"],
+                "steps": info["episode_steps"],
+                "reason": info["reason"],
+                "r_s": terms[:, 0],
+                "r_e": terms[:, 1],
+                "r_d": terms[:, 2],
+                "at_step": jnp.full((n_envs,), ts.step),
+            },
+        )
+        episodes = ts.episodes + ended.sum(dtype=jnp.int32)
+        passed = (episodes // every) > (ts.episodes // every)
+        metrics = {
+            "critic_loss": jnp.where(updating, losses["critic_loss"][-1], jnp.nan),
+            "actor_loss": jnp.where(updating, losses["actor_loss"][-1], jnp.nan),
+            "mean_q": jnp.where(updating, losses["mean_q"][-1], jnp.nan),
+            "transitions": rl.sum(dtype=jnp.int32),
+            "episodes_ended": ended.sum(dtype=jnp.int32),
+            "successes": (ended & (info["reason"] == SUCCESS)).sum(dtype=jnp.int32),
+        }
+        ts = TrainState(
+            learner=learner,
+            memory=memory,
+            env=env_state,
+            obs=obs,
+            terms=jnp.where((rl & (term | trunc))[:, None], 0.0, terms),
+            key=key,
+            step=ts.step + 1,
+            episodes=episodes,
+            log=log,
+            snap_actor=_select(passed, learner.actor, ts.snap_actor),
+            snap_episode=jnp.where(
+                passed, jnp.minimum(episodes // every * every, t.episodes), ts.snap_episode
+            ),
+        )
+        return ts, metrics
+
+    return init, step
+
+
+def make_grid_fns(cfg: Config, grid: Grid) -> tuple[Callable, Callable]:
+    """Jitted ``init(keys) -> state`` and ``run(state, steps) -> (state, metrics)`` over the
+    whole grid; ``metrics`` leaves are ``(steps, models)``."""
+    init, step = make_model_fns(cfg)
+    v_init = jax.jit(lambda keys: jax.vmap(init)(keys, grid.hyper))
+    v_step = jax.vmap(step)
+
+    @partial(jax.jit, static_argnames="steps", donate_argnums=0)
+    def run(state: TrainState, steps: int) -> tuple[TrainState, dict[str, Array]]:
+        return jax.lax.scan(lambda s, _: v_step(s, grid.hyper), state, None, length=steps)
+
+    return v_init, run
+
+
+def make_train(cfg: Config) -> Callable[[Array, int], tuple[TrainState, dict[str, Array]]]:
+    """``train(key, steps)``: init every model of the grid from ``key`` (seed index folded in)
+    and run ``steps`` scan steps; one pure, jittable function."""
+    grid = make_grid(cfg)
+    init, step = make_model_fns(cfg)
+
+    def train(key: Array, steps: int) -> tuple[TrainState, dict[str, Array]]:
+        keys = jnp.stack([jax.random.fold_in(key, s) for s in grid.seeds])
+        state = jax.vmap(init)(keys, grid.hyper)
+        return jax.lax.scan(lambda s, _: jax.vmap(step)(s, grid.hyper), state, None, length=steps)
+
+    return train
+
+
+def policy(actor_params: Any, cfg: Config | None = None) -> Callable[[Array], Array]:
+    """Actor params -> ``obs (..., OBS_DIM) -> action (..., 1)`` in [-1, 1], no noise."""
+    if cfg is None:
+        hidden = tuple(int(v.shape[-1]) for v in _kernels(actor_params))[:-1]
+        from jaxlc.config import DDPGConfig
+
+        d = DDPGConfig(hidden=hidden)
+    else:
+        d = cfg.ddpg
+    actor_net, _ = make_networks(d, ACT_DIM)
+    return lambda obs: actor_net.apply(actor_params, obs)
+
+
+def _kernels(params: Any) -> list[Array]:
+    mlp = params["params"]["mlp"]
+    return [mlp[f"Dense_{i}"]["kernel"] for i in range(len(mlp))]
