@@ -1,0 +1,163 @@
+"""The fused trainer: grid under vmap, checkpoints, the sweep CLI, a real learning signal."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxlc import checkpoint, config, sweep, train
+from jaxlc.env import OBS_DIM
+from jaxlc.reward import NONE
+
+SMOKE = config.CONFIG_DIR / "smoke.toml"
+
+
+@pytest.fixture(scope="module")
+def smoke_cfg():
+    return config.load(SMOKE)
+
+
+def _allclose_trees(a, b, rtol=1e-4, atol=1e-5):
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol)
+
+
+def test_vmapped_model_equals_the_same_model_trained_alone(smoke_cfg):
+    steps = 300  # egos reach the RL phase and the memory (batch 16) fills: updates run
+    key = jax.random.PRNGKey(42)
+    grid_state, _ = jax.jit(train.make_train(smoke_cfg), static_argnums=1)(key, steps)
+    grid = train.make_grid(smoke_cfg)
+    i = 2  # k=2, memory=256: not the largest memory, so its arrays are padded in the grid
+    cell = grid.cells[grid.cell_of[i]]
+    alone_cfg = config.load(SMOKE, [f"grid.k=[{cell['k']}]", f"grid.memory=[{cell['memory']}]"])
+    alone, _ = jax.jit(train.make_train(alone_cfg), static_argnums=1)(key, steps)
+    assert int(alone.learner.step[0]) > 0, "the test must cover updates"
+    model_i = jax.tree.map(lambda a: a[i], grid_state.learner)
+    model_0 = jax.tree.map(lambda a: a[0], alone.learner)
+    _allclose_trees(model_i, model_0)
+    assert int(grid_state.episodes[i]) == int(alone.episodes[0])
+    # And the models of the grid really differ (k and memory are not ignored).
+    other = jax.tree.map(lambda a: a[0], grid_state.learner)
+    assert not np.allclose(
+        np.asarray(jax.tree.leaves(other.actor)[0]), np.asarray(jax.tree.leaves(model_i.actor)[0])
+    )
+
+
+def test_grid_is_the_cartesian_product_with_seeds(smoke_cfg):
+    cfg = config.load(SMOKE, ["train.seeds=2", "grid.actor_lr=[1e-4, 3e-4]"])
+    grid = train.make_grid(cfg)
+    assert grid.size == 2 * 2 * 2 * 2
+    ks = np.asarray(grid.hyper.k)
+    lrs = np.asarray(grid.hyper.ddpg.actor_lr)
+    pairs = sorted(set(zip(ks.tolist(), (lrs * 1e4).round().astype(int).tolist(), strict=True)))
+    assert pairs == [(1, 1), (1, 3), (2, 1), (2, 3)]
+    assert grid.seeds == (0, 1) * 8
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory, smoke_cfg):
+    out = tmp_path_factory.mktemp("run")
+    summary = sweep.run_sweep(smoke_cfg, out, progress=False)
+    return out, summary
+
+
+def test_sweep_writes_checkpoints_metrics_and_summary(smoke_run, smoke_cfg):
+    out, summary = smoke_run
+    t = smoke_cfg.train
+    grid = train.make_grid(smoke_cfg)
+    ckpts = checkpoint.list_checkpoints(out)
+    want = grid.size * (t.episodes // t.checkpoint_every)
+    assert len(ckpts) == want
+    metas = [json.loads(p.with_suffix(".json").read_text()) for p in ckpts]
+    assert {(m["model"], m["episode"]) for m in metas} == {
+        (i, e)
+        for i in range(grid.size)
+        for e in range(t.checkpoint_every, t.episodes + 1, t.checkpoint_every)
+    }
+    assert all(m["config_hash"] == smoke_cfg.hash() for m in metas)
+    eps = np.load(out / "metrics" / "episodes.npz")
+    assert (eps["episodes"] >= t.episodes).all()
+    # Every logged episode ended for a reason, and RL episodes are at least one step long.
+    assert (eps["reason"] != NONE).all() and (eps["steps"] >= 1).all()
+    np.testing.assert_allclose(
+        eps["ret"], eps["r_s"] + eps["r_e"] + eps["r_d"], rtol=1e-4, atol=1e-2
+    )
+    assert len(summary["models"]) == grid.size
+    assert config.load(out / "config.toml").hash() == smoke_cfg.hash()
+
+
+def test_checkpoint_loads_into_identical_params_and_actions(smoke_run, smoke_cfg):
+    out, _ = smoke_run
+    path = checkpoint.list_checkpoints(out)[-1]
+    params, meta = checkpoint.load(path)
+    # The final checkpoint of a model is the params it stopped learning with.
+    grid = train.make_grid(smoke_cfg)
+    assert meta["episode"] == smoke_cfg.train.episodes
+    obs = jax.random.normal(jax.random.PRNGKey(0), (7, OBS_DIM))
+    act_loaded = train.policy(params)(obs)
+    act_cfg = train.policy(params, smoke_cfg)(obs)
+    np.testing.assert_array_equal(np.asarray(act_loaded), np.asarray(act_cfg))
+    assert act_loaded.shape == (7, 1) and bool(jnp.all(jnp.abs(act_loaded) <= 1))
+    # Saving the loaded params again gives the same bytes back.
+    again = checkpoint.save(out / "copy.msgpack", params, meta)
+    params2, _ = checkpoint.load(again)
+    for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(params2), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert grid.size == 4
+
+
+def test_sweep_refuses_a_run_dir_of_another_config(smoke_run, capsys):
+    out, _ = smoke_run
+    before = (out / "config.toml").read_text()
+    rc = sweep.main(["--config", str(SMOKE), "--out", str(out), "train.episodes=20"])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "another config" in err[0]
+    assert (out / "config.toml").read_text() == before
+
+
+@pytest.mark.parametrize(
+    "override, words",
+    [
+        ("train.envs_per_model=0", "train.envs_per_model"),
+        ("grid.k=[0]", "grid.k"),
+        ("grid.memory=[8]", "batch_size"),
+        ("grid.k=[]", "at least one"),
+        ("ddpg.gamma=two", "must be a number"),
+        ("env.no_such_key=1", "unknown config key 'env.no_such_key'"),
+    ],
+)
+def test_bad_config_values_get_one_clear_line(override, words, capsys, tmp_path):
+    rc = sweep.main(["--config", str(SMOKE), "--out", str(tmp_path / "r"), override])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_short_run_learns(smoke_cfg):
+    """A real learning signal: the mean return of the last 100 of 400 episodes beats the first
+    100 by a clear margin (settings that learn in seconds on this small task)."""
+    cfg = config.load(
+        SMOKE,
+        [
+            "train.episodes=400",
+            "train.checkpoint_every=100",
+            "ddpg.actor_lr=1e-3",
+            "ddpg.updates_per_step=2",
+            "grid.k=[1]",
+            "grid.memory=[512]",
+            "ddpg.hidden=[64, 64]",
+            "train.envs_per_model=8",
+        ],
+    )
+    grid = train.make_grid(cfg)
+    init, run = train.make_grid_fns(cfg, grid)
+    state = init(train.model_keys(cfg, grid))
+    while int(state.episodes.min()) < cfg.train.episodes:
+        state, _ = run(state, 500)
+    ret = np.asarray(state.log.ret[0])
+    first, last = ret[:100].mean(), ret[-100:].mean()
+    assert last > first + 300.0, (first, last)
