@@ -117,6 +117,7 @@ class TrainConfig:
     checkpoint_every: int = _f(100, 1)
     chunk_steps: int = _f(150, 1, doc="scan steps between host saves")
     max_steps: int = _f(0, 0, doc="scan-step cap per run; 0 = until every model is done")
+    save_every_s: float = _f(60.0, 0.0, doc="s between full-state saves (0: every chunk)")
     seeds: int = _f(1, 1, 1024)
     seed: int = _f(0, 0)
 

@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import flax.serialization
 import jax
 import numpy as np
 
@@ -152,20 +153,81 @@ def prepare_run_dir(out: Path, cfg: config.Config, force: bool) -> None:
     checkpoint.write_text_atomic(existing, config.to_toml(cfg))
 
 
+class NumericalFault(RuntimeError):
+    """A model produced a non-finite loss, reward or observation; the run stopped."""
+
+
+def state_path(run_dir: Path) -> Path:
+    return run_dir / "state" / "train_state.msgpack"
+
+
+def _save_state(out: Path, state: train.TrainState, host: dict[str, Any]) -> None:
+    """The whole run, device state and host bookkeeping, in one atomic file: a resume always
+    sees a state and the bookkeeping that goes with it."""
+    blob = flax.serialization.to_bytes({"state": jax.device_get(state), "host": host})
+    out_path = state_path(out)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    checkpoint.write_bytes_atomic(out_path, blob)
+
+
+def _load_state(out: Path, target: train.TrainState, grid: train.Grid) -> tuple[Any, dict]:
+    path = state_path(out)
+    if not path.exists():
+        raise config.ConfigError(
+            f"no saved training state in '{out}'; start a new run there "
+            "with --out (and --force) instead of --resume"
+        )
+    empty_host = {
+        "saved": np.zeros(grid.size, np.int64),
+        "env_steps": 0,
+        "wall_s": 0.0,
+        "metrics": {},
+    }
+    try:
+        raw = flax.serialization.msgpack_restore(path.read_bytes())
+        state = flax.serialization.from_state_dict(target, raw["state"])
+    except Exception as err:  # noqa: BLE001 - any decoding failure means the same to a user
+        raise checkpoint.CheckpointError(
+            f"saved training state {path} is truncated or corrupt ({type(err).__name__}); "
+            "start the run again with --force"
+        ) from None
+    host = {**empty_host, **raw["host"]}
+    return state, host
+
+
+def _first_fault(finite: np.ndarray, step0: int) -> tuple[int, int] | None:
+    """``(scan step, model)`` of the first False in ``finite (steps, models)``."""
+    bad = np.argwhere(~finite)
+    return None if not len(bad) else (step0 + int(bad[0][0]), int(bad[0][1]))
+
+
 def run_sweep(
-    cfg: config.Config, out: Path, force: bool = False, progress: bool = True
+    cfg: config.Config,
+    out: Path,
+    force: bool = False,
+    progress: bool = True,
+    resume: bool = False,
 ) -> dict[str, Any]:
-    """Train every model of ``cfg``'s grid and write the run directory; returns the summary."""
+    """Train every model of ``cfg``'s grid and write the run directory; returns the summary.
+
+    The full training state is saved atomically every ``train.save_every_s`` seconds (at
+    chunk boundaries), on Ctrl-C and at the end; ``resume=True`` continues from it and ends
+    with the same params, bit for bit, as a run never interrupted."""
     from tqdm import tqdm
 
-    prepare_run_dir(out, cfg, force)
+    if not resume:
+        prepare_run_dir(out, cfg, force)
     grid = train.make_grid(cfg)
     init, run = train.make_grid_fns(cfg, grid)
     t = cfg.train
     t0 = time.perf_counter()
     state = init(train.model_keys(cfg, grid))
-    saved = np.zeros(grid.size, np.int64)  # last checkpoint episode written, per model
-    step_metrics: list[dict[str, np.ndarray]] = []
+    host = {"saved": np.zeros(grid.size, np.int64), "env_steps": 0, "wall_s": 0.0, "metrics": {}}
+    if resume:
+        state, host = _load_state(out, state, grid)
+    saved = np.array(host["saved"], np.int64)  # a writable copy: last checkpoint episode per model
+    step_metrics = [host["metrics"]] if host["metrics"] else []
+    env_steps = int(host["env_steps"])
     bar = tqdm(
         total=grid.size * t.episodes,
         unit="ep",
@@ -173,47 +235,83 @@ def run_sweep(
         desc=f"{grid.size} models",
         dynamic_ncols=True,
     )
-    done_eps, env_steps = 0, 0
-    while True:
-        t_chunk = time.perf_counter()
-        state, metrics = run(state, t.chunk_steps)
-        metrics = jax.device_get(metrics)
-        step_metrics.append(metrics)
-        episodes = np.asarray(state.episodes)
-        env_steps += t.chunk_steps * t.envs_per_model * grid.size
+    done_eps = int(np.minimum(np.asarray(state.episodes), t.episodes).sum())
+    bar.update(done_eps)
+    last_save = time.perf_counter()
 
-        # Checkpoints: the snapshot slot holds the actor at the last checkpoint episode passed.
-        snap_ep = np.asarray(state.snap_episode)
-        new = np.nonzero(snap_ep > saved)[0]
-        if len(new):
-            actors = jax.device_get(state.snap_actor)
-            for i in new:
-                params = jax.tree.map(lambda a, i=i: a[i], actors)
-                meta = {**model_meta(cfg, grid, int(i)), "episode": int(snap_ep[i])}
-                checkpoint.save(
-                    checkpoint_path(out, int(i), grid.seeds[i], int(snap_ep[i])), params, meta
+    def snapshot_host() -> dict[str, Any]:
+        metrics = {k: np.concatenate([m[k] for m in step_metrics]) for k in step_metrics[0]}
+        return {
+            "saved": saved,
+            "env_steps": env_steps,
+            "metrics": metrics,
+            "wall_s": host["wall_s"] + time.perf_counter() - t0,
+        }
+
+    try:
+        while True:
+            step0 = int(np.asarray(state.step)[0])
+            if (np.asarray(state.episodes) >= t.episodes).all() or (
+                t.max_steps and step0 >= t.max_steps
+            ):
+                break
+            t_chunk = time.perf_counter()
+            new_state, metrics = run(state, t.chunk_steps)
+            metrics = jax.device_get(metrics)
+            fault = _first_fault(np.asarray(metrics["finite"]), step0)
+            if fault is not None:
+                step, i = fault
+                cell = grid.cells[grid.cell_of[i]]
+                kept = (
+                    f"the last good save is {state_path(out)}"
+                    if state_path(out).exists()
+                    else "no save was made yet"
                 )
-            saved[new] = snap_ep[new]
+                raise NumericalFault(
+                    f"model {i} (k={cell['k']}, memory={cell['memory']}, seed "
+                    f"{grid.seeds[i]}) produced a non-finite loss, reward or observation at "
+                    f"scan step {step}; stopped without saving it ({kept})"
+                )
+            state = new_state
+            step_metrics.append(metrics)
+            env_steps += t.chunk_steps * t.envs_per_model * grid.size
 
-        now = int(np.minimum(episodes, t.episodes).sum())
-        recent = metrics["successes"].sum() / max(1, metrics["episodes_ended"].sum())
-        bar.set_postfix(
-            success=f"{recent:.0%}",
-            steps_s=f"{t.chunk_steps * t.envs_per_model * grid.size / (time.perf_counter() - t_chunk):,.0f}",
-        )
-        bar.update(now - done_eps)
-        done_eps = now
-        step = int(np.asarray(state.step)[0])
-        if (episodes >= t.episodes).all() or (t.max_steps and step >= t.max_steps):
-            break
+            # The snapshot slot holds each actor at the last checkpoint episode it passed.
+            snap_ep = np.asarray(state.snap_episode)
+            new = np.nonzero(snap_ep > saved)[0]
+            if len(new):
+                actors = jax.device_get(state.snap_actor)
+                for i in new:
+                    params = jax.tree.map(lambda a, i=i: a[i], actors)
+                    meta = {**model_meta(cfg, grid, int(i)), "episode": int(snap_ep[i])}
+                    checkpoint.save(
+                        checkpoint_path(out, int(i), grid.seeds[i], int(snap_ep[i])), params, meta
+                    )
+                saved[new] = snap_ep[new]
+
+            if time.perf_counter() - last_save >= t.save_every_s:
+                _save_state(out, state, snapshot_host())
+                last_save = time.perf_counter()
+            now = int(np.minimum(np.asarray(state.episodes), t.episodes).sum())
+            recent = metrics["successes"].sum() / max(1, metrics["episodes_ended"].sum())
+            rate = t.chunk_steps * t.envs_per_model * grid.size / (time.perf_counter() - t_chunk)
+            bar.set_postfix(success=f"{recent:.0%}", env_steps_s=f"{rate:,.0f}")
+            bar.update(now - done_eps)
+            done_eps = now
+    except KeyboardInterrupt:
+        bar.close()
+        if step_metrics:
+            _save_state(out, state, snapshot_host())
+        raise
     bar.close()
-    wall = time.perf_counter() - t0
+    host_now = snapshot_host() if step_metrics else {**host, "metrics": {}}
+    _save_state(out, state, host_now)
+    wall = float(host_now["wall_s"])
 
     log = {k: np.asarray(v) for k, v in jax.device_get(state.log).__dict__.items()}
     episodes = np.asarray(state.episodes)
-    steps_npz = {k: np.concatenate([m[k] for m in step_metrics]) for k in step_metrics[0]}
     _save_npz(out / "metrics" / "episodes.npz", {**log, "episodes": episodes})
-    _save_npz(out / "metrics" / "steps.npz", steps_npz)
+    _save_npz(out / "metrics" / "steps.npz", host_now["metrics"])
     rows = summarise(cfg, grid, log, episodes)
     summary = {
         "wall_s": wall,
@@ -235,21 +333,56 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("overrides", nargs="*", help="table.key=value, e.g. train.episodes=500")
     ap.add_argument("--config", type=Path, default=None, help="TOML file (default: paper)")
-    ap.add_argument("--out", type=Path, default=None, help="run directory (default: runs/…)")
+    ap.add_argument("--out", type=Path, default=None, help="run directory (default: runs/...)")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per grid cell")
+    ap.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        metavar="RUN_DIR",
+        help="continue the run saved in RUN_DIR",
+    )
     ap.add_argument("--force", action="store_true", help="overwrite a run directory")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
     try:
-        overrides = list(args.overrides)
-        if args.seeds is not None:
-            overrides.append(f"train.seeds={args.seeds}")
-        cfg = config.load(args.config, overrides)
-        out = args.out or Path("runs") / f"{time.strftime('%Y%m%d-%H%M%S')}-{cfg.hash()}"
-        summary = run_sweep(cfg, out, force=args.force, progress=not args.no_progress)
+        if args.resume is not None:
+            if args.overrides or args.config or args.seeds is not None or args.out:
+                raise config.ConfigError(
+                    "--resume takes the run's own config.toml; drop --config, --out, --seeds "
+                    "and overrides"
+                )
+            out = args.resume
+            if not (out / "config.toml").exists():
+                raise config.ConfigError(
+                    f"'{out}' holds no run (no config.toml); start one with --out"
+                )
+            cfg = config.load(out / "config.toml")
+        else:
+            overrides = list(args.overrides)
+            if args.seeds is not None:
+                overrides.append(f"train.seeds={args.seeds}")
+            cfg = config.load(args.config, overrides)
+            out = args.out or Path("runs") / f"{time.strftime('%Y%m%d-%H%M%S')}-{cfg.hash()}"
+        summary = run_sweep(
+            cfg,
+            out,
+            force=args.force,
+            progress=not args.no_progress,
+            resume=args.resume is not None,
+        )
     except (config.ConfigError, checkpoint.CheckpointError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except NumericalFault as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print(
+            f"\ninterrupted: state saved; continue with python -m jaxlc.sweep --resume {out}",
+            file=sys.stderr,
+        )
+        return 130
     print(summary_markdown(summary["models"], summary["wall_s"], summary["env_steps"]))
     print(
         f"Run directory: {out}\n  config:      {out / 'config.toml'}\n"

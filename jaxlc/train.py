@@ -236,6 +236,12 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
             "transitions": rl.sum(dtype=jnp.int32),
             "episodes_ended": ended.sum(dtype=jnp.int32),
             "successes": (ended & (info["reason"] == SUCCESS)).sum(dtype=jnp.int32),
+            # False from the first step that produced a non-finite loss, reward or observation.
+            "finite": (
+                ~updating | jnp.all(jnp.stack([jnp.isfinite(v[-1]) for v in losses.values()]))
+            )
+            & jnp.all(jnp.isfinite(obs))
+            & jnp.all(jnp.isfinite(reward)),
         }
         ts = TrainState(
             learner=learner,
@@ -264,7 +270,7 @@ def make_grid_fns(cfg: Config, grid: Grid) -> tuple[Callable, Callable]:
     v_init = jax.jit(lambda keys: jax.vmap(init)(keys, grid.hyper))
     v_step = jax.vmap(step)
 
-    @partial(jax.jit, static_argnames="steps", donate_argnums=0)
+    @partial(jax.jit, static_argnames="steps")
     def run(state: TrainState, steps: int) -> tuple[TrainState, dict[str, Array]]:
         return jax.lax.scan(lambda s, _: v_step(s, grid.hyper), state, None, length=steps)
 

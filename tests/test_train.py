@@ -14,11 +14,6 @@ from jaxlc.reward import NONE
 SMOKE = config.CONFIG_DIR / "smoke.toml"
 
 
-@pytest.fixture(scope="module")
-def smoke_cfg():
-    return config.load(SMOKE)
-
-
 def _allclose_trees(a, b, rtol=1e-4, atol=1e-5):
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
         np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol)
@@ -54,13 +49,6 @@ def test_grid_is_the_cartesian_product_with_seeds(smoke_cfg):
     pairs = sorted(set(zip(ks.tolist(), (lrs * 1e4).round().astype(int).tolist(), strict=True)))
     assert pairs == [(1, 1), (1, 3), (2, 1), (2, 3)]
     assert grid.seeds == (0, 1) * 8
-
-
-@pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory, smoke_cfg):
-    out = tmp_path_factory.mktemp("run")
-    summary = sweep.run_sweep(smoke_cfg, out, progress=False)
-    return out, summary
 
 
 def test_sweep_writes_checkpoints_metrics_and_summary(smoke_run, smoke_cfg):

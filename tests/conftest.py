@@ -1,0 +1,19 @@
+"""Shared fixtures: one smoke sweep for the whole session (compiling is the expensive part)."""
+
+import pytest
+
+from jaxlc import config, sweep
+
+SMOKE = config.CONFIG_DIR / "smoke.toml"
+
+
+@pytest.fixture(scope="session")
+def smoke_cfg():
+    return config.load(SMOKE)
+
+
+@pytest.fixture(scope="session")
+def smoke_run(tmp_path_factory, smoke_cfg):
+    """``(run_dir, summary)`` of one uninterrupted smoke sweep."""
+    out = tmp_path_factory.mktemp("smoke_run")
+    return out, sweep.run_sweep(smoke_cfg, out, progress=False)

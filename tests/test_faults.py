@@ -1,0 +1,154 @@
+"""A sweep that survives: kill and resume, bad input, numerical faults."""
+
+import hashlib
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import flax.serialization
+import jax
+import numpy as np
+import pytest
+
+from jaxlc import checkpoint, sweep
+
+from .conftest import SMOKE
+
+
+def _tree_of_files(root):
+    """``{relative path: sha256}`` of every file under ``root`` (to prove nothing changed)."""
+    if not root.exists():
+        return {}
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
+
+
+def _leaves(run_dir):
+    raw = flax.serialization.msgpack_restore(sweep.state_path(run_dir).read_bytes())
+    return jax.tree.leaves(raw["state"])
+
+
+def test_sigkill_then_resume_ends_bit_for_bit_like_an_uninterrupted_run(smoke_run, tmp_path):
+    ref_dir, _ = smoke_run
+    out = tmp_path / "killed"
+    cmd = [
+        sys.executable,
+        "-m",
+        "jaxlc.sweep",
+        "--config",
+        str(SMOKE),
+        "--out",
+        str(out),
+        "--no-progress",
+    ]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # Kill it right after its first full-state save, mid-run.
+    deadline = time.time() + 300
+    while not sweep.state_path(out).exists() and time.time() < deadline:
+        time.sleep(0.05)
+    assert sweep.state_path(out).exists(), "the run never saved its state"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (out / "summary.json").exists(), "the kill must land before the end"
+    done = subprocess.run(
+        [sys.executable, "-m", "jaxlc.sweep", "--resume", str(out), "--no-progress"],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    ref, got = _leaves(ref_dir), _leaves(out)
+    assert len(ref) == len(got)
+    for a, b in zip(ref, got, strict=True):
+        np.testing.assert_array_equal(a, b)
+    # The same checkpoints, byte for byte.
+    ref_ck = {
+        k: v for k, v in _tree_of_files(ref_dir / "checkpoints").items() if k.endswith(".msgpack")
+    }
+    got_ck = {
+        k: v for k, v in _tree_of_files(out / "checkpoints").items() if k.endswith(".msgpack")
+    }
+    assert ref_ck == got_ck
+
+
+def _bad_cases(tmp_path, smoke_run):
+    run_dir, _ = smoke_run
+    ck = checkpoint.list_checkpoints(run_dir)[0]
+    truncated = tmp_path / "trunc" / "ep1.msgpack"
+    truncated.parent.mkdir()
+    truncated.write_bytes(ck.read_bytes()[:100])
+    truncated.with_suffix(".json").write_bytes(ck.with_suffix(".json").read_bytes())
+    other_cfg = tmp_path / "other.toml"
+    other_cfg.write_text(SMOKE.read_text().replace("episodes = 40", "episodes = 80"))
+    bad_toml = tmp_path / "bad.toml"
+    bad_toml.write_text("[train\nepisodes = 3\n")
+    empty = tmp_path / "empty_run"
+    empty.mkdir()
+    s = ["--config", str(SMOKE), "--out", str(tmp_path / "new")]
+    return [
+        # (argv, words the one-line message must contain)
+        (s + ["env.unknown=1"], "unknown config key 'env.unknown'"),
+        (s + ["[nope]"], "table.key=value"),
+        (s + ["bogus.k=1"], "unknown config table"),
+        (s + ["train.episodes=ten"], "must be an integer"),
+        (s + ["train.envs_per_model=-4"], "train.envs_per_model"),
+        (s + ["ddpg.batch_size=0"], "ddpg.batch_size"),
+        (s + ["grid.k=[0, 1]"], "grid.k"),
+        (s + ["grid.memory=[8]"], "ddpg.batch_size"),
+        (s + ["grid.memory=[]"], "at least one value"),
+        (s + ["ddpg.gamma=1.5"], "ddpg.gamma"),
+        (s + ["env.dt=nan"], "env.dt"),
+        (s + ["train.episodes=45"], "must divide"),
+        (["--config", str(bad_toml), "--out", str(tmp_path / "new")], "not valid TOML"),
+        (["--config", str(tmp_path / "missing.toml")], "does not exist"),
+        (["--config", str(other_cfg), "--out", str(run_dir)], "another config"),
+        (["--config", str(SMOKE), "--out", str(run_dir)], "finished run"),
+        (["--resume", str(empty)], "holds no run"),
+        (["--resume", str(run_dir), "train.episodes=80"], "drop --config"),
+        (["evaluate", "--checkpoint", str(truncated)], "truncated or corrupt"),
+    ]
+
+
+def test_bad_input_gets_one_line_exit_2_and_touches_nothing(smoke_run, tmp_path, capsys):
+    run_dir, _ = smoke_run
+    cases = _bad_cases(tmp_path, smoke_run)
+    assert len(cases) >= 15
+    for argv, words in cases:
+        before = _tree_of_files(run_dir), _tree_of_files(tmp_path)
+        if argv[0] == "evaluate":
+            evaluate = pytest.importorskip("jaxlc.evaluate")
+            rc = evaluate.main(argv[1:])
+        else:
+            rc = sweep.main(argv)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2, (argv, err)
+        assert len(err) == 1 and words in err[0], (argv, err)
+        assert "Traceback" not in err[0]
+        assert (_tree_of_files(run_dir), _tree_of_files(tmp_path)) == before, argv
+
+
+def test_non_finite_values_stop_the_run_naming_the_model(tmp_path, capsys):
+    out = tmp_path / "overflow"
+    # A reward scale this large overflows float32 on the first RL step.
+    rc = sweep.main(
+        [
+            "--config",
+            str(SMOKE),
+            "--out",
+            str(out),
+            "--no-progress",
+            "env.reward_scale=1e38",
+            "grid.k=[2]",
+            "grid.memory=[512]",
+        ]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 3
+    assert len(err) == 1 and "model 0 (k=2, memory=512, seed 0)" in err[0], err
+    assert "non-finite" in err[0] and "scan step" in err[0]
+    assert not (out / "summary.json").exists()
+    assert not sweep.state_path(out).exists(), "a faulty state must not be saved"
