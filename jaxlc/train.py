@@ -17,14 +17,17 @@ its last checkpoint is exactly the params at that episode.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
 
 import flax.struct
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
 
 from jaxlc import ddpg, replay
 from jaxlc.config import Config
@@ -263,16 +266,49 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
     return init, step
 
 
-def make_grid_fns(cfg: Config, grid: Grid) -> tuple[Callable, Callable]:
+def make_grid_fns(
+    cfg: Config, grid: Grid, devices: Sequence[jax.Device] | None = None
+) -> tuple[Callable, Callable]:
     """Jitted ``init(keys) -> state`` and ``run(state, steps) -> (state, metrics)`` over the
-    whole grid; ``metrics`` leaves are ``(steps, models)``."""
+    whole grid; state leaves are ``(models, ...)``, metrics leaves ``(steps, models)``.
+
+    With several ``devices`` the models axis is laid over a 1-D mesh (``shard_map``): each
+    device runs its block of models, with no communication between them. The model count is
+    padded to a multiple of the device count with copies of the last model, and the padding
+    is dropped from everything returned, so callers never see it.
+    """
     init, step = make_model_fns(cfg)
-    v_init = jax.jit(lambda keys: jax.vmap(init)(keys, grid.hyper))
-    v_step = jax.vmap(step)
+    m = grid.size
+    devices = list(devices) if devices else jax.devices()[:1]
+    pad = -m % len(devices)
+
+    def pad_rows(tree: Any) -> Any:
+        if not pad:
+            return tree
+        return jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, 0)]), tree)
+
+    hyper = pad_rows(grid.hyper)
+    shard: Callable = lambda f, out_specs: f  # noqa: E731 - one device: plain vmap
+    if len(devices) > 1:
+        mesh = Mesh(np.asarray(devices), ("models",))
+        # check_vma off: the env's warm-up scan starts from unsharded constants, and every
+        # value here is per-model anyway (no collectives to check).
+        shard = partial(jax.shard_map, mesh=mesh, in_specs=P("models"), check_vma=False)
+
+    @jax.jit
+    def v_init(keys: Array) -> TrainState:
+        state = shard(jax.vmap(init), out_specs=P("models"))(pad_rows(keys), hyper)
+        return jax.tree.map(lambda a: a[:m], state)
 
     @partial(jax.jit, static_argnames="steps")
     def run(state: TrainState, steps: int) -> tuple[TrainState, dict[str, Array]]:
-        return jax.lax.scan(lambda s, _: v_step(s, grid.hyper), state, None, length=steps)
+        def blocks(s: TrainState, h: ModelHyper):
+            return jax.lax.scan(lambda c, _: jax.vmap(step)(c, h), s, None, length=steps)
+
+        state, metrics = shard(blocks, out_specs=(P("models"), P(None, "models")))(
+            pad_rows(state), hyper
+        )
+        return jax.tree.map(lambda a: a[:m], state), jax.tree.map(lambda a: a[:, :m], metrics)
 
     return v_init, run
 

@@ -1,0 +1,489 @@
+"""The paper's figures from a run directory, as PNGs in ``RUN_DIR/figures/`` (Agg backend).
+
+    python -m jaxlc.figures RUN_DIR
+
+Fig. 3 total reward per training episode by model group; Fig. 4 manoeuvre steps per episode
+and critic loss per training step; Fig. 5 scenes at chosen checkpoints; Fig. 6 average
+return (and success rate) per checkpoint; Fig. 7 lane-change trajectories; and
+``learning.gif``, lane changes across checkpoints (the paper's video of the learning
+progress). Training figures read ``metrics/`` and ``summary.json``; the others read
+``eval/`` (``python -m jaxlc.evaluate``). A figure whose data is missing is skipped.
+
+Returns span -2000 (out of bounds, eq. (11)) to about -100 (a smooth lane change): when a
+plot's returns span more than a decade its axis is symlog (linear near zero, log beyond).
+Model colours: the paper's for its nine models (model labels start with their circled number).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; no display on training machines
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.animation import PillowWriter  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
+from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
+
+from jaxlc import config  # noqa: E402
+from jaxlc.evaluate import OUTCOMES, rank_models  # noqa: E402
+
+# The paper's groups for Fig. 3 (one hyperparameter varies in each).
+GROUPS = (
+    ("(a) k = 1, 2, 4 at D = 2000", ("①", "②", "③")),
+    ("(b) D = 2000, 4000, 8000 at k = 1", ("①", "④", "⑤")),
+    ("(c) D = 2000, 4000, 8000 at k = 2", ("②", "⑥", "⑦")),
+    ("(d) the two best", ("④", "⑦")),
+)
+# The paper's colours where it names them (① red, ② blue, ④ dark green, ⑦ light green).
+TAG_COLOURS = {
+    "①": "tab:red",
+    "②": "tab:blue",
+    "③": "tab:orange",
+    "④": "darkgreen",
+    "⑤": "tab:purple",
+    "⑥": "tab:brown",
+    "⑦": "yellowgreen",
+    "⑧": "tab:gray",
+    "⑨": "tab:olive",
+}
+SCENE_BEHIND, SCENE_AHEAD = 90.0, 30.0  # m of road shown behind and ahead of the ego
+
+
+# --------------------------------------------------------------------------- data
+
+
+def _cells(run_dir: Path) -> list[dict[str, Any]] | None:
+    """Grid cells of the run with their model indices (one per seed) and paper tag."""
+    path = run_dir / "summary.json"
+    if not path.is_file():
+        return None
+    cells: dict[int, dict[str, Any]] = {}
+    for m in json.loads(path.read_text())["models"]:
+        tag = m["label"][:1] if m["label"][:1] in TAG_COLOURS else None
+        c = cells.setdefault(m["cell"], {"label": m["label"], "models": [], "tag": tag})
+        c["models"].append(m["model"])
+    return [cells[c] for c in sorted(cells)]
+
+
+def _colour(label: str, i: int) -> str:
+    """The paper's colour for its nine models (labels start with their tag), else cycle."""
+    return TAG_COLOURS.get(label[:1], f"C{i % 10}")
+
+
+def _npz(path: Path) -> dict[str, np.ndarray] | None:
+    if not path.is_file():
+        return None
+    with np.load(path) as f:
+        return {k: f[k] for k in f.files}
+
+
+def _eval(run_dir: Path) -> tuple[dict[str, Any], dict, dict] | None:
+    path = run_dir / "eval" / "eval.json"
+    traces, cases = _npz(run_dir / "eval" / "traces.npz"), _npz(run_dir / "eval" / "cases.npz")
+    if not path.is_file() or traces is None or cases is None:
+        return None
+    return json.loads(path.read_text()), traces, cases
+
+
+def smooth(y: np.ndarray, window: int) -> np.ndarray:
+    """Trailing moving average ``(n,) -> (n - window + 1,)``, NaNs ignored."""
+    ok = np.isfinite(y)
+    kernel = np.ones(window)
+    total = np.convolve(np.where(ok, y, 0.0), kernel, "valid")
+    count = np.convolve(ok.astype(float), kernel, "valid")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return total / count
+
+
+def _window(n: int) -> int:
+    return max(1, min(100, n // 20))  # 100 episodes for the paper's 5000, a few for smoke
+
+
+def _seed_curves(ax: Any, series: list[np.ndarray], colour: str, label: str) -> None:
+    """Mean over seeds as a line, min-max across seeds as a band (when several)."""
+    n = min(len(s) for s in series)
+    if n == 0:
+        return
+    w = _window(n)
+    curves = np.stack([smooth(s[:n].astype(float), w) for s in series])
+    x = np.arange(w, n + 1)
+    with warnings.catch_warnings():  # all-NaN columns (no loss before updates start)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean, lo, hi = (f(curves, axis=0) for f in (np.nanmean, np.nanmin, np.nanmax))
+    ax.plot(x, mean, color=colour, lw=1.4, label=label)
+    if len(series) > 1:
+        ax.fill_between(x, lo, hi, color=colour, alpha=0.2, lw=0)
+
+
+def _return_axis(ax: Any) -> None:
+    """Symlog when the plotted returns span more than a decade (else its ticks vanish)."""
+    ys = np.concatenate([np.asarray(line.get_ydata(), float) for line in ax.get_lines()] or [[]])
+    mags = np.abs(ys[np.isfinite(ys)])
+    if mags.size and mags.max() > 10 * max(mags.min(), 10.0):
+        ax.set_yscale("symlog", linthresh=10)
+        # Decades alone leave one or two labelled ticks over -2000..-100; add 2x and 5x.
+        ax.yaxis.set_major_locator(SymmetricalLogLocator(linthresh=10, base=10, subs=[1, 2, 5]))
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+
+
+def _save(fig: Any, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+# --------------------------------------------------------------------------- training
+
+
+def fig3_returns(run_dir: Path) -> Path | None:
+    """Total reward per training episode, smoothed, by the paper's model groups."""
+    cells, eps = _cells(run_dir), _npz(run_dir / "metrics" / "episodes.npz")
+    if cells is None or eps is None:
+        return None
+    by_tag = {c["tag"]: c for c in cells if c["tag"]}
+    paper = all(t in by_tag for _, tags in GROUPS for t in tags)
+    panels = [(t, [by_tag[x] for x in tags]) for t, tags in GROUPS] if paper else [("", cells)]
+    shape = (2, 2) if paper else (1, 1)
+    fig, axes = plt.subplots(
+        *shape, figsize=(11, 7) if paper else (7, 4), squeeze=False, layout="constrained"
+    )
+    for ax, (title, group) in zip(axes.flat, panels, strict=True):
+        for i, c in enumerate(group):
+            series = [eps["ret"][m, : eps["episodes"][m]] for m in c["models"]]
+            _seed_curves(ax, series, _colour(c["label"], i), c["label"])
+        ax.set(title=title, xlabel="training episode", ylabel="total reward")
+        _return_axis(ax)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Fig. 3  Total reward per training episode (moving average; band: seeds)")
+    return _save(fig, run_dir / "figures" / "fig3_returns.png")
+
+
+def _pair(cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Models ④ and ⑦ when the run has them, else the first two cells."""
+    by_tag = {c["tag"]: c for c in cells if c["tag"]}
+    return [by_tag["④"], by_tag["⑦"]] if {"④", "⑦"} <= set(by_tag) else cells[:2]
+
+
+def fig4_steps_loss(run_dir: Path) -> Path | None:
+    """(a) manoeuvre steps per training episode, (b) critic loss per training step."""
+    cells = _cells(run_dir)
+    eps = _npz(run_dir / "metrics" / "episodes.npz")
+    steps = _npz(run_dir / "metrics" / "steps.npz")
+    if cells is None or eps is None or steps is None:
+        return None
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained")
+    for i, c in enumerate(_pair(cells)):
+        colour = _colour(c["label"], i)
+        _seed_curves(
+            a, [eps["steps"][m, : eps["episodes"][m]] for m in c["models"]], colour, c["label"]
+        )
+        _seed_curves(b, [steps["critic_loss"][:, m] for m in c["models"]], colour, c["label"])
+    a.set(title="(a) manoeuvre steps", xlabel="training episode", ylabel="steps per episode")
+    b.set(title="(b) critic loss", xlabel="training step", ylabel="TD loss", yscale="log")
+    for ax in (a, b):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Fig. 4  Training curves (moving average)")
+    return _save(fig, run_dir / "figures" / "fig4_steps_loss.png")
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def fig6_checkpoints(run_dir: Path) -> Path | None:
+    """Average total return and success rate per checkpoint: one line per grid cell (mean
+    over its seeds, band min-max across them), the scripted controller dashed."""
+    data = _eval(run_dir)
+    if data is None:
+        return None
+    result = data[0]
+    rows = [r for r in result["rows"] if r["model"] is not None]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained")
+    labels = list(dict.fromkeys(r["label"] for r in rows))  # cells, in model order
+    for i, label in enumerate(labels):
+        mine = [r for r in rows if r["label"] == label]
+        episodes = sorted({r["episode"] for r in mine})
+        colour = _colour(label, i)
+        for ax, key, scale in ((a, "avg_return", 1.0), (b, "success_rate", 100.0)):
+            vals = [[scale * _num(r[key]) for r in mine if r["episode"] == e] for e in episodes]
+            with warnings.catch_warnings():  # a checkpoint with no lane change: all NaN
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mean = [np.nanmean(v) for v in vals]
+                ax.plot(episodes, mean, "o-", color=colour, ms=3, label=label)
+                if max(len(v) for v in vals) > 1:
+                    lo, hi = [np.nanmin(v) for v in vals], [np.nanmax(v) for v in vals]
+                    ax.fill_between(episodes, lo, hi, color=colour, alpha=0.2, lw=0)
+    for r in result["rows"]:
+        if r["model"] is None:
+            a.axhline(_num(r["avg_return"]), color="k", ls="--", lw=1, label="scripted")
+            b.axhline(100 * _num(r["success_rate"]), color="k", ls="--", lw=1)
+    a.set(title="(a) average total return", xlabel="checkpoint (training episode)")
+    _return_axis(a)
+    b.set(
+        title="(b) success rate", xlabel="checkpoint (training episode)", ylabel="%", ylim=(-3, 103)
+    )
+    for ax in (a, b):
+        ax.grid(alpha=0.3)
+    a.legend(fontsize=7)
+    fig.suptitle(
+        f"Fig. 6  {result['cases']} cases per checkpoint, {result['performed']} with a lane "
+        "change (averages over those; band: seeds)"
+    )
+    return _save(fig, run_dir / "figures" / "fig6_checkpoints.png")
+
+
+def _num(v: Any) -> float:
+    return float("nan") if v is None else float(v)
+
+
+def _best(result: dict[str, Any]) -> tuple[int, list[int]] | None:
+    """Best model and its evaluated policy rows (eval.json order), by episode."""
+    ranked = rank_models(result["rows"])
+    if not ranked:
+        return None
+    m = ranked[0]["model"]
+    rows = [i for i, r in enumerate(result["rows"]) if r["model"] == m]
+    return m, sorted(rows, key=lambda i: result["rows"][i]["episode"])
+
+
+def _lanes(ax: Any, p: Any, x0: float, x1: float) -> None:
+    w, n = p.lane_width, p.lanes
+    for j in range(n + 1):
+        edge = j in (0, n)
+        ax.plot(
+            [x0, x1],
+            [j * w, j * w],
+            color="k" if edge else "0.5",
+            lw=1.2 if edge else 0.8,
+            ls="-" if edge else (0, (6, 6)),
+        )
+
+
+def fig7_trajectories(run_dir: Path) -> Path | None:
+    """(a) the final checkpoint's left and right lane changes, (b) one case over checkpoints."""
+    data = _eval(run_dir)
+    if data is None or _best(data[0]) is None:
+        return None
+    result, tr, _ = data
+    p = config.load(run_dir / "config.toml").env
+    _, prows = _best(result)
+    final = prows[-1]
+    fig, (a, b) = plt.subplots(2, 1, figsize=(9, 6.5), layout="constrained")
+    span = 1.0
+    for j, case in enumerate(tr["traced"]):
+        for pi, style in ((0, dict(color="0.4", ls="--", lw=1)), (final, {})):
+            n = int(tr["frames"][pi, j])
+            if n < 2:
+                continue
+            x = tr["x"][pi, j, :n] - tr["x"][pi, j, 0]
+            span = max(span, x[-1])
+            colour = "tab:red" if tr["side"][j] > 0 else "tab:blue"
+            kw = {"color": colour, "lw": 1.6, **style}
+            lab = None
+            if pi == final:
+                lab = f"case {case} ({'left' if tr['side'][j] > 0 else 'right'})"
+            elif j == 0:
+                lab = "scripted controller"
+            a.plot(x, tr["y"][pi, j, :n], label=lab, **kw)
+    _lanes(a, p, 0, span)
+    label = result["rows"][final]["label"]
+    a.set(
+        title=f"(a) {label}, checkpoint {result['rows'][final]['episode']}",
+        xlabel="distance since the manoeuvre began (m)",
+        ylabel="y (m)",
+    )
+    a.legend(fontsize=7, loc="center right", ncols=2)
+
+    j = int(np.argmax(tr["side"] > 0)) if (tr["side"] > 0).any() else 0
+    cmap = plt.get_cmap("viridis")
+    span = 1.0
+    for n_i, pi in enumerate(prows):
+        n = int(tr["frames"][pi, j])
+        if n < 2:
+            continue
+        x = tr["x"][pi, j, :n] - tr["x"][pi, j, 0]
+        span = max(span, x[-1])
+        last = pi == final
+        b.plot(
+            x,
+            tr["y"][pi, j, :n],
+            color="tab:red" if last else cmap(n_i / max(1, len(prows) - 1)),
+            lw=2.2 if last else 1.1,
+            label=f"episode {result['rows'][pi]['episode']}",
+        )
+    _lanes(b, p, 0, span)
+    b.set(
+        title=f"(b) case {tr['traced'][j]} as training goes on",
+        xlabel="distance since the manoeuvre began (m)",
+        ylabel="y (m)",
+    )
+    b.legend(fontsize=7, ncols=4, loc="center right")
+    fig.suptitle("Fig. 7  Lane-change trajectories")
+    return _save(fig, run_dir / "figures" / "fig7_trajectories.png")
+
+
+def draw_scene(ax: Any, tr: dict[str, np.ndarray], pi: int, j: int, f: int, p: Any) -> None:
+    """One frame: ego red (with its dotted past path), the gap's lead and lag green, others
+    blue, lane markings; the view follows the ego."""
+    L, W, lw = p.vehicle_length, p.vehicle_width, p.lane_width
+    ex, ey, psi = tr["x"][pi, j, f], tr["y"][pi, j, f], tr["psi"][pi, j, f]
+    x0, x1 = ex - SCENE_BEHIND, ex + SCENE_AHEAD
+    _lanes(ax, p, x0, x1)
+    target = p.lanes // 2 + int(tr["side"][j])
+    xs, act = tr["traffic_x"][pi, j, f], tr["traffic_active"][pi, j, f]
+    for lane in range(p.lanes):
+        for x in xs[lane][act[lane]]:
+            if not x0 - L < x < x1 + L:
+                continue
+            gap_car = lane == target and any(
+                tr[h][pi, j, f] and np.isclose(x, tr[k][pi, j, f])
+                for h, k in (("has_lead", "lead_x"), ("has_lag", "lag_x"))
+            )
+            ax.add_patch(
+                Rectangle(
+                    (x - L, (lane + 0.5) * lw - W / 2),
+                    L,
+                    W,
+                    color="tab:green" if gap_car else "tab:blue",
+                )
+            )
+    ax.plot(tr["x"][pi, j, : f + 1] - L / 2, tr["y"][pi, j, : f + 1], "r:", lw=1.2)
+    cx, cy = ex - L / 2 * np.cos(psi), ey - L / 2 * np.sin(psi)
+    ax.add_patch(
+        Rectangle(
+            (cx - L / 2, cy - W / 2),
+            L,
+            W,
+            angle=np.degrees(psi),
+            rotation_point="center",
+            color="tab:red",
+        )
+    )
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(-0.5, p.lanes * lw + 0.5)
+    ax.set_aspect("equal")
+    ax.set_yticks([])
+
+
+def _checkpoint_picks(prows: list[int], n: int) -> list[int]:
+    idx = np.unique(np.linspace(0, len(prows) - 1, min(n, len(prows))).round().astype(int))
+    return [prows[i] for i in idx]
+
+
+def fig5_scenes(run_dir: Path, panels: int = 6) -> Path | None:
+    """Scene at the end of one case's manoeuvre for up to ``panels`` checkpoints."""
+    data = _eval(run_dir)
+    if data is None or _best(data[0]) is None:
+        return None
+    result, tr, cases = data
+    p = config.load(run_dir / "config.toml").env
+    _, prows = _best(result)
+    picks = _checkpoint_picks(prows, panels)
+    j = 0
+    fig, axes = plt.subplots(
+        len(picks), 1, figsize=(10, 1.5 * len(picks) + 0.6), squeeze=False, layout="constrained"
+    )
+    for ax, pi in zip(axes[:, 0], picks, strict=True):
+        f = max(0, int(tr["frames"][pi, j]) - 1)
+        draw_scene(ax, tr, pi, j, f, p)
+        reason = OUTCOMES[int(cases["reason"][pi, tr["traced"][j]])]
+        ax.set_title(
+            f"checkpoint {result['rows'][pi]['episode']}: {reason.replace('_', ' ')} "
+            f"after {f * p.dt:.1f} s",
+            fontsize=9,
+            loc="left",
+        )
+    axes[-1, 0].set_xlabel("x (m)")
+    fig.suptitle(
+        f"Fig. 5  Case {tr['traced'][j]} at chosen checkpoints of "
+        f"{result['rows'][prows[-1]]['label']} (red: ego, green: gap, blue: others)"
+    )
+    return _save(fig, run_dir / "figures" / "fig5_scenes.png")
+
+
+def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | None:
+    """Animated lane changes (one left, one right case) of the best model, checkpoint after
+    checkpoint; every ``every``-th simulation step is a frame."""
+    data = _eval(run_dir)
+    if data is None or _best(data[0]) is None:
+        return None
+    result, tr, cases = data
+    p = config.load(run_dir / "config.toml").env
+    _, prows = _best(result)
+    picks = _checkpoint_picks(prows, checkpoints)
+    left = np.nonzero(tr["side"] > 0)[0]
+    right = np.nonzero(tr["side"] < 0)[0]
+    shown = [int(g[0]) for g in (left, right) if len(g)] or [0]
+    frames = []
+    for pi in picks:
+        n = max(int(tr["frames"][pi, j]) for j in shown)
+        frames += [(pi, f) for f in range(0, n, every)] + [(pi, n - 1)] * 5  # pause at the end
+    # Fixed layout, no axes, one draw per frame: a GIF of ~200 frames stays a few seconds.
+    fig, axes = plt.subplots(len(shown), 1, figsize=(8, 1.0 * len(shown) + 0.5), squeeze=False)
+    fig.subplots_adjust(left=0.01, right=0.99, top=0.86, bottom=0.02, hspace=0.35)
+
+    def draw(pi: int, f: int) -> None:
+        for ax, j in zip(axes[:, 0], shown, strict=True):
+            ax.clear()
+            fj = min(f, int(tr["frames"][pi, j]) - 1)
+            draw_scene(ax, tr, pi, j, max(fj, 0), p)
+            ax.set_axis_off()
+            end = fj == int(tr["frames"][pi, j]) - 1  # the outcome once it is reached
+            reason = OUTCOMES[int(cases["reason"][pi, tr["traced"][j]])] if end else "…"
+            ax.set_title(
+                f"case {tr['traced'][j]}  t = {fj * p.dt:4.1f} s  {reason.replace('_', ' ')}",
+                fontsize=8,
+                loc="left",
+            )
+        fig.suptitle(
+            f"{result['rows'][pi]['label']}, checkpoint {result['rows'][pi]['episode']}",
+            fontsize=10,
+        )
+
+    path = run_dir / "figures" / "learning.gif"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer = PillowWriter(fps=10)
+    with writer.saving(fig, path, dpi=90):
+        for pi, f in frames:
+            draw(pi, f)
+            writer.grab_frame()
+    plt.close(fig)
+    return path
+
+
+def make_all(run_dir: Path) -> list[Path]:
+    """Every figure whose data the run directory holds; returns the files written."""
+    run_dir = Path(run_dir)
+    makers = (
+        fig3_returns,
+        fig4_steps_loss,
+        fig5_scenes,
+        fig6_checkpoints,
+        fig7_trajectories,
+        learning_gif,
+    )
+    return [path for make in makers if (path := make(run_dir)) is not None]
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = argv if argv is not None else sys.argv[1:]
+    if len(args) != 1:
+        print("usage: python -m jaxlc.figures RUN_DIR", file=sys.stderr)
+        return 2
+    for path in make_all(Path(args[0])):
+        print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

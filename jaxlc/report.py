@@ -1,0 +1,251 @@
+"""``RUN_DIR/report.md``: the evaluation table, the best model, the paper's claims beside ours.
+
+    python -m jaxlc.report RUN_DIR
+
+Reads ``RUN_DIR/eval/eval.json`` (``python -m jaxlc.evaluate``); every number in the report is
+computed from the run, the paper's only quoted.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from jaxlc.checkpoint import write_text_atomic
+from jaxlc.evaluate import OUTCOMES, EvalError, final_rows, rank_models
+
+FIGURES = (
+    ("fig3_returns.png", "Fig. 3: total reward per training episode"),
+    ("fig4_steps_loss.png", "Fig. 4: manoeuvre steps and critic loss"),
+    ("fig5_scenes.png", "Fig. 5: scenes at chosen checkpoints"),
+    ("fig6_checkpoints.png", "Fig. 6: average return and success rate per checkpoint"),
+    ("fig7_trajectories.png", "Fig. 7: lane-change trajectories"),
+    ("learning.gif", "Video: lane changes across checkpoints"),
+)
+HUMAN_DURATION = (3.0, 8.0)  # s, SPEC.md "Evaluation"
+
+
+def _defined(v: Any) -> bool:
+    return v is not None and v == v
+
+
+def _pct(v: Any) -> str:
+    return f"{100 * v:.1f}%" if _defined(v) else "–"
+
+
+def _f(v: Any, fmt: str = ".2f") -> str:
+    return format(v, fmt) if _defined(v) else "–"
+
+
+def _table(rows: list[dict[str, Any]]) -> list[str]:
+    ends = OUTCOMES[1:] + OUTCOMES[:1]
+    lines = [
+        "| model | seed | checkpoint | performed | success rate | avg return | "
+        + " | ".join(e.replace("_", " ") for e in ends)
+        + " | duration (s) | peak lat. acc. (m/s²) | peak yaw rate (rad/s) | overshoot (m) |",
+        "|---" * (10 + len(ends)) + "|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['label']} | {r.get('seed', '') if r['model'] is not None else ''} | "
+            f"{r['episode'] or '–'} | {r['performed']}/{r['cases']} | {_pct(r['success_rate'])} "
+            f"| {_f(r['avg_return'], '.1f')} | "
+            + " | ".join(str(r[e]) for e in ends)
+            + f" | {_f(r['duration_s'])} | {_f(r['peak_lat_acc'])} | "
+            f"{_f(r['peak_yaw_rate'], '.3f')} | {_f(r['overshoot_m'], '.3f')} |"
+        )
+    return lines
+
+
+def _best_section(rows: list[dict[str, Any]]) -> tuple[list[str], dict[str, Any] | None]:
+    ranked = rank_models(rows)
+    if not ranked:
+        return ["No model checkpoint was evaluated."], None
+    best = ranked[0]
+    out = [
+        f"**Best model: {best['label']} (model {best['model']}, seed {best['seed']})**, at "
+        f"checkpoint {best['episode']}: success rate {_pct(best['success_rate'])} of "
+        f"{best['performed']} lane changes, average return {_f(best['avg_return'], '.1f')}."
+    ]
+    if len(ranked) > 1:
+        nxt = ranked[1]
+        d_sr = (
+            f"{100 * (best['success_rate'] - nxt['success_rate']):+.1f} points"
+            if _defined(best["success_rate"]) and _defined(nxt["success_rate"])
+            else "undefined"
+        )
+        d_ret = (
+            f"{best['avg_return'] - nxt['avg_return']:+.1f}"
+            if _defined(best["avg_return"]) and _defined(nxt["avg_return"])
+            else "undefined"
+        )
+        out.append(
+            f"Runner-up: {nxt['label']} (model {nxt['model']}, seed {nxt['seed']}): success "
+            f"rate {_pct(nxt['success_rate'])}, average return {_f(nxt['avg_return'], '.1f')}. "
+            f"Margin: success rate {d_sr}, average return {d_ret}."
+        )
+        if best["success_rate"] == nxt["success_rate"]:
+            out.append("The success rates tie, so the return decides; treat the ranking as weak.")
+    return out, best
+
+
+def rank_cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Grid cells (models that differ only by seed), best first by mean final success rate
+    then mean return; each ``{"label", "seeds", "success_rate", "avg_return"}``."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in final_rows(rows):
+        groups.setdefault(r["label"], []).append(r)
+
+    def mean(rs: list[dict[str, Any]], key: str) -> float:
+        vals = [r[key] for r in rs if _defined(r[key])]
+        return sum(vals) / len(vals) if vals else math.nan
+
+    cells = [
+        {"label": k, "seeds": len(rs), **{m: mean(rs, m) for m in ("success_rate", "avg_return")}}
+        for k, rs in groups.items()
+    ]
+
+    def key(c: dict[str, Any]) -> tuple[float, float]:
+        sr, ret = c["success_rate"], c["avg_return"]
+        return (sr if _defined(sr) else -1.0, ret if _defined(ret) else -math.inf)
+
+    return sorted(cells, key=key, reverse=True)
+
+
+def _cell_section(rows: list[dict[str, Any]]) -> list[str]:
+    cells = rank_cells(rows)
+    if not cells or max(c["seeds"] for c in cells) < 2:
+        return []
+    lines = ["", "Grid cells, mean over seeds at the final checkpoint, best first:", ""]
+    lines += ["| cell | seeds | success rate | avg return |", "|---|---|---|---|"]
+    for c in cells:
+        lines.append(
+            f"| {c['label']} | {c['seeds']} | {_pct(c['success_rate'])} | "
+            f"{_f(c['avg_return'], '.1f')} |"
+        )
+    return lines
+
+
+def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
+    rows = result["rows"]
+    finals = final_rows(rows)
+    four = [r for r in finals if r["label"].startswith("④")]
+    scripted = next((r for r in rows if r["model"] is None), None)
+    lines = ["| claim | paper | this run | agrees |", "|---|---|---|---|"]
+
+    if best is None:
+        return lines
+    if four:
+        cells = rank_cells(rows)  # with several seeds, a cell's claim is about its mean
+        top = cells[0]["label"] if cells[0]["seeds"] > 1 else best["label"]
+        ok = top.startswith("④")
+        ours = f"{top} is best" + (" (mean over seeds)" if cells[0]["seeds"] > 1 else "")
+        lines.append(f"| best model | ④ (k=1, D=4000) | {ours} | {'yes' if ok else 'no'} |")
+    else:
+        lines.append("| best model | ④ (k=1, D=4000) | the grid has no model ④ | n/a |")
+
+    others = [(f"model ④, seed {r['seed']}", r) for r in four if r is not best]
+    for who, r in [("best model", best), *others]:
+        sr = r["success_rate"]
+        ok = "yes" if _defined(sr) and sr == 1.0 else "no"
+        lines.append(
+            f"| success rate at the final checkpoint, over cases with a lane change ({who}) "
+            f"| 100% | {_pct(sr)} ({r['success']} of {r['performed']}; "
+            f"{r['out_of_bounds']} out of bounds, {r['collision']} collisions, "
+            f"{r['timeout']} timeouts) | {ok} |"
+        )
+    n, perf = result["cases"], result["performed"]
+    close = abs(perf / n - 0.8) <= 0.1
+    lines.append(
+        f"| cases that performed a lane change (agrees: within ±10 points) | 80 of 100 | "
+        f"{perf} of {n} ({100 * perf / n:.0f}%) | {'yes' if close else 'no'} |"
+    )
+    mine = sorted((r for r in rows if r["model"] == best["model"]), key=lambda r: r["episode"])
+    first, last = mine[0], mine[-1]
+    rose = _defined(first["avg_return"]) and _defined(last["avg_return"])
+    rose = rose and last["avg_return"] > first["avg_return"]
+    lines.append(
+        f"| average return rises over checkpoints, then plateaus (Fig. 6) | from −20 (a "
+        f"default for no lane change) | {_f(first['avg_return'], '.1f')} at checkpoint "
+        f"{first['episode']} → {_f(last['avg_return'], '.1f')} at {last['episode']} (raw "
+        f"returns; eq. (11) cannot give −20) | {'rises' if rose else 'does not rise'} |"
+    )
+    d = best["duration_s"]
+    in_range = _defined(d) and HUMAN_DURATION[0] <= d <= HUMAN_DURATION[1]
+    ref = f"; scripted controller {_f(scripted['duration_s'])} s" if scripted else ""
+    ours = f"{_f(d)} s" if _defined(d) else "no successful lane change"
+    lines.append(
+        f"| lane-change duration like a human's | humans 3–8 s (mean ≈ 6 s) | "
+        f"{ours} (best model, successful cases{ref}) | {'yes' if in_range else 'no'} |"
+    )
+    return lines
+
+
+def build_report(run_dir: Path) -> str:
+    """The report's Markdown for ``run_dir`` (needs ``eval/eval.json``)."""
+    path = run_dir / "eval" / "eval.json"
+    if not path.is_file():
+        raise EvalError(f"{path} is missing; run python -m jaxlc.evaluate {run_dir} first")
+    result = json.loads(path.read_text())
+    rows = result["rows"]
+    best_lines, best = _best_section(rows)
+    early = result["before_rl"]
+    text = [
+        f"# Evaluation report: {run_dir.name}",
+        "",
+        f"{result['cases']} lane-change cases (seed {result['seed']}, step cap "
+        f"{result['max_steps']}), the same for every checkpoint, no exploration noise. "
+        f"{result['performed']} cases reached the RL phase ({result['left']} left, "
+        f"{result['right']} right lane changes); of the others, {early['no_gap']} found no "
+        f"acceptable gap, {early['collision']} collided before the lane change and "
+        f"{early['unfinished']} hit the step cap (the same for every policy: the action only "
+        "acts in the RL phase). Success rate and average return are over the cases "
+        "with a lane change; duration, peak lateral acceleration (|v·ω|), peak yaw rate and "
+        "overshoot past the target centre line are means over the successful ones. Outcome "
+        "counts add up to the cases. Config hash "
+        f"`{result['config_hash']}`.",
+        "",
+        "## Best model",
+        "",
+        *best_lines,
+        *_cell_section(rows),
+        "",
+        "## The paper's claims beside this run",
+        "",
+        *_claims(result, best),
+        "",
+        "## Every model and checkpoint",
+        "",
+        *_table(rows),
+        "",
+    ]
+    made = [(f, t) for f, t in FIGURES if (run_dir / "figures" / f).is_file()]
+    if made:
+        text += ["## Figures", ""] + [f"- [{t}](figures/{f})" for f, t in made] + [""]
+    return "\n".join(text)
+
+
+def write_report(run_dir: Path) -> Path:
+    """Write ``run_dir/report.md`` atomically; returns its path."""
+    run_dir = Path(run_dir)
+    return write_text_atomic(run_dir / "report.md", build_report(run_dir))
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = argv if argv is not None else sys.argv[1:]
+    if len(args) != 1:
+        print("usage: python -m jaxlc.report RUN_DIR", file=sys.stderr)
+        return 2
+    try:
+        print(write_report(Path(args[0])))
+    except EvalError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

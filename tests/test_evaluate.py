@@ -1,0 +1,156 @@
+"""Evaluation: determinism, checkpoint round trip, outcome accounting, baselines, outputs, errors.
+
+One smoke sweep and one evaluation (module fixture) serve every test. Every other evaluation
+here uses the same number of cases and policies per chunk, so the jitted programs compile once.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from jaxlc import checkpoint, config, evaluate, sweep
+from jaxlc.evaluate import OUTCOMES
+from jaxlc.report import FIGURES
+from jaxlc.train import policy
+
+SMOKE = Path(__file__).resolve().parent.parent / "configs" / "smoke.toml"
+CASES, CHUNK = 60, 4  # 60 cases: ~40 lane changes, enough for the success-rate thresholds
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, config.Config, dict]:
+    out = tmp_path_factory.mktemp("smoke")
+    cfg = config.load(SMOKE, ["train.episodes=20", "train.checkpoint_every=10"])  # < 2 min
+    sweep.run_sweep(cfg, out, force=True, progress=False)
+    assert evaluate.main([str(out), "--cases", str(CASES), "--chunk", str(CHUNK)]) == 0
+    return out, cfg, json.loads((out / "eval" / "eval.json").read_text())
+
+
+def _evaluate(cfg: config.Config, actors: list, ks: list[int]) -> list[dict]:
+    out, _, _ = evaluate.evaluate_policies(cfg, actors, ks, cases=CASES, chunk=CHUNK)
+    return evaluate.summarise(out, cfg.env.dt), out
+
+
+def test_default_episodes_are_the_papers() -> None:
+    paper = [100, *range(400, 5000, 400), 5000]
+    assert evaluate.default_episodes(100, 5000) == paper
+    assert evaluate.default_episodes(20, 40) == [20, 40]
+
+
+def test_outcome_counts_add_up_to_the_cases(run) -> None:
+    run_dir, _, result = run
+    rows = result["rows"]
+    assert rows[0]["model"] is None  # the scripted baseline row
+    n_ckpt = len(checkpoint.list_checkpoints(run_dir))
+    assert len(rows) == 1 + n_ckpt  # checkpoints 10, 20: both default episodes
+    for r in rows:
+        assert r["cases"] == CASES
+        assert sum(r[o] for o in OUTCOMES) == CASES
+        assert r["performed"] == result["performed"]  # the same cases for every policy
+        assert r["success"] + r["out_of_bounds"] + r["timeout"] <= r["performed"]
+    cases = np.load(run_dir / "eval" / "cases.npz")
+    assert cases["reason"].shape == (len(rows), CASES)
+    assert set(np.unique(cases["reason"])) <= set(range(len(OUTCOMES)))
+    csv_lines = (run_dir / "eval" / "eval.csv").read_text().strip().splitlines()
+    assert len(csv_lines) == 1 + len(rows)
+
+
+def test_evaluating_a_checkpoint_twice_is_identical(run) -> None:
+    run_dir, cfg, result = run
+    path = checkpoint.list_checkpoints(run_dir)[-1]
+    params, meta = checkpoint.load(path)
+    actors, ks = [params, None, params, params], [meta["k"], 1, meta["k"], meta["k"]]
+    rows_a, out_a = _evaluate(cfg, actors, ks)
+    rows_b, out_b = _evaluate(cfg, actors, ks)
+    for name in out_a:
+        np.testing.assert_array_equal(out_a[name], out_b[name], err_msg=name)
+    assert rows_a[0] == rows_a[2] == rows_a[3]  # its place in the batch changes nothing
+    # ...nor does the batch it ran in: the CLI evaluation put it beside other checkpoints.
+    saved = next(r for r in result["rows"] if r["checkpoint"] == str(path.relative_to(run_dir)))
+    for key in (*OUTCOMES, "performed", "success_rate", "avg_return"):
+        assert saved[key] == pytest.approx(rows_a[0][key], rel=1e-6), key
+
+
+def test_checkpoint_file_gives_the_saved_params_actions(run, tmp_path: Path) -> None:
+    _, cfg, _ = run
+    # Non-trivial params (a fresh actor's small last layer would act ~0 everywhere).
+    fresh = evaluate.init_actor(cfg, jax.random.PRNGKey(7))
+    leaves, tree = jax.tree.flatten(fresh)
+    keys = jax.random.split(jax.random.PRNGKey(8), len(leaves))
+    params = jax.tree.unflatten(
+        tree, [0.5 * jax.random.normal(k, x.shape) for k, x in zip(keys, leaves, strict=True)]
+    )
+    path = checkpoint.save(tmp_path / "ck.msgpack", jax.device_get(params), {"k": 2, "model": 0})
+    loaded, meta = checkpoint.load(path)
+
+    obs = jax.random.normal(jax.random.PRNGKey(9), (256, 14))
+    want = np.asarray(policy(params, cfg)(obs))
+    np.testing.assert_array_equal(np.asarray(policy(loaded, cfg)(obs)), want)
+    assert np.std(want) > 0.1  # the comparison is not between two constants
+
+    _, out = _evaluate(cfg, [loaded, params, None, loaded], [meta["k"], 2, 1, meta["k"]])
+    for name in out:
+        np.testing.assert_array_equal(out[name][0], out[name][1], err_msg=name)
+
+
+def test_scripted_succeeds_where_a_random_actor_fails(run) -> None:
+    _, cfg, _ = run
+    random_actor = evaluate.init_actor(cfg, jax.random.PRNGKey(1))
+    rows, _ = _evaluate(cfg, [None, random_actor, None, random_actor], [1, 1, 1, 1])
+    scripted, rand = rows[0], rows[1]
+    assert scripted["performed"] >= 20  # enough lane changes for the rates to mean something
+    assert scripted["success_rate"] >= 0.95
+    assert rand["success_rate"] < 0.5
+    assert scripted["avg_return"] > rand["avg_return"]
+    # The baseline drives like a human: a lane change of a few seconds, little overshoot.
+    assert 3.0 <= scripted["duration_s"] <= 8.0
+    assert scripted["overshoot_m"] < 0.5
+
+
+def test_every_figure_and_the_report_are_written(run) -> None:
+    run_dir, _, _ = run
+    for name, _ in FIGURES:
+        path = run_dir / "figures" / name
+        assert path.is_file() and path.stat().st_size > 0, name
+    report = (run_dir / "report.md").read_text()
+    assert "scripted controller" in report and "Best model" in report
+    for name, _ in FIGURES:
+        assert f"figures/{name}" in report
+
+
+@pytest.mark.parametrize("with_config", [False, True])
+def test_dir_without_checkpoints_exits_2_with_one_line(tmp_path: Path, with_config: bool) -> None:
+    if with_config:  # a run that stopped before its first checkpoint
+        (tmp_path / "config.toml").write_text(SMOKE.read_text())
+        (tmp_path / "checkpoints" / "m00_s0").mkdir(parents=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxlc.evaluate", str(tmp_path), "--no-figures"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: no checkpoints in "), proc.stderr
+    assert not (tmp_path / "eval").exists()
+
+
+def test_corrupt_checkpoint_exits_2_with_one_line(run, tmp_path: Path, capsys) -> None:
+    run_dir, _, _ = run
+    (tmp_path / "config.toml").write_text((run_dir / "config.toml").read_text())
+    src = checkpoint.list_checkpoints(run_dir)[0]
+    dst = tmp_path / "checkpoints" / src.parent.name / src.name
+    dst.parent.mkdir(parents=True)
+    dst.write_bytes(src.read_bytes()[:50])  # truncated params, intact metadata
+    dst.with_suffix(".json").write_text(src.with_suffix(".json").read_text())
+    capsys.readouterr()
+    assert evaluate.main([str(tmp_path), "--cases", str(CASES), "--chunk", str(CHUNK)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "corrupt" in err[0]
