@@ -3,6 +3,7 @@
     python -m jaxlc.sweep                                  # configs/paper.toml
     python -m jaxlc.sweep --config configs/smoke.toml --out runs/smoke
     python -m jaxlc.sweep train.envs_per_model=64 grid.k=[1,2] --seeds 3
+    python -m jaxlc.sweep --devices 4                      # models laid over 4 devices
 
 The scan runs in chunks of ``train.chunk_steps``; between chunks the host saves checkpoints
 (the actor of every model at episodes checkpoint_every, 2*checkpoint_every, ...), and at the
@@ -207,6 +208,7 @@ def run_sweep(
     force: bool = False,
     progress: bool = True,
     resume: bool = False,
+    devices: int | None = None,
 ) -> dict[str, Any]:
     """Train every model of ``cfg``'s grid and write the run directory; returns the summary.
 
@@ -218,7 +220,13 @@ def run_sweep(
     if not resume:
         prepare_run_dir(out, cfg, force)
     grid = train.make_grid(cfg)
-    init, run = train.make_grid_fns(cfg, grid)
+    n_dev = len(jax.devices()) if devices is None else devices
+    if not 1 <= n_dev <= len(jax.devices()):
+        raise config.ConfigError(
+            f"--devices: must be between 1 and {len(jax.devices())} (the devices JAX sees), "
+            f"got {n_dev}"
+        )
+    init, run = train.make_grid_fns(cfg, grid, jax.devices()[:n_dev])
     t = cfg.train
     t0 = time.perf_counter()
     state = init(train.model_keys(cfg, grid))
@@ -344,6 +352,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--force", action="store_true", help="overwrite a run directory")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ap.add_argument(
+        "--devices",
+        type=int,
+        default=None,
+        help="devices to lay the models over (default: all JAX sees)",
+    )
     args = ap.parse_args(argv)
     try:
         if args.resume is not None:
@@ -370,6 +384,7 @@ def main(argv: list[str] | None = None) -> int:
             force=args.force,
             progress=not args.no_progress,
             resume=args.resume is not None,
+            devices=args.devices,
         )
     except (config.ConfigError, checkpoint.CheckpointError) as err:
         print(f"error: {err}", file=sys.stderr)
