@@ -217,15 +217,15 @@ def run_sweep(
     with the same params, bit for bit, as a run never interrupted."""
     from tqdm import tqdm
 
-    if not resume:
-        prepare_run_dir(out, cfg, force)
-    grid = train.make_grid(cfg)
     n_dev = len(jax.devices()) if devices is None else devices
     if not 1 <= n_dev <= len(jax.devices()):
         raise config.ConfigError(
             f"--devices: must be between 1 and {len(jax.devices())} (the devices JAX sees), "
             f"got {n_dev}"
         )
+    if not resume:
+        prepare_run_dir(out, cfg, force)
+    grid = train.make_grid(cfg)
     init, run = train.make_grid_fns(cfg, grid, jax.devices()[:n_dev])
     t = cfg.train
     t0 = time.perf_counter()

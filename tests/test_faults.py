@@ -103,6 +103,7 @@ def _bad_cases(tmp_path, smoke_run):
         (s + ["ddpg.gamma=1.5"], "ddpg.gamma"),
         (s + ["env.dt=nan"], "env.dt"),
         (s + ["train.episodes=45"], "must divide"),
+        (s + ["--devices", "0"], "--devices"),
         (["--config", str(bad_toml), "--out", str(tmp_path / "new")], "not valid TOML"),
         (["--config", str(tmp_path / "missing.toml")], "does not exist"),
         (["--config", str(other_cfg), "--out", str(run_dir)], "another config"),
