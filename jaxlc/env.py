@@ -39,7 +39,7 @@ from jax import Array
 
 from jaxlc import gap, kinematics, reward
 from jaxlc.config import Config, EnvConfig
-from jaxlc.idm import NO_LEADER_GAP, idm_acceleration
+from jaxlc.idm import NO_LEADER_GAP, idm_with_params
 
 WAIT, CRUISE, GAP, RL = 0, 1, 2, 3
 PHASES = ("wait", "cruise", "gap", "rl")
@@ -171,21 +171,6 @@ class Box:
         return jnp.all((x >= self.low) & (x <= self.high))
 
 
-def _idm(v: Array, v0: Array, gap_: Array, v_lead: Array, p: EnvParams) -> Array:
-    return idm_acceleration(
-        v,
-        v0,
-        gap_,
-        v_lead,
-        p.idm_a_max,
-        p.idm_b,
-        p.idm_time_headway,
-        p.idm_s0,
-        p.idm_delta,
-        p.idm_b_max,
-    )
-
-
 def _ring_leaders(tr: Traffic, p: EnvParams) -> tuple[Array, Array]:
     """Net gap and speed of each slot's leader: the slot written just before it, when that
     slot is occupied and ahead (a full ring's oldest slot has the newest behind it)."""
@@ -292,16 +277,16 @@ def _advance(
     use_ego = on & (eg.x > tr.x) & (occupied[:, None] | yields) & (ego_gap < gap_r)
     gap_r = jnp.where(use_ego, ego_gap, gap_r)
     lead_v = jnp.where(use_ego, eg.v, lead_v)
-    acc = jnp.where(tr.active, _idm(tr.v, tr.v0, gap_r, lead_v, p), 0.0)
+    acc = jnp.where(tr.active, idm_with_params(tr.v, tr.v0, gap_r, lead_v, p), 0.0)
 
     # Ego longitudinal: IDM to its own-lane leader, "with adaptation" to the chosen gap.
-    a_ego = _idm(eg.v, eg.v0, state.leader_gap, state.leader_v, p)
+    a_ego = idm_with_params(eg.v, eg.v0, state.leader_gap, state.leader_v, p)
     seek_gap, seek_v = gap.target_leader(nb, eg.x, eg.v, p)
     lead_gap = gap.net_gap(nb.a1_x, eg.x, L, nb.has_a1)
     adapt_gap = jnp.where(in_rl, lead_gap, seek_gap)
     # With no vehicle to adapt to (gap NO_LEADER_GAP), any finite speed gives a ~ free road.
     adapt_v = jnp.where(adapt_gap >= NO_LEADER_GAP, eg.v, jnp.where(in_rl, nb.a1_v, seek_v))
-    a_adapt = _idm(eg.v, eg.v0, adapt_gap, adapt_v, p)
+    a_adapt = idm_with_params(eg.v, eg.v0, adapt_gap, adapt_v, p)
     a_ego = jnp.where(eg.phase >= GAP, jnp.minimum(a_ego, a_adapt), a_ego)
 
     # Integrate: trapezoidal position update, speeds never negative.

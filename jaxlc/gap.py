@@ -18,7 +18,7 @@ import flax.struct
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.idm import NO_LEADER_GAP, idm_acceleration
+from jaxlc.idm import NO_LEADER_GAP, idm_with_params
 
 FAR = 1e6  # position standing in for a missing vehicle
 
@@ -94,18 +94,7 @@ def beside_acceptable(nb: Neighbours, x_ego: Array, v_ego: Array, p) -> Array:
     lag_gap = net_gap(x_ego, nb.b1_x, p.vehicle_length, nb.has_b1)
     lead_ok = lead_gap >= p.idm_s0 + p.gap_time_headway * v_ego
     lag_ok = lag_gap >= p.idm_s0 + p.gap_time_headway * nb.b1_v
-    lag_acc = idm_acceleration(
-        nb.b1_v,
-        nb.b1_v0,
-        lag_gap,
-        v_ego,
-        p.idm_a_max,
-        p.idm_b,
-        p.idm_time_headway,
-        p.idm_s0,
-        p.idm_delta,
-        p.idm_b_max,
-    )
+    lag_acc = idm_with_params(nb.b1_v, nb.b1_v0, lag_gap, v_ego, p)
     lag_safe = ~nb.has_b1 | (lag_acc >= -p.b_safe)
     return lead_ok & lag_ok & lag_safe
 

@@ -40,6 +40,22 @@ def idm_acceleration(
     return jnp.maximum(a_max * (1.0 - free - interaction), -b_max)
 
 
+def idm_with_params(v: Array, v0: Array, gap: Array, v_lead: Array, p) -> Array:
+    """``idm_acceleration`` with the IDM constants of ``p`` (an ``EnvParams``)."""
+    return idm_acceleration(
+        v,
+        v0,
+        gap,
+        v_lead,
+        p.idm_a_max,
+        p.idm_b,
+        p.idm_time_headway,
+        p.idm_s0,
+        p.idm_delta,
+        p.idm_b_max,
+    )
+
+
 def equilibrium_gap(v: float, v0: float, time_headway: float, s0: float, delta: float) -> float:
     """Net gap at which a follower at steady speed ``v`` (behind a leader at ``v``) has a = 0."""
     return (s0 + v * time_headway) / (1.0 - (v / v0) ** delta) ** 0.5
