@@ -303,7 +303,12 @@ def run_sweep(
             now = int(np.minimum(np.asarray(state.episodes), t.episodes).sum())
             recent = metrics["successes"].sum() / max(1, metrics["episodes_ended"].sum())
             rate = t.chunk_steps * t.envs_per_model * grid.size / (time.perf_counter() - t_chunk)
-            bar.set_postfix(success=f"{recent:.0%}", env_steps_s=f"{rate:,.0f}")
+            per_model = np.minimum(np.asarray(state.episodes), t.episodes)
+            bar.set_postfix(
+                per_model=f"{per_model.min()}-{per_model.max()}",
+                success=f"{recent:.0%}",
+                env_steps_s=f"{rate:,.0f}",
+            )
             bar.update(now - done_eps)
             done_eps = now
     except KeyboardInterrupt:
