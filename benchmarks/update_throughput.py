@@ -1,0 +1,199 @@
+"""Throughput of the vmapped DDPG update against this machine's float32 matmul peak.
+
+Measured in one run, so that both figures see the same machine state:
+
+1. peak: a jitted ``jnp.dot`` of two ``(n, n)`` float32 matrices, median of ``--repeats``
+   timed calls, as GFLOP/s (``2 n^3`` FLOPs per call);
+2. grid-updates/s: ``jax.jit(jax.vmap(step))`` over ``--models`` models, where ``step`` samples
+   a batch from the model's replay memory (capacities cycle through ``--memories`` under a
+   cap_max of their maximum) and runs ``ddpg.update``; ``--updates`` steps run in one
+   ``lax.scan``; median over ``--repeats`` calls after a compiling call;
+3. achieved GFLOP/s of the update = grid-updates/s x models x ``update_flops`` and its share of
+   the peak. Only matmul FLOPs count (see ``update_flops``); elementwise work, Adam and the
+   sampling gather are the overhead that keeps the share below 100 %.
+
+Timed calls of (1) and (2) alternate so that both see the same load from other processes; the
+share is also given from the fastest call of each ("best_of"), and the 1-minute load average is
+recorded, because a shared machine makes single figures noisy. ``XLA_FLAGS`` in the environment
+applies to both measurements.
+
+Usage: ``python benchmarks/update_throughput.py [--models 9 --batch 64 --repeats 5]``;
+``--tiny`` shrinks everything for tests. Writes ``benchmarks/results/update_throughput.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import os
+import statistics
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
+    sys.path.insert(0, str(ROOT))
+
+from jaxlc import ddpg, replay  # noqa: E402
+from jaxlc.config import DDPGConfig  # noqa: E402
+from jaxlc.env import OBS_DIM  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+def update_flops(obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int = 1) -> int:
+    """Matmul FLOPs of one ``ddpg.update`` of one model (2 per multiply-add).
+
+    A dense layer ``in -> out`` on ``batch`` rows costs ``F = 2 * batch * in * out`` forward;
+    its backward costs ``F`` for the weight gradient and ``F`` for the input gradient. Counted:
+
+    - target actor on s' and target critic on (s', mu'(s')): one forward each;
+    - critic on (s, a): forward, weight gradients of every layer, input gradients of every
+      layer but the first (the input is data);
+    - actor on s, critic on (s, mu(s)): forward each; input gradients through every critic
+      layer (the first only for the action columns) and every actor layer but the first;
+      weight gradients of every actor layer.
+    """
+    actor = list(zip((obs_dim, *hidden), (*hidden, act_dim), strict=True))
+    critic = list(zip((obs_dim + act_dim, *hidden), (*hidden, 1), strict=True))
+
+    def f(layers: list[tuple[int, int]]) -> int:
+        return sum(2 * batch * i * o for i, o in layers)
+
+    first_action_cols = 2 * batch * act_dim * hidden[0]
+    target = f(actor) + f(critic)
+    critic_step = f(critic) + f(critic) + f(critic[1:])
+    actor_step = f(actor) + f(critic) + f(critic[1:]) + first_action_cols + f(actor) + f(actor[1:])
+    return target + critic_step + actor_step
+
+
+def _timed(fn: Callable[[], object]) -> Callable[[], float]:
+    """Compile and warm ``fn`` up; return a function that times one call in seconds."""
+    jax.block_until_ready(fn())
+
+    def once() -> float:
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        return time.perf_counter() - t0
+
+    return once
+
+
+def matmul_call(n: int) -> Callable[[], jax.Array]:
+    """A jitted float32 ``(n, n) @ (n, n)``: ``2 n^3`` FLOPs per call."""
+    ka, kb = jax.random.split(jax.random.key(0))
+    a = jax.random.normal(ka, (n, n), jnp.float32)
+    b = jax.random.normal(kb, (n, n), jnp.float32)
+    dot = jax.jit(jnp.dot)
+    return lambda: dot(a, b)
+
+
+def grid_update_call(
+    cfg: DDPGConfig, models: int, memories: Sequence[int], updates: int
+) -> Callable[[], object]:
+    """``updates`` vmapped sample + update steps of ``models`` models in one ``lax.scan``."""
+    cap_max = max(memories)
+    caps = jnp.asarray([memories[i % len(memories)] for i in range(models)], jnp.int32)
+    k_init, k_run = jax.random.split(jax.random.key(1))
+    init = jax.jit(jax.vmap(lambda k: ddpg.init_learner(k, OBS_DIM, cfg)))  # eager: seconds
+    learners = init(jax.random.split(k_init, models))
+    hyper = jax.vmap(lambda _: ddpg.Hyper.from_config(cfg))(jnp.arange(models))
+
+    # host-side random transitions: one compiled vmapped add, called until the largest is full
+    rng = np.random.default_rng(2)
+    n = min(memories)  # rows per add: add() needs n <= every capacity
+    add = jax.jit(jax.vmap(replay.add))
+    memory = jax.vmap(lambda c: replay.init(cap_max, OBS_DIM, 1, c))(caps)
+    for _ in range(-(-cap_max // n)):
+        obs, next_obs = rng.normal(size=(2, models, n, OBS_DIM)).astype(np.float32)
+        action = rng.uniform(-1, 1, (models, n, 1)).astype(np.float32)
+        reward = rng.normal(size=(models, n)).astype(np.float32)
+        done = np.zeros((models, n), np.float32)
+        memory = add(memory, obs, action, reward, next_obs, done, np.ones((models, n), bool))
+
+    def one(learner: ddpg.Learner, mem: replay.Replay, h: ddpg.Hyper, key: jax.Array):
+        return ddpg.update(learner, replay.sample(mem, key, cfg.batch_size), h, cfg)
+
+    @jax.jit
+    def run(learners: ddpg.Learner, memory: replay.Replay, hyper: ddpg.Hyper, key: jax.Array):
+        def body(carry: ddpg.Learner, k: jax.Array) -> tuple[ddpg.Learner, jax.Array]:
+            new, metrics = jax.vmap(one)(carry, memory, hyper, jax.random.split(k, models))
+            return new, metrics["critic_loss"]
+
+        return jax.lax.scan(body, learners, jax.random.split(key, updates))
+
+    return lambda: run(learners, memory, hyper, k_run)
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, float]:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--models", type=int, default=9)
+    p.add_argument("--batch", type=int, default=64)
+    p.add_argument("--hidden", type=int, nargs="+", default=[300, 600])
+    p.add_argument("--memories", type=int, nargs="+", default=[2000, 4000, 8000])
+    p.add_argument("--updates", type=int, default=200, help="updates per timed scan")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--matmul-n", type=int, default=2048)
+    p.add_argument("--out", type=Path, default=RESULTS / "update_throughput.csv")
+    p.add_argument("--tiny", action="store_true", help="small sizes, for tests")
+    args = p.parse_args(argv)
+    if args.tiny:
+        args.models, args.batch, args.hidden, args.memories = 3, 8, [16, 32], [64, 96, 128]
+        args.updates, args.repeats, args.matmul_n = 5, 2, 128
+
+    cfg = dataclasses.replace(DDPGConfig(), hidden=tuple(args.hidden), batch_size=args.batch)
+    time_dot = _timed(matmul_call(args.matmul_n))
+    time_grid = _timed(grid_update_call(cfg, args.models, args.memories, args.updates))
+    dot_s, grid_s = [], []
+    for _ in range(args.repeats):  # alternate, so both see the same load from other processes
+        dot_s.append(time_dot())
+        grid_s.append(time_grid())
+    peak = 2 * args.matmul_n**3 / statistics.median(dot_s) / 1e9
+    rate = args.updates / statistics.median(grid_s)
+    flops = update_flops(OBS_DIM, cfg.hidden, cfg.batch_size)
+    achieved = rate * args.models * flops / 1e9
+    best = args.updates / min(grid_s) * args.models * flops / (2 * args.matmul_n**3 / min(dot_s))
+    row = {
+        "backend": jax.default_backend(),
+        "models": args.models,
+        "batch": args.batch,
+        "hidden": "x".join(map(str, args.hidden)),
+        "memories": "/".join(map(str, args.memories)),
+        "updates_per_scan": args.updates,
+        "repeats": args.repeats,
+        "matmul_n": args.matmul_n,
+        "peak_gflops": round(peak, 2),
+        "grid_updates_per_s": round(rate, 2),
+        "mflop_per_model_update": round(flops / 1e6, 3),
+        "achieved_gflops": round(achieved, 2),
+        "share_of_peak": round(achieved / peak, 4),
+        "share_of_peak_best_of": round(best, 4),
+        "loadavg_1min": round(os.getloadavg()[0], 2),
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with args.out.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(row))
+        writer.writeheader()
+        writer.writerow(row)
+    width = max(map(len, row))
+    for k, v in row.items():
+        print(f"{k:<{width}}  {v}")
+    print(f"wrote {args.out}")
+    return {
+        "peak_gflops": peak,
+        "grid_updates_per_s": rate,
+        "achieved_gflops": achieved,
+        "share_of_peak": achieved / peak,
+        "share_of_peak_best_of": best,
+    }
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

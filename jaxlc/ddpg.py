@@ -1,0 +1,140 @@
+"""DDPG learner, paper eqs. (4)-(7): pure functions over a ``Learner`` pytree.
+
+Hyperparameters that differ between models of the grid (learning rates, exploration sigma) live
+in ``Hyper`` as traced scalars so that ``jax.vmap`` runs every model in one program; the static
+``DDPGConfig`` fixes shapes and the constants shared by the grid (hidden sizes, gamma, tau).
+
+``update`` is the training bottleneck (nine models vmapped, batch 64, on a CPU); its time goes to
+XLA's CPU matmul kernels on 64-row products and to the memory-bound Adam/target pass. A
+hand-written backward pass that shares one 128-row critic forward between the two losses
+measured no faster in paired runs (within 2 %), so plain ``jax.grad`` stays.
+"""
+
+from __future__ import annotations
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxlc.config import DDPGConfig
+from jaxlc.networks import make_networks
+
+Params = dict
+
+
+@flax.struct.dataclass
+class Hyper:
+    """Per-model hyperparameters, each a () float32 (a (models,) array under vmap)."""
+
+    actor_lr: jax.Array
+    critic_lr: jax.Array
+    noise_sigma: jax.Array
+
+    @staticmethod
+    def from_config(cfg: DDPGConfig) -> Hyper:
+        return Hyper(
+            actor_lr=jnp.float32(cfg.actor_lr),
+            critic_lr=jnp.float32(cfg.critic_lr),
+            noise_sigma=jnp.float32(cfg.noise_sigma),
+        )
+
+
+@flax.struct.dataclass
+class Learner:
+    """Online and target params (flax pytrees), Adam states, and the update count."""
+
+    actor: Params
+    critic: Params
+    actor_target: Params
+    critic_target: Params
+    actor_opt: optax.OptState
+    critic_opt: optax.OptState
+    step: jax.Array  # () int32, updates done
+
+
+# Adam without its learning rate: the rate is a traced per-model value applied in ``update``.
+_adam = optax.scale_by_adam()
+
+
+def init_learner(key: jax.Array, obs_dim: int, cfg: DDPGConfig, act_dim: int = 1) -> Learner:
+    """Fresh online networks, targets equal to them, zeroed Adam moments."""
+    actor, critic = make_networks(cfg, act_dim)
+    k_actor, k_critic = jax.random.split(key)
+    obs = jnp.zeros((1, obs_dim), jnp.float32)
+    act = jnp.zeros((1, act_dim), jnp.float32)
+    actor_params = actor.init(k_actor, obs)
+    critic_params = critic.init(k_critic, obs, act)
+    return Learner(
+        actor=actor_params,
+        critic=critic_params,
+        actor_target=jax.tree.map(jnp.copy, actor_params),
+        critic_target=jax.tree.map(jnp.copy, critic_params),
+        actor_opt=_adam.init(actor_params),
+        critic_opt=_adam.init(critic_params),
+        step=jnp.zeros((), jnp.int32),
+    )
+
+
+def _step(
+    params: Params, grads: Params, opt: optax.OptState, lr: jax.Array, target: Params, tau: float
+) -> tuple[Params, optax.OptState, Params]:
+    """One Adam step at the traced rate ``lr``, then the soft target update, eqs. (6)/(7)."""
+    updates, opt = _adam.update(grads, opt, params)
+    params = jax.tree.map(lambda p, u: p - lr * u, params, updates)
+    target = jax.tree.map(lambda t, p: t + tau * (p - t), target, params)
+    return params, opt, target
+
+
+def update(
+    learner: Learner, batch: dict[str, jax.Array], hyper: Hyper, cfg: DDPGConfig
+) -> tuple[Learner, dict[str, jax.Array]]:
+    """One DDPG update from a batch (keys and shapes as ``replay.sample`` returns them).
+
+    Critic: minimise eq. (4), y = r + gamma (1 - terminated) Q'(s', mu'(s')); actor: ascend
+    eq. (5); targets: eqs. (6)/(7) after the Adam steps. Metrics: critic_loss, actor_loss
+    (= -mean Q(s, mu(s))), mean_q (= mean Q(s, a)), each ``()``.
+
+    Both gradients use the params from before this step, as reference implementations do
+    (OpenAI baselines' DDPG), so the critic and actor passes are independent and XLA can
+    overlap them. The actor's gradient differentiates only the actor's params: the critic's
+    weight gradients are never formed on that pass.
+    """
+    if cfg.td3:
+        raise NotImplementedError("ddpg.td3: TD3 is not implemented; plain DDPG is the default")
+    actor, critic = make_networks(cfg, batch["action"].shape[-1])
+    obs, act, next_obs = batch["obs"], batch["action"], batch["next_obs"]
+
+    next_q = critic.apply(
+        learner.critic_target, next_obs, actor.apply(learner.actor_target, next_obs)
+    )
+    y = batch["reward"] + cfg.gamma * (1.0 - batch["terminated"]) * next_q  # (batch,)
+
+    def critic_loss(params: Params) -> tuple[jax.Array, jax.Array]:
+        q = critic.apply(params, obs, act)  # (batch,)
+        return jnp.mean(jnp.square(y - q)), q
+
+    def actor_loss(params: Params) -> jax.Array:
+        return -jnp.mean(critic.apply(learner.critic, obs, actor.apply(params, obs)))
+
+    (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(learner.critic)
+    a_loss, a_grads = jax.value_and_grad(actor_loss)(learner.actor)
+    critic_p, critic_opt, critic_t = _step(
+        learner.critic, c_grads, learner.critic_opt, hyper.critic_lr, learner.critic_target, cfg.tau
+    )
+    actor_p, actor_opt, actor_t = _step(
+        learner.actor, a_grads, learner.actor_opt, hyper.actor_lr, learner.actor_target, cfg.tau
+    )
+    new = Learner(actor_p, critic_p, actor_t, critic_t, actor_opt, critic_opt, learner.step + 1)
+    return new, {"critic_loss": c_loss, "actor_loss": a_loss, "mean_q": jnp.mean(q)}
+
+
+def explore(
+    key: jax.Array, action: jax.Array, sigma: jax.Array | float, noise_clip: float = 2.0
+) -> jax.Array:
+    """Action plus N(0, sigma) noise truncated at +-noise_clip*sigma, clipped to [-1, 1].
+
+    ``action`` is ``(..., act_dim)`` in tanh units; ``sigma`` a () scalar (traced per model).
+    """
+    z = jax.random.truncated_normal(key, -noise_clip, noise_clip, action.shape, action.dtype)
+    return jnp.clip(action + sigma * z, -1.0, 1.0)

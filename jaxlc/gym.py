@@ -1,0 +1,625 @@
+"""Gymnasium front end: one lane change per episode, one RL decision per step.
+
+    import gymnasium as gym
+    import jaxlc.gym  # registers "jaxlc/LaneChange-v0"
+
+    env = gym.make("jaxlc/LaneChange-v0", render_mode="rgb_array")
+    obs, info = env.reset(seed=0)
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    frame = env.render()                                   # (H, W, 3) uint8
+
+    envs = gym.make_vec("jaxlc/LaneChange-v0", num_envs=64)  # LaneChangeVectorEnv, one jit call
+
+The functional env (``jaxlc.env``) advances the whole highway every dt while the ego goes
+through WAIT/CRUISE/GAP before the RL phase; only RL-phase steps are decisions. These wrappers
+hide the rest: after a reset, and after the step that ends a manoeuvre, one jitted
+``lax.while_loop`` (``fast_forward``) runs the simulator with no action through WAIT, CRUISE
+and GAP, and through whole episodes that end before any RL step (no gap found, or a collision
+before the gap was accepted), until the next gap is accepted or ``max_skip_steps`` steps ran.
+So a gym episode is exactly one lane change, each ``step`` is one RL decision, and
+``terminated``/``truncated`` mean what they mean in the functional env (success, out of bounds
+and collision terminate; the 10 s timeout truncates, so a learner bootstraps from it).
+
+Randomness: one JAX key per env. ``reset(seed=s)`` starts from ``PRNGKey(s)``; ``reset_core``
+and ``step_core`` split it once per simulator step, always in the same order, so a wrapper
+rollout can be replayed step for step with the functional API (tests/test_gym.py does so).
+``reset()`` without a seed right after an episode ended continues the same traffic with the
+next ego (its first observation was computed by the step that ended the episode); in the middle
+of an episode it starts a fresh road (new warm-up) drawn from the key stream. A ``reset()``
+with no seed before any seeded one draws the key from ``self.np_random``.
+
+Observation bounds (``observation_bounds``): the 14 entries of ``jaxlc.env.observation``,
+bounded from the normalisation there and the facts the simulator guarantees while the ego is
+under RL control (the only states these wrappers return): speeds never exceed
+``max(entry_speed_max, desired_speed_max)`` (IDM never accelerates past v0); IDM acceleration
+lies in [-idm_b_max, idm_a_max]; psi and omega are zeroed when the gap is accepted and then
+grow by at most ``max_yaw_acc*dt`` per step for at most ``n = round(manoeuvre_time_limit/dt)``
+steps; the offset starts at +-lane_width and moves at most ``v_max*dt`` a step, and a manoeuvre
+ends once it passes ``border``; gaps are clipped to [-10, 100] m. Each bound is widened by
+0.1 % (at least 1e-3) for float32 rounding. With the default curvature 0 these are finite and
+hold for every observation; with a curvature the ego's heading drifts during CRUISE/GAP (psi
+integrates -curvature*v with omega = 0), so psi and offset are then left unbounded.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+from jax import Array
+
+from jaxlc.config import Config, EnvConfig
+from jaxlc.env import (
+    _GAP_CLIP,
+    _OBS_SCALE,
+    ACT_DIM,
+    OBS_DIM,
+    RL,
+    EnvParams,
+    EnvState,
+    LaneChangeEnv,
+    make,
+    observation,
+)
+from jaxlc.reward import NONE, REASONS
+
+ENV_ID = "jaxlc/LaneChange-v0"
+# Env-steps the fast-forward may run before giving up: ~33 simulated minutes, far beyond the
+# ~30 s one episode takes (an ego needs ~15-25 s to reach the command point, then at most 5 s
+# of gap search), so only a config in which no gap is ever acceptable reaches it.
+DEFAULT_MAX_SKIP_STEPS = 20_000
+_ENV = LaneChangeEnv()
+_NO_ACTION = jnp.zeros(ACT_DIM, jnp.float32)
+
+
+# --- pure core ------------------------------------------------------------------------------
+
+
+def fast_forward(
+    key: Array, state: EnvState, params: EnvParams, max_steps: Array | int
+) -> tuple[Array, EnvState, Array, Array]:
+    """Step with no action until the ego is under RL control, at most ``max_steps`` steps.
+
+    Returns ``(key, state, steps_run, episodes_ended)``; the last counts episodes that ended
+    without an RL step (no gap, or a collision before the gap was accepted). A state already
+    in the RL phase is returned as it is, key included.
+    """
+
+    def cond(carry: tuple[Array, EnvState, Array, Array]) -> Array:
+        _, s, n, _ = carry
+        return (s.ego.phase != RL) & (n < max_steps)
+
+    def body(carry: tuple[Array, EnvState, Array, Array]) -> tuple[Array, EnvState, Array, Array]:
+        key, s, n, ended = carry
+        key, k = jax.random.split(key)
+        _, s, _, _, _, info = _ENV.step(k, s, _NO_ACTION, params)
+        return key, s, n + 1, ended + (info["reason"] != NONE)
+
+    zero = jnp.int32(0)
+    return jax.lax.while_loop(cond, body, (key, state, zero, zero))
+
+
+def reset_core(
+    key: Array, params: EnvParams, max_steps: Array | int
+) -> tuple[Array, EnvState, dict[str, Array]]:
+    """A fresh road (``env.reset``), then ``fast_forward`` to the first RL decision.
+
+    Returns ``(key, state, out)`` with ``out``: ``obs``, ``ready`` (the ego is under RL
+    control; False only if ``max_steps`` ran out), ``skipped_steps``, ``skipped_episodes``,
+    ``target_lane``.
+    """
+    key, k_reset = jax.random.split(key)
+    _, state = _ENV.reset(k_reset, params)
+    key, state, n, ended = fast_forward(key, state, params, max_steps)
+    out = {
+        "obs": observation(state, params),
+        "ready": state.ego.phase == RL,
+        "skipped_steps": n,
+        "skipped_episodes": ended,
+        "target_lane": state.ego.target,
+    }
+    return key, state, out
+
+
+def step_core(
+    key: Array, state: EnvState, action: Array, params: EnvParams, max_steps: Array | int
+) -> tuple[Array, EnvState, EnvState, dict[str, Array]]:
+    """One RL decision of an env whose ego is under RL control.
+
+    One ``env.step``; if it ended the manoeuvre, ``fast_forward`` to the next one. Returns
+    ``(key, state_after_step, next_state, out)``: ``state_after_step`` is the state the
+    step produced (terminal when the manoeuvre ended), ``next_state`` the one to act in next
+    (the same state when the manoeuvre goes on). ``out`` holds the step's ``obs``, ``reward``,
+    ``terminated``, ``truncated``, info terms, and ``next_obs``/``ready``/``skipped_*``/
+    ``target_lane`` of ``next_state``.
+    """
+    key, k = jax.random.split(key)
+    obs, after, reward, terminated, truncated, info = _ENV.step(k, state, action, params)
+    key, nxt, n, ended = fast_forward(key, after, params, max_steps)
+    out = {
+        "obs": obs,
+        "reward": reward,
+        "terminated": terminated,
+        "truncated": truncated,
+        "rl_step": info["rl_step"],
+        "reason_code": info["reason"],
+        "r_s": info["r_s"],
+        "r_e": info["r_e"],
+        "r_d": info["r_d"],
+        "episode_return": info["episode_return"],
+        "episode_steps": info["episode_steps"],
+        "offset": info["offset"],
+        "action": info["action"],
+        "next_obs": observation(nxt, params),
+        "ready": nxt.ego.phase == RL,
+        "skipped_steps": n,
+        "skipped_episodes": ended,
+        "target_lane": nxt.ego.target,
+    }
+    return key, after, nxt, out
+
+
+# Everything the host reads after a call travels as ONE float32 vector: fetching ~18 separate
+# scalars costs more than the simulator step itself. Integers here stay far below 2**24, so
+# float32 holds them exactly.
+_STEP_FIELDS = (
+    ("obs", OBS_DIM),
+    ("next_obs", OBS_DIM),
+    ("reward", 1),
+    ("terminated", 1),
+    ("truncated", 1),
+    ("rl_step", 1),
+    ("reason_code", 1),
+    ("r_s", 1),
+    ("r_e", 1),
+    ("r_d", 1),
+    ("episode_return", 1),
+    ("episode_steps", 1),
+    ("offset", 1),
+    ("action", 1),
+    ("ready", 1),
+    ("skipped_steps", 1),
+    ("skipped_episodes", 1),
+    ("target_lane", 1),
+)
+_RESET_FIELDS = (
+    ("obs", OBS_DIM),
+    ("ready", 1),
+    ("skipped_steps", 1),
+    ("skipped_episodes", 1),
+    ("target_lane", 1),
+)
+_INT_FIELDS = ("reason_code", "episode_steps", "skipped_steps", "skipped_episodes", "target_lane")
+_BOOL_FIELDS = ("terminated", "truncated", "rl_step", "ready")
+
+
+def _pack(out: dict[str, Array], fields: tuple[tuple[str, int], ...]) -> Array:
+    return jnp.concatenate([jnp.reshape(out[n], (size,)).astype(jnp.float32) for n, size in fields])
+
+
+def _unpack(flat: np.ndarray, fields: tuple[tuple[str, int], ...]) -> dict[str, np.ndarray]:
+    """Inverse of ``_pack`` along the last axis, on the host; size-1 fields lose that axis.
+    Every field is a fresh contiguous array (callers may keep and modify what they get)."""
+    out, i = {}, 0
+    for name, size in fields:
+        v = flat[..., i : i + size] if size > 1 else flat[..., i]
+        if name in _BOOL_FIELDS:
+            v = v != 0
+        elif name in _INT_FIELDS:
+            v = v.astype(np.int64)
+        out[name] = np.array(v, order="C")
+        i += size
+    return out
+
+
+class _Programs(NamedTuple):
+    reset: Any  # key -> (key, state, packed)
+    step: Any  # (key, state, action) -> (key, [terminal state,] next state, packed)
+    vreset: Any  # batched reset
+    vstep: Any  # batched step, no terminal state
+
+
+@functools.lru_cache(maxsize=32)
+def _programs(params: EnvParams, max_steps: int, keep_terminal: bool) -> _Programs:
+    """Jitted reset/step for one ``params``, shared by every wrapper with those params.
+
+    ``params`` is closed over rather than passed: converting its ~40 Python floats to device
+    arrays on every call took as long as the step. ``keep_terminal`` also returns the state a
+    step produced (only rendering needs it; the extra outputs cost ~15 % of a call).
+    """
+
+    def reset(key: Array) -> tuple[Array, EnvState, Array]:
+        key, state, out = reset_core(key, params, max_steps)
+        return key, state, _pack(out, _RESET_FIELDS)
+
+    def step(key: Array, state: EnvState, action: Array) -> tuple[Any, ...]:
+        key, after, nxt, out = step_core(key, state, action, params, max_steps)
+        packed = _pack(out, _STEP_FIELDS)
+        return (key, after, nxt, packed) if keep_terminal else (key, nxt, packed)
+
+    def vstep(key: Array, state: EnvState, action: Array) -> tuple[Array, EnvState, Array]:
+        key, _, nxt, out = step_core(key, state, action, params, max_steps)
+        return key, nxt, _pack(out, _STEP_FIELDS)
+
+    # Under vmap the while_loop runs until every env is ready again; envs already ready keep
+    # their carry (key included), so each env's key stream is the one it has when stepped alone.
+    return _Programs(
+        reset=jax.jit(reset),
+        step=jax.jit(step),
+        vreset=jax.jit(jax.vmap(reset)),
+        vstep=jax.jit(jax.vmap(vstep)),
+    )
+
+
+def observation_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` float32 bounds of every observation the wrappers return (see the
+    module docstring for why each holds)."""
+    p = params
+    v_max = max(float(p.entry_speed_max), float(p.desired_speed_max))
+    n = round(float(p.manoeuvre_time_limit) / float(p.dt))
+    dt, w = float(p.dt), float(p.lane_width)
+    kappa = float(p.curvature)
+    omega = float(p.max_yaw_acc) * dt * n
+    psi = float(p.max_yaw_acc) * dt * dt * n * (n + 1) / 2
+    offset = max(w, float(p.border)) + v_max * dt
+    if kappa != 0.0:
+        psi = offset = np.inf
+    g_lo, g_hi = _GAP_CLIP[0] / 100.0, _GAP_CLIP[1] / 100.0
+    dv = v_max / 10.0
+    high = np.array(
+        [
+            v_max / _OBS_SCALE[0],
+            float(p.idm_a_max) / _OBS_SCALE[1],
+            psi / _OBS_SCALE[2],
+            omega / _OBS_SCALE[3],
+            offset / w,
+            1.0,
+            n * dt / float(p.manoeuvre_time_limit),
+            abs(kappa) * 100.0,
+            g_hi,
+            dv,
+            g_hi,
+            dv,
+            g_hi,
+            dv,
+        ]
+    )
+    low = np.array(
+        [
+            0.0,
+            -float(p.idm_b_max) / _OBS_SCALE[1],
+            -high[2],
+            -high[3],
+            -high[4],
+            -1.0,
+            0.0,
+            -abs(kappa) * 100.0,
+            g_lo,
+            -dv,
+            g_lo,
+            -dv,
+            g_lo,
+            -dv,
+        ]
+    )
+    assert low.shape == (OBS_DIM,)
+    pad = 1e-3 * np.maximum(1.0, np.abs(np.where(np.isfinite(high), high, 0.0)))
+    return (low - pad).astype(np.float32), (high + pad).astype(np.float32)
+
+
+def render_frame(
+    state: EnvState,
+    params: EnvParams,
+    *,
+    view_m: float = 120.0,
+    px_per_m: float = 8.0,
+) -> np.ndarray:
+    """``(H, W, 3)`` uint8 picture of one env's state (host or device arrays), a window of
+    ``view_m`` metres of road centred on the ego: lanes, traffic (blue), the ego (red, drawn
+    at its heading), the target lane shaded, and a bar along the top that fills up with the
+    manoeuvre time."""
+    tr, eg = jax.device_get((state.traffic, state.ego))
+    p = params
+    lanes, w, length, width = (
+        p.lanes,
+        float(p.lane_width),
+        float(p.vehicle_length),
+        float(p.vehicle_width),
+    )
+    s = px_per_m
+    bar, shoulder = 6, int(round(1.5 * s))
+    road_px = int(round(lanes * w * s))
+    h_px, w_px = bar + 2 * shoulder + road_px, int(round(view_m * s))
+    img = np.empty((h_px, w_px, 3), np.uint8)
+    img[:] = (96, 140, 80)  # verge
+    x0 = float(eg.x) - 0.5 * length - 0.5 * view_m  # world x of the left edge
+
+    def col(x: float) -> int:
+        return int(round((x - x0) * s))
+
+    def row(y: float) -> int:  # lane 0 at the bottom, y upwards
+        return int(round(bar + shoulder + (lanes * w - y) * s))
+
+    def fill(x_lo: float, x_hi: float, y_lo: float, y_hi: float, rgb: tuple[int, ...]) -> None:
+        c0, c1 = max(col(x_lo), 0), min(col(x_hi), w_px)
+        r0, r1 = max(row(y_hi), 0), min(row(y_lo), h_px)
+        if c0 < c1 and r0 < r1:
+            img[r0:r1, c0:c1] = rgb
+
+    fill(x0, x0 + view_m, 0.0, lanes * w, (70, 70, 74))
+    target = int(eg.target)
+    if target != lanes // 2:
+        fill(x0, x0 + view_m, target * w, (target + 1) * w, (92, 92, 98))
+    # Markings: solid road edges, 3 m dashes every 12 m between lanes, fixed to the road.
+    line = max(1, int(round(0.15 * s)))
+    for y in (0.0, lanes * w):
+        r = row(y)
+        img[max(r - line, 0) : r + line, :] = (235, 235, 235)
+    for lane in range(1, lanes):
+        r = row(lane * w)
+        for start in np.arange(np.floor(x0 / 12.0) * 12.0, x0 + view_m, 12.0):
+            c0, c1 = max(col(start), 0), min(col(start + 3.0), w_px)
+            if c0 < c1:
+                img[max(r - line // 2 - 1, 0) : r + line // 2 + 1, c0:c1] = (235, 235, 235)
+    # Traffic: axis-aligned boxes, front bumper at x.
+    active, xs = np.asarray(tr.active), np.asarray(tr.x)
+    for lane in range(lanes):
+        yc = (lane + 0.5) * w
+        for x in xs[lane][active[lane]]:
+            fill(x - length, x, yc - 0.5 * width, yc + 0.5 * width, (60, 120, 220))
+    # Ego: its rotated box, rasterised over its bounding rectangle.
+    c, sn = np.cos(float(eg.psi)), np.sin(float(eg.psi))
+    cx, cy = float(eg.x) - 0.5 * length * c, float(eg.y) - 0.5 * length * sn
+    half = 0.5 * (length * abs(c) + width * abs(sn)), 0.5 * (length * abs(sn) + width * abs(c))
+    c0, c1 = max(col(cx - half[0]), 0), min(col(cx + half[0]) + 1, w_px)
+    r0, r1 = max(row(cy + half[1]), 0), min(row(cy - half[1]) + 1, h_px)
+    if c0 < c1 and r0 < r1:
+        xx = x0 + (np.arange(c0, c1) + 0.5) / s - cx
+        yy = lanes * w - ((np.arange(r0, r1) + 0.5 - bar - shoulder) / s) - cy
+        along = xx[None, :] * c + yy[:, None] * sn
+        across = -xx[None, :] * sn + yy[:, None] * c
+        inside = (np.abs(along) <= 0.5 * length) & (np.abs(across) <= 0.5 * width)
+        img[r0:r1, c0:c1][inside] = (220, 40, 40)
+    # Manoeuvre-time bar.
+    limit = max(1, round(float(p.manoeuvre_time_limit) / float(p.dt)))
+    img[:bar] = (30, 30, 30)
+    img[:bar, : int(w_px * min(int(eg.steps), limit) / limit)] = (240, 190, 40)
+    return img
+
+
+def _params_from(config: Config | EnvConfig | None, k: int, params: EnvParams | None) -> EnvParams:
+    if params is not None:
+        return params
+    return make(config, k=k)[1]
+
+
+def _reason_names(codes: np.ndarray) -> np.ndarray:
+    return np.asarray(REASONS)[codes]
+
+
+_STEP_INFO = (
+    "r_s",
+    "r_e",
+    "r_d",
+    "episode_return",
+    "episode_steps",
+    "offset",
+    "action",
+)
+_RESET_INFO = ("skipped_steps", "skipped_episodes", "target_lane")
+_NEXT_INFO = ("ready", *_RESET_INFO)
+
+
+# --- single env -----------------------------------------------------------------------------
+
+
+class LaneChangeGymEnv(gymnasium.Env[np.ndarray, np.ndarray]):
+    """One jaxlc highway as a ``gymnasium.Env``; an episode is one lane change.
+
+    Args:
+        config: a ``Config`` or ``EnvConfig`` (default: configs/paper.toml), as ``jaxlc.make``.
+        k: the action-update step (the action is held for ``k`` RL steps).
+        params: ready-made ``EnvParams``; overrides ``config`` and ``k``.
+        render_mode: ``None`` or ``"rgb_array"``.
+        max_skip_steps: cap on the env-steps one fast-forward may run.
+
+    ``step`` info: ``reason`` (name from ``jaxlc.reward.REASONS``, "none" while the manoeuvre
+    goes on), ``reason_code``, the reward terms ``r_s``/``r_e``/``r_d`` of eqs. (8)-(10),
+    ``episode_return``/``episode_steps`` of the manoeuvre so far, ``offset`` (m from the target
+    lane's centre) and ``action`` (the executed, held action). ``reset`` info:
+    ``skipped_steps``/``skipped_episodes`` run by the fast-forward and ``target_lane``.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        config: Config | EnvConfig | None = None,
+        k: int = 1,
+        params: EnvParams | None = None,
+        render_mode: str | None = None,
+        max_skip_steps: int = DEFAULT_MAX_SKIP_STEPS,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.params = _params_from(config, k, params)
+        self.render_mode = render_mode
+        self.max_skip_steps = int(max_skip_steps)
+        low, high = observation_bounds(self.params)
+        self.observation_space = spaces.Box(low, high, (OBS_DIM,), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
+        self._programs = _programs(self.params, self.max_skip_steps, render_mode is not None)
+        self._key: Array | None = None
+        self._state: EnvState | None = None  # the state acted in, or the terminal one
+        self._next: tuple[EnvState, dict[str, np.ndarray]] | None = None  # prefetched episode
+        self._done = True
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is not None:
+            self._key = jax.random.PRNGKey(seed)
+        elif self._key is None:
+            self._key = jax.random.PRNGKey(int(self.np_random.integers(2**31)))
+        if seed is None and self._done and self._next is not None:
+            state, out = self._next  # the step that ended the episode already found this one
+        else:
+            self._key, state, packed = self._programs.reset(self._key)
+            out = _unpack(np.asarray(packed), _RESET_FIELDS)
+        if not out["ready"]:
+            raise RuntimeError(
+                f"no lane change started within max_skip_steps={self.max_skip_steps} env-steps; "
+                "the traffic config leaves no acceptable gap"
+            )
+        self._state, self._next, self._done = state, None, False
+        info = {name: int(out[name]) for name in _RESET_INFO}
+        return out["obs"], info
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._done:
+            raise gymnasium.error.ResetNeeded(
+                "call reset() before step() and after an episode ends"
+            )
+        a = np.asarray(action, np.float32).reshape(ACT_DIM)
+        self._key, *states, packed = self._programs.step(self._key, self._state, a)
+        out = _unpack(np.asarray(packed), _STEP_FIELDS)
+        terminated, truncated = bool(out["terminated"]), bool(out["truncated"])
+        nxt = states[-1]
+        if terminated or truncated:
+            # Keep the terminal state for render(); reset() resumes from the prefetched one.
+            self._done = True
+            self._next = (nxt, {"obs": out["next_obs"], **{n: out[n] for n in _NEXT_INFO}})
+            self._state = states[0] if len(states) == 2 else None
+        else:
+            self._state = nxt
+        code = int(out["reason_code"])
+        info: dict[str, Any] = {"reason": REASONS[code], "reason_code": code}
+        for name in _STEP_INFO:
+            info[name] = out[name].item()
+        return out["obs"], float(out["reward"]), terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        if self._state is None:
+            raise gymnasium.error.ResetNeeded("call reset() before render()")
+        return render_frame(self._state, self.params)
+
+
+# --- vector env -----------------------------------------------------------------------------
+
+
+class LaneChangeVectorEnv(VectorEnv):
+    """``num_envs`` highways stepped by one jitted, vmapped call per ``step``.
+
+    Autoreset is ``AutoresetMode.SAME_STEP``: when a sub-env's manoeuvre ends, the returned
+    observation is already the first one of its next lane change, and the terminal one is in
+    ``infos["final_obs"]`` (a dense ``(num_envs, OBS_DIM)`` float32 array, valid where
+    ``infos["_final_obs"]``; gymnasium's SyncVectorEnv uses an object array instead). The other
+    ``infos`` entries are ``(num_envs,)`` arrays of the single env's step info for the step just
+    taken, plus ``skipped_steps``/``skipped_episodes``/``target_lane`` of the episode now
+    running. Sub-env ``i`` of ``reset(seed=s)`` is seeded ``s + i``, as SyncVectorEnv seeds its
+    envs, so it replays a ``LaneChangeGymEnv`` reset with seed ``s + i``.
+    """
+
+    metadata = {
+        "render_modes": ["rgb_array"],
+        "render_fps": 10,
+        "autoreset_mode": AutoresetMode.SAME_STEP,
+    }
+
+    def __init__(
+        self,
+        num_envs: int,
+        config: Config | EnvConfig | None = None,
+        k: int = 1,
+        params: EnvParams | None = None,
+        render_mode: str | None = None,
+        max_skip_steps: int = DEFAULT_MAX_SKIP_STEPS,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.num_envs = int(num_envs)
+        self.params = _params_from(config, k, params)
+        self.render_mode = render_mode
+        self.max_skip_steps = int(max_skip_steps)
+        low, high = observation_bounds(self.params)
+        self.single_observation_space = spaces.Box(low, high, (OBS_DIM,), np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._programs = _programs(self.params, self.max_skip_steps, False)
+        self._keys: Array | None = None
+        self._state: EnvState | None = None
+
+    def reset(
+        self,
+        *,
+        seed: int | Sequence[int] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed if isinstance(seed, int) else None)
+        if seed is None and self._keys is None:
+            seed = int(self.np_random.integers(2**31))
+        if seed is not None:
+            seeds = [seed + i for i in range(self.num_envs)] if isinstance(seed, int) else seed
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"expected {self.num_envs} seeds, got {len(seeds)}")
+            self._keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
+        self._keys, self._state, packed = self._programs.vreset(self._keys)
+        out = _unpack(np.asarray(packed), _RESET_FIELDS)
+        self._check_ready(out["ready"])
+        return out["obs"], {n: out[n] for n in _RESET_INFO}
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if self._state is None:
+            raise gymnasium.error.ResetNeeded("call reset() before step()")
+        a = np.asarray(actions, np.float32).reshape(self.num_envs, ACT_DIM)
+        self._keys, self._state, packed = self._programs.vstep(self._keys, self._state, a)
+        out = _unpack(np.asarray(packed), _STEP_FIELDS)
+        self._check_ready(out["ready"])
+        codes = out["reason_code"]
+        infos: dict[str, Any] = {"reason": _reason_names(codes), "reason_code": codes}
+        for name in (*_STEP_INFO, *_RESET_INFO):
+            infos[name] = out[name]
+        infos["final_obs"] = out["obs"]
+        infos["_final_obs"] = out["terminated"] | out["truncated"]
+        return out["next_obs"], out["reward"], out["terminated"], out["truncated"], infos
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        if self.render_mode != "rgb_array":
+            return None
+        if self._state is None:
+            raise gymnasium.error.ResetNeeded("call reset() before render()")
+        host = jax.device_get(self._state)
+        return tuple(
+            render_frame(jax.tree.map(lambda a, i=i: a[i], host), self.params)
+            for i in range(self.num_envs)
+        )
+
+    def _check_ready(self, ready: np.ndarray) -> None:
+        if not np.all(ready):
+            raise RuntimeError(
+                f"envs {np.nonzero(~np.asarray(ready))[0].tolist()} started no lane change "
+                f"within max_skip_steps={self.max_skip_steps} env-steps; the traffic config "
+                "leaves no acceptable gap"
+            )
+
+
+if ENV_ID not in gymnasium.registry:
+    gymnasium.register(
+        id=ENV_ID,
+        entry_point="jaxlc.gym:LaneChangeGymEnv",
+        vector_entry_point="jaxlc.gym:LaneChangeVectorEnv",
+    )

@@ -1,0 +1,77 @@
+"""Actor and critic MLPs of the paper (Fig. 2): hidden widths from ``DDPGConfig.hidden``, ReLU.
+
+Params are the plain pytrees that ``flax.linen`` returns from ``init``; nothing here holds state.
+The final layer starts near zero (U(+-final_init), [S]) so that early actions and Q values are
+small and tanh does not saturate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from jaxlc.config import DDPGConfig
+
+
+def uniform_pm(scale: float) -> nn.initializers.Initializer:
+    """Initialiser U(-scale, scale); flax's ``uniform`` draws from [0, scale) only."""
+
+    def init(key: jax.Array, shape: Sequence[int], dtype: jnp.dtype = jnp.float32) -> jax.Array:
+        return jax.random.uniform(key, shape, dtype, -scale, scale)
+
+    return init
+
+
+class _Trunk(nn.Module):
+    """Hidden ReLU layers then a linear head of width ``out`` with the small final init.
+
+    Its params are ``{"Dense_0": {"kernel", "bias"}, ..., "Dense_L": ...}`` under the name
+    ``mlp``; ``ddpg`` reads that layout for its hand-written backward pass.
+    """
+
+    hidden: Sequence[int]
+    out: int
+    final_init: float
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for width in self.hidden:  # static layer count: unrolled at trace time
+            x = nn.relu(nn.Dense(width)(x))
+        head = uniform_pm(self.final_init)
+        return nn.Dense(self.out, kernel_init=head, bias_init=head)(x)
+
+
+class Actor(nn.Module):
+    """Policy mu(s): ``(..., obs_dim) -> (..., act_dim)`` in [-1, 1] (tanh units)."""
+
+    hidden: Sequence[int] = (300, 600)
+    act_dim: int = 1
+    final_init: float = 3e-3
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        return jnp.tanh(_Trunk(self.hidden, self.act_dim, self.final_init, name="mlp")(obs))
+
+
+class Critic(nn.Module):
+    """Q(s, a): ``(..., obs_dim), (..., act_dim) -> (...,)``; the input is concat(s, a)."""
+
+    hidden: Sequence[int] = (300, 600)
+    final_init: float = 3e-3
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+        x = jnp.concatenate([obs, action], axis=-1)
+        return _Trunk(self.hidden, 1, self.final_init, name="mlp")(x)[..., 0]
+
+
+def make_networks(cfg: DDPGConfig, act_dim: int = 1) -> tuple[Actor, Critic]:
+    """The two modules for a config (modules are static descriptions, cheap to rebuild)."""
+    hidden = tuple(cfg.hidden)
+    return (
+        Actor(hidden=hidden, act_dim=act_dim, final_init=cfg.final_init),
+        Critic(hidden=hidden, final_init=cfg.final_init),
+    )

@@ -1,0 +1,94 @@
+"""Replay memory for a grid of models under ``jax.vmap``: one array shape, per-model capacity.
+
+Every model's arrays have the grid's largest capacity ``cap_max`` (static); the capacity that a
+model actually uses is a traced int32 scalar, so models with memories of 2000, 4000 and 8000
+are one vmapped program (SPEC.md, "The grid under vmap"). Slots ``[capacity, cap_max)`` are
+never written. A memory is a ring: ``ptr`` is the next slot to write, ``size`` the number of
+filled slots.
+"""
+
+from __future__ import annotations
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+
+
+@flax.struct.dataclass
+class Replay:
+    obs: jax.Array  # (cap_max, obs_dim)
+    action: jax.Array  # (cap_max, act_dim)
+    reward: jax.Array  # (cap_max,)
+    next_obs: jax.Array  # (cap_max, obs_dim)
+    terminated: jax.Array  # (cap_max,) float32 0/1, ready to multiply the bootstrap term
+    capacity: jax.Array  # () int32, <= cap_max
+    ptr: jax.Array  # () int32, next slot to write, in [0, capacity)
+    size: jax.Array  # () int32, filled slots, in [0, capacity]
+
+
+def init(cap_max: int, obs_dim: int, act_dim: int, capacity: jax.Array | int) -> Replay:
+    """An empty memory with arrays of ``cap_max`` rows that uses the first ``capacity``."""
+    f32 = jnp.float32
+    return Replay(
+        obs=jnp.zeros((cap_max, obs_dim), f32),
+        action=jnp.zeros((cap_max, act_dim), f32),
+        reward=jnp.zeros((cap_max,), f32),
+        next_obs=jnp.zeros((cap_max, obs_dim), f32),
+        terminated=jnp.zeros((cap_max,), f32),
+        capacity=jnp.asarray(capacity, jnp.int32),
+        ptr=jnp.zeros((), jnp.int32),
+        size=jnp.zeros((), jnp.int32),
+    )
+
+
+def add(
+    replay: Replay,
+    obs: jax.Array,
+    action: jax.Array,
+    reward: jax.Array,
+    next_obs: jax.Array,
+    terminated: jax.Array,
+    valid: jax.Array,
+) -> Replay:
+    """Insert the rows with ``valid`` set, in row order, overwriting the oldest when full.
+
+    Shapes: obs/next_obs ``(n, obs_dim)``, action ``(n, act_dim)``, reward/terminated/valid
+    ``(n,)``. Requires ``n <= capacity``: with more valid rows than slots two rows would land on
+    one slot and which one survives is unspecified.
+    """
+    cap_max = replay.obs.shape[0]
+    take = valid.astype(jnp.int32)
+    rank = jnp.cumsum(take) - take  # position among the valid rows: compacts the gaps
+    # invalid rows go past the end, where mode="drop" discards them: no Python loop, no branch
+    slot = jnp.where(valid, (replay.ptr + rank) % replay.capacity, cap_max)
+
+    def put(buf: jax.Array, rows: jax.Array) -> jax.Array:
+        return buf.at[slot].set(rows.astype(buf.dtype), mode="drop")
+
+    n_valid = take.sum()
+    return replay.replace(
+        obs=put(replay.obs, obs),
+        action=put(replay.action, action),
+        reward=put(replay.reward, reward),
+        next_obs=put(replay.next_obs, next_obs),
+        terminated=put(replay.terminated, terminated),
+        ptr=(replay.ptr + n_valid) % replay.capacity,
+        size=jnp.minimum(replay.size + n_valid, replay.capacity),
+    )
+
+
+def sample(replay: Replay, key: jax.Array, batch_size: int) -> dict[str, jax.Array]:
+    """``batch_size`` transitions drawn uniformly, with replacement, from the filled slots.
+
+    Returns obs/next_obs ``(batch, obs_dim)``, action ``(batch, act_dim)``, reward/terminated
+    ``(batch,)``. An empty memory yields slot 0 (zeros); callers start updating once a batch
+    is stored (SPEC.md).
+    """
+    idx = jax.random.randint(key, (batch_size,), 0, jnp.maximum(replay.size, 1))
+    return {
+        "obs": replay.obs[idx],
+        "action": replay.action[idx],
+        "reward": replay.reward[idx],
+        "next_obs": replay.next_obs[idx],
+        "terminated": replay.terminated[idx],
+    }

@@ -1,0 +1,213 @@
+"""DDPG update against a hand-written reference of eqs. (4)-(7); exploration; vmap; benchmark."""
+
+import dataclasses
+import importlib.util
+import math
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxlc import ddpg
+from jaxlc.config import DDPGConfig
+from jaxlc.networks import make_networks
+
+OBS_DIM = 5
+# a big final init and tau so that every term of the update moves the params visibly
+CFG = dataclasses.replace(DDPGConfig(), hidden=(4, 3), batch_size=8, final_init=0.5, tau=0.1)
+HYPER = ddpg.Hyper(jnp.float32(3e-2), jnp.float32(5e-2), jnp.float32(0.2))
+
+
+def _batch(seed, n=CFG.batch_size):
+    """Host-side data: jax.random here would cost a compile per shape."""
+    rng = np.random.default_rng(seed)
+    f32 = np.float32
+    return {
+        "obs": rng.normal(size=(n, OBS_DIM)).astype(f32),
+        "action": rng.uniform(-1, 1, (n, 1)).astype(f32),
+        "reward": rng.normal(size=n).astype(f32),
+        "next_obs": rng.normal(size=(n, OBS_DIM)).astype(f32),
+        "terminated": (rng.random(n) < 0.3).astype(f32),
+    }
+
+
+_init = jax.jit(lambda key: ddpg.init_learner(key, OBS_DIM, CFG))
+
+
+def _learner(seed):
+    """A learner whose targets differ from the online nets, so eqs. (6)/(7) are visible."""
+    learner = jax.device_get(_init(jax.random.key(seed)))
+    shift = lambda p: jax.tree.map(lambda x: x + 0.1 * np.sin(7 * x + 1), p)  # noqa: E731
+    return learner.replace(actor_target=shift(learner.actor), critic_target=shift(learner.critic))
+
+
+def _stack(trees):
+    return jax.tree.map(lambda *x: np.stack(x), *trees)
+
+
+# ---- independent reference: plain MLPs, jax.grad, the Adam formula in numpy ----------------
+
+
+def _mlp(params, x):
+    layers = params["params"]["mlp"]
+    for i in range(len(layers)):
+        x = x @ layers[f"Dense_{i}"]["kernel"] + layers[f"Dense_{i}"]["bias"]
+        x = jax.nn.relu(x) if i < len(layers) - 1 else x
+    return x
+
+
+def _q(params, s, a):
+    return _mlp(params, jnp.concatenate([s, a], -1))[:, 0]
+
+
+def _mu(params, s):
+    return jnp.tanh(_mlp(params, s))
+
+
+def _adam(p, g, m, v, t, lr, b1=0.9, b2=0.999, eps=1e-8):
+    """Adam (Kingma & Ba, optax's defaults) on pytrees: (params, m, v) after step t (1-based)."""
+    m = jax.tree.map(lambda m, g: b1 * m + (1 - b1) * np.asarray(g), m, g)
+    v = jax.tree.map(lambda v, g: b2 * v + (1 - b2) * np.asarray(g) ** 2, v, g)
+    step = lambda p, m, v: p - lr * (m / (1 - b1**t)) / (np.sqrt(v / (1 - b2**t)) + eps)  # noqa: E731
+    return jax.tree.map(step, p, m, v), m, v
+
+
+@jax.jit
+def _reference_grads(a, c, at, ct, batch):
+    """Critic loss and the gradients of eqs. (4) and (5) by jax.grad on plain MLPs."""
+    s, act = batch["obs"], batch["action"]
+    y = batch["reward"] + CFG.gamma * (1 - batch["terminated"]) * _q(
+        ct, batch["next_obs"], _mu(at, batch["next_obs"])
+    )  # eq. (4) target
+    critic_loss = lambda cp: jnp.mean((y - _q(cp, s, act)) ** 2)  # noqa: E731 eq. (4)
+    actor_loss = lambda ap: -jnp.mean(_q(c, s, _mu(ap, s)))  # noqa: E731 eq. (5)
+    loss, gc = jax.value_and_grad(critic_loss)(c)
+    return loss, gc, jax.grad(actor_loss)(a)
+
+
+def _reference_update(state, batch, t):
+    """state: (actor, critic, actor_t, critic_t, {"a": (m, v), "c": (m, v)}); t: 1-based step."""
+    a, c, at, ct, mom = state
+    loss, gc, ga = _reference_grads(a, c, at, ct, batch)
+    a2, *mom_a = _adam(a, ga, *mom["a"], t, float(HYPER.actor_lr))
+    c2, *mom_c = _adam(c, gc, *mom["c"], t, float(HYPER.critic_lr))
+    soft = lambda tp, p: jax.tree.map(lambda x, y: CFG.tau * y + (1 - CFG.tau) * x, tp, p)  # noqa: E731
+    return (a2, c2, soft(at, a2), soft(ct, c2), {"a": mom_a, "c": mom_c}), float(loss)
+
+
+def test_flax_modules_match_plain_mlps_and_final_init():
+    learner = _learner(9)
+    actor, critic = make_networks(CFG)
+    batch = _batch(9)
+    s, a = batch["obs"], batch["action"]
+    _close(actor.apply(learner.actor, s), _mu(learner.actor, s))
+    _close(critic.apply(learner.critic, s, a), _q(learner.critic, s, a))
+    for params in (learner.actor, learner.critic):
+        head = params["params"]["mlp"][f"Dense_{len(CFG.hidden)}"]
+        for leaf in (head["kernel"], head["bias"]):
+            assert np.abs(leaf).max() <= CFG.final_init and np.abs(leaf).max() > 0
+
+
+@pytest.fixture(scope="module")
+def update_fn():
+    return jax.jit(lambda lrn, b, h: ddpg.update(lrn, b, h, CFG))
+
+
+def _close(x, y):
+    for u, v in zip(jax.tree.leaves(x), jax.tree.leaves(y), strict=True):
+        np.testing.assert_allclose(np.asarray(u), np.asarray(v), rtol=2e-5, atol=2e-6)
+
+
+def test_update_matches_reference_of_eqs_4_to_7(update_fn):
+    learner = _learner(0)
+    zeros = lambda p: jax.tree.map(np.zeros_like, p)  # noqa: E731
+    state = (
+        learner.actor,
+        learner.critic,
+        learner.actor_target,
+        learner.critic_target,
+        {"a": (zeros(learner.actor),) * 2, "c": (zeros(learner.critic),) * 2},
+    )
+    for t in range(1, 4):
+        batch = _batch(t)
+        learner, metrics = update_fn(learner, batch, HYPER)
+        state, loss = _reference_update(state, batch, t)
+        _close(learner.actor, state[0])
+        _close(learner.critic, state[1])
+        _close(learner.actor_target, state[2])
+        _close(learner.critic_target, state[3])
+        assert math.isclose(float(metrics["critic_loss"]), loss, rel_tol=1e-5)
+        q = _q(state[1], batch["obs"], batch["action"])  # sanity: the metric is a mean Q
+        assert np.isfinite(float(metrics["mean_q"])) and np.isfinite(float(q.mean()))
+    assert int(learner.step) == 3
+
+
+def test_update_moves_every_param(update_fn):
+    learner = _learner(2)
+    new, _ = update_fn(learner, _batch(3), HYPER)
+    for old, upd in [
+        (learner.actor, new.actor),
+        (learner.critic, new.critic),
+        (learner.actor_target, new.actor_target),
+    ]:
+        for u, v in zip(jax.tree.leaves(old), jax.tree.leaves(upd), strict=True):
+            assert np.any(np.asarray(u) != np.asarray(v))
+
+
+def test_vmapped_update_equals_each_model_alone(update_fn):
+    learners = _stack([_learner(4 + m) for m in range(3)])
+    batches = _stack([_batch(10 + m) for m in range(3)])
+    hyper = ddpg.Hyper(
+        np.float32([1e-3, 1e-2, 5e-2]), np.float32([2e-3, 3e-2, 1e-1]), np.float32([0.2] * 3)
+    )
+    grid = jax.jit(jax.vmap(lambda lrn, b, h: ddpg.update(lrn, b, h, CFG)))(
+        learners, batches, hyper
+    )
+    grid = jax.device_get(grid)  # slice on the host: eager slicing compiles a program per leaf
+    for m in range(3):
+        one = lambda x, m=m: x[m]  # noqa: E731
+        alone = update_fn(*jax.tree.map(one, (learners, batches, hyper)))
+        _close(jax.tree.map(one, grid), alone)
+    kernels = grid[0].actor["params"]["mlp"]["Dense_0"]["kernel"]
+    assert not np.allclose(kernels[0], kernels[2])  # the lrs did differ
+
+
+def test_explore_truncates_noise_and_stays_in_bounds():
+    sigma = 0.05
+    zero = jnp.zeros((20000, 1))
+    noisy = jax.jit(ddpg.explore, static_argnums=3)(jax.random.key(6), zero, sigma, 2.0)
+    noise = np.asarray(noisy)
+    assert np.abs(noise).max() <= 2.0 * sigma * (1 + 1e-6)
+    assert np.abs(noise).max() > 1.9 * sigma  # truncated, not shrunk
+    assert 0.7 * sigma < noise.std() < sigma
+    edge = jnp.concatenate([jnp.full((5000, 1), 0.99), jnp.full((5000, 1), -0.99)])
+    sigmas = jnp.asarray([0.0, 0.5, 2.0])  # traced per model, as in the grid
+    out = np.asarray(
+        jax.vmap(ddpg.explore, in_axes=(0, None, 0))(
+            jax.random.split(jax.random.key(7), 3), edge, sigmas
+        )
+    )
+    assert out.min() >= -1.0 and out.max() <= 1.0
+    np.testing.assert_array_equal(out[0], np.asarray(edge))
+    assert np.any(out[2] == 1.0) and np.any(out[2] == -1.0)
+
+
+def test_benchmark_tiny_runs(tmp_path):
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "update_throughput.py"
+    spec = importlib.util.spec_from_file_location("update_throughput", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "tiny.csv"
+    figures = bench.main(["--tiny", "--out", str(out)])
+    for name in (
+        "peak_gflops",
+        "grid_updates_per_s",
+        "achieved_gflops",
+        "share_of_peak",
+        "share_of_peak_best_of",
+    ):
+        assert math.isfinite(figures[name]) and figures[name] > 0, name
+    assert out.read_text().count("\n") == 2
+    assert bench.update_flops(14, (300, 600), 64) > 10 * 2 * 64 * 300 * 600

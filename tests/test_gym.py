@@ -1,0 +1,268 @@
+"""The gymnasium wrappers: API conformance, replay against the functional API, vector env,
+observation bounds, rendering, and the comparison benchmarks in tiny mode."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import warnings
+from functools import partial
+from pathlib import Path
+
+import gymnasium as gym
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+import jaxlc
+import jaxlc.gym as G
+from jaxlc.controller import scripted_action
+from jaxlc.env import RL, LaneChangeEnv
+from jaxlc.reward import REASONS
+
+ROOT = Path(__file__).resolve().parent.parent
+N_VEC = 4  # one batch size for every vector test, so the vmapped program compiles once
+
+
+def _policy(obs: np.ndarray, params: jaxlc.EnvParams, episode: int, t: int) -> np.ndarray:
+    """Deterministic actions that give every kind of ending: the scripted controller (success),
+    zero (the ego keeps its lane: timeout, a truncation), and noisy versions (out of bounds)."""
+    kind = episode % 4
+    if kind == 1:
+        return np.zeros(1, np.float32)
+    a = np.asarray(scripted_action(jnp.asarray(obs), params), np.float32)
+    if kind >= 2:
+        noise = np.random.default_rng(1000 * episode + t).normal(0.0, 0.6, 1)
+        a = np.clip(a + noise, -1, 1).astype(np.float32)
+    return a
+
+
+@pytest.fixture(scope="module")
+def params() -> jaxlc.EnvParams:
+    return jaxlc.make()[1]
+
+
+def test_check_env_passes_with_warnings_as_errors():
+    env = gym.make(G.ENV_ID, render_mode="rgb_array")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any gymnasium checker warning fails the test
+        check_env(env.unwrapped)
+    env.close()
+
+
+def test_registered_ids_make_the_wrappers():
+    env = gym.make(G.ENV_ID)
+    assert isinstance(env.unwrapped, G.LaneChangeGymEnv)
+    envs = gym.make_vec(G.ENV_ID, num_envs=N_VEC)
+    assert isinstance(envs, G.LaneChangeVectorEnv) and envs.num_envs == N_VEC
+    assert envs.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
+    assert envs.single_observation_space == env.observation_space
+
+
+def _wrapper_rollout(seed: int, episodes: int, params: jaxlc.EnvParams) -> list[dict]:
+    env = G.LaneChangeGymEnv(params=params)
+    obs, info = env.reset(seed=seed)
+    rows, episode, t = [], 0, 0
+    while episode < episodes:
+        action = _policy(obs, params, episode, t)
+        nxt, reward, term, trunc, step_info = env.step(action)
+        rows.append({"obs": obs, "action": action, "reward": reward, "term": term,
+                     "trunc": trunc, "next_obs": nxt, "info": step_info})  # fmt: skip
+        obs, t = nxt, t + 1
+        if term or trunc:
+            obs, _ = env.reset()
+            episode, t = episode + 1, 0
+    return rows
+
+
+def _functional_rollout(seed: int, episodes: int, params: jaxlc.EnvParams) -> list[dict]:
+    """The wrapper's semantics written out with the functional API: PRNGKey(seed), one split
+    for reset, then one split per env.step; zero actions outside the RL phase."""
+    env = LaneChangeEnv()
+    step = jax.jit(partial(env.step, params=params))
+    reset = jax.jit(partial(env.reset, params=params))
+    key = jax.random.PRNGKey(seed)
+    key, k = jax.random.split(key)
+    _, state = reset(k)
+
+    def to_rl(key, state):
+        obs = None
+        while int(state.ego.phase) != RL:
+            key, k = jax.random.split(key)
+            obs, state, *_ = step(k, state, jnp.zeros(1))
+        return key, state, np.asarray(obs)
+
+    key, state, obs = to_rl(key, state)
+    rows, episode, t = [], 0, 0
+    while episode < episodes:
+        action = _policy(obs, params, episode, t)
+        key, k = jax.random.split(key)
+        nxt, state, reward, term, trunc, info = step(k, state, jnp.asarray(action))
+        assert bool(info["rl_step"])
+        rows.append({"obs": obs, "action": action, "reward": float(reward), "term": bool(term),
+                     "trunc": bool(trunc), "next_obs": np.asarray(nxt),
+                     "reason": REASONS[int(info["reason"])]})  # fmt: skip
+        obs, t = np.asarray(nxt), t + 1
+        if term or trunc:
+            key, state, obs = to_rl(key, state)
+            episode, t = episode + 1, 0
+    return rows
+
+
+def test_rollout_equals_functional_api_and_is_reproducible(params):
+    episodes = 5
+    a = _wrapper_rollout(7, episodes, params)
+    b = _wrapper_rollout(7, episodes, params)  # a second instance, same seed and actions
+    f = _functional_rollout(7, episodes, params)
+    assert len(a) == len(b) == len(f)
+    # Bit-for-bit: the wrapper runs the same jitted env.step, with the same keys.
+    for ra, rb, rf in zip(a, b, f, strict=True):
+        for name in ("obs", "next_obs"):
+            np.testing.assert_array_equal(ra[name], rb[name])
+            np.testing.assert_array_equal(ra[name], rf[name])
+        assert ra["reward"] == rb["reward"] == rf["reward"]
+        assert (ra["term"], ra["trunc"]) == (rb["term"], rb["trunc"]) == (rf["term"], rf["trunc"])
+        assert ra["info"]["reason"] == rf["reason"]
+        i = ra["info"]
+        assert i["r_s"] + i["r_e"] + i["r_d"] == pytest.approx(ra["reward"], rel=1e-5, abs=1e-4)
+    ends = [r["info"]["reason"] for r in a if r["term"] or r["trunc"]]
+    assert len(ends) == episodes
+    # The policy mix produces successes and timeouts; a timeout truncates, the rest terminate.
+    assert "success" in ends and "timeout" in ends
+    for r in a:
+        if r["term"] or r["trunc"]:
+            assert r["trunc"] == (r["info"]["reason"] == "timeout")
+        else:
+            assert r["info"]["reason"] == "none"
+
+
+def test_vector_env_equals_single_envs(params):
+    """LaneChangeVectorEnv against gymnasium's SyncVectorEnv of single wrappers, both in
+    same-step autoreset and both seeding sub-env i with seed + i."""
+    vec = G.LaneChangeVectorEnv(N_VEC, params=params)
+    ref = SyncVectorEnv(
+        [lambda: G.LaneChangeGymEnv(params=params) for _ in range(N_VEC)],
+        autoreset_mode=AutoresetMode.SAME_STEP,
+    )
+    obs_v, _ = vec.reset(seed=3)
+    obs_r, _ = ref.reset(seed=3)
+    np.testing.assert_array_equal(obs_v, obs_r)
+    rng = np.random.default_rng(0)
+    ended = 0
+    for _ in range(120):
+        act = np.asarray(scripted_action(jnp.asarray(obs_v), params))
+        act = np.clip(act + rng.normal(0, 0.3, act.shape), -1, 1).astype(np.float32)
+        obs_v, rew_v, term_v, trunc_v, info_v = vec.step(act)
+        obs_r, rew_r, term_r, trunc_r, info_r = ref.step(act)
+        np.testing.assert_array_equal(obs_v, obs_r)
+        np.testing.assert_array_equal(rew_v, rew_r)
+        np.testing.assert_array_equal(term_v, term_r)
+        np.testing.assert_array_equal(trunc_v, trunc_r)
+        done = term_v | trunc_v
+        np.testing.assert_array_equal(info_v["_final_obs"], done)
+        for i in np.nonzero(done)[0]:
+            np.testing.assert_array_equal(info_v["final_obs"][i], info_r["final_obs"][i])
+            assert info_v["reason"][i] == info_r["final_info"]["reason"][i]
+        ended += int(done.sum())
+    assert ended >= N_VEC  # autoreset really happened
+
+
+def test_every_observation_lies_in_the_space(params):
+    """Random, scripted and non-finite actions: every returned and final observation is
+    inside the documented finite bounds."""
+    vec = G.LaneChangeVectorEnv(N_VEC, params=params)
+    space = vec.single_observation_space
+    assert np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))
+    obs, _ = vec.reset(seed=11)
+    rng = np.random.default_rng(1)
+    for t in range(300):
+        mode = (t // 50) % 3
+        if mode == 0:
+            act = rng.uniform(-1, 1, (N_VEC, 1))
+        elif mode == 1:
+            act = np.asarray(scripted_action(jnp.asarray(obs), params))
+        else:
+            act = rng.choice([np.nan, np.inf, -np.inf, 1e30, 0.0, 1.0], (N_VEC, 1))
+        obs, _, term, trunc, info = vec.step(act.astype(np.float32))
+        for row in (*obs, *info["final_obs"][term | trunc]):
+            assert row in space, (row, space.low, space.high)
+
+
+def test_step_and_render_need_a_reset():
+    env = G.LaneChangeGymEnv(render_mode="rgb_array")
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(np.zeros(1, np.float32))
+    with pytest.raises(gym.error.ResetNeeded):
+        env.render()
+    env.reset(seed=0)
+    term = trunc = False
+    while not (term or trunc):
+        _, _, term, trunc, _ = env.step(np.ones(1, np.float32))  # steers off the road
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(np.zeros(1, np.float32))
+
+
+def test_render_draws_the_scene(params):
+    env = G.LaneChangeGymEnv(params=params, render_mode="rgb_array")
+    env.reset(seed=5)
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+    red = (frame[..., 0] > 200) & (frame[..., 1] < 80) & (frame[..., 2] < 80)
+    blue = (frame[..., 2] > 200) & (frame[..., 0] < 100)
+    assert 100 < red.sum() < 1000  # the ego: 5 m x 1.8 m at 8 px/m = 576 px
+    assert blue.sum() > 0  # traffic around it
+    # After the last step of a manoeuvre the terminal scene is still drawn.
+    term = trunc = False
+    while not (term or trunc):
+        _, _, term, trunc, _ = env.step(np.ones(1, np.float32))
+    assert env.render().shape == frame.shape
+    vec = G.LaneChangeVectorEnv(N_VEC, params=params, render_mode="rgb_array")
+    vec.reset(seed=0)
+    frames = vec.render()
+    assert len(frames) == N_VEC and all(f.shape == frame.shape for f in frames)
+
+
+def test_observation_bounds_follow_the_params(params):
+    low, high = G.observation_bounds(params)
+    assert low.shape == high.shape == (14,) and np.all(low < high)
+    wider = params.replace(manoeuvre_time_limit=20.0)
+    assert G.observation_bounds(wider)[1][3] > high[3]  # omega can grow for longer
+    curved = params.replace(curvature=0.002)
+    assert np.isinf(G.observation_bounds(curved)[1][2])  # heading drifts before the RL phase
+
+
+def _load_bench(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _positive(x: float) -> bool:
+    return math.isfinite(x) and x > 0
+
+
+def test_vs_highway_env_tiny(tmp_path):
+    pytest.importorskip("highway_env", reason="optional: pip install -e '.[bench]'")
+    bench = _load_bench("vs_highway_env")
+    out = bench.main(["--tiny", "--csv", str(tmp_path / "hw.csv")])
+    assert _positive(out["ratio_single"]) and _positive(out["ratio_best"])
+    for row in out["rows"]:
+        assert _positive(row["env_steps_per_s"]), row
+    assert (tmp_path / "hw.csv").read_text().count("\n") == len(out["rows"]) + 1
+
+
+def test_vs_sb3_tiny(tmp_path):
+    pytest.importorskip("stable_baselines3", reason="optional: pip install -e '.[bench]'")
+    bench = _load_bench("vs_sb3")
+    out = bench.main(["--tiny", "--csv", str(tmp_path / "sb3.csv")])
+    for name in ("sb3", "jaxlc", "jaxlc_grid", "sb3_nine"):
+        row = out[name]
+        assert _positive(row["wall_s"]) and _positive(row["transitions_per_s"]), row
+        assert row["episodes"] >= 1
+    assert _positive(out["sb3"]["updates_per_s"]) and _positive(out["jaxlc"]["updates_per_s"])
+    assert out["jaxlc_grid"]["models"] == 9
+    assert (tmp_path / "sb3.csv").exists()
