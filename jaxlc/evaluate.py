@@ -40,6 +40,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
 
 from jaxlc import checkpoint, config
 from jaxlc.checkpoint import CheckpointError
@@ -145,9 +147,13 @@ def _select_tree(mask: Array, new: Any, old: Any) -> Any:
 
 
 @functools.lru_cache(maxsize=8)
-def programs(cfg: config.Config, max_steps: int) -> tuple[Any, Any]:
+def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any, Any]:
     """Jitted ``start_cases(keys) -> Cases`` and ``rollout(policies, cases, traced) ->
-    (Outcome, Trace)`` for a config (cached: configs are frozen and hashable)."""
+    (Outcome, Trace)`` for a config (cached: configs are frozen and hashable).
+
+    With ``devices > 1`` the policies axis is laid over a 1-D mesh of the first ``devices``
+    devices (``shard_map``, as the sweep lays its models): each device rolls out its block of
+    policies on every case; the policy count must be a multiple of ``devices``."""
     env = LaneChangeEnv()
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     actor_net, _ = make_networks(cfg.ddpg, ACT_DIM)
@@ -241,6 +247,15 @@ def programs(cfg: config.Config, max_steps: int) -> tuple[Any, Any]:
         # A case still running here hit the cap: its reason stays 0, "unfinished".
         return out.replace(overshoot=jnp.maximum(out.overshoot, 0.0)), trace
 
+    if devices > 1:
+        mesh = Mesh(np.asarray(jax.devices()[:devices]), ("models",))
+        rollout = jax.shard_map(
+            rollout,
+            mesh=mesh,
+            in_specs=(P("models"), P(), P()),
+            out_specs=P("models"),
+            check_vma=False,  # per-policy work only, no collectives to check
+        )
     return jax.jit(jax.vmap(start_case)), jax.jit(rollout)
 
 
@@ -310,14 +325,21 @@ def evaluate_policies(
     max_steps: int = 1500,
     chunk: int = 32,
     traced: int = 4,
+    devices: int = 1,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Evaluate actors (``None``: the scripted controller) with action-update steps ``ks``.
 
     Returns numpy dicts ``(outcome (policies, cases), trace (policies, traced, ...),
     case info (cases,))``. Policies run in chunks of ``chunk`` (the last padded to full size,
-    so one compiled program serves all) to bound memory.
+    so one compiled program serves all) to bound memory; a chunk is a multiple of ``devices``,
+    over which its policies are laid.
     """
-    start, rollout = programs(cfg, max_steps)
+    if not 1 <= devices <= len(jax.devices()):
+        raise EvalError(
+            f"--devices: must be between 1 and {len(jax.devices())} (the devices JAX sees), "
+            f"got {devices}"
+        )
+    start, rollout = programs(cfg, max_steps, devices)
     cs = start(case_keys(seed, cases))
     idx = pick_traced(cs, traced)
     template = jax.tree.map(np.zeros_like, init_actor(cfg))
@@ -325,7 +347,7 @@ def evaluate_policies(
         (a if a is not None else template, int(k), a is None)
         for a, k in zip(actors, ks, strict=True)
     ]
-    size = min(chunk, len(rows))
+    size = -(-min(chunk, len(rows)) // devices) * devices
     outs, traces = [], []
     for lo in range(0, len(rows), size):
         part = rows[lo : lo + size]
@@ -469,6 +491,7 @@ def evaluate_run(
     max_steps: int = 1500,
     chunk: int = 32,
     traced: int = 4,
+    devices: int = 1,
 ) -> dict[str, Any]:
     """Evaluate a run's checkpoints and the scripted baseline (row 0); writes
     ``run_dir/eval/eval.json``, ``eval.csv``, ``cases.npz``, ``traces.npz``; returns the
@@ -481,7 +504,7 @@ def evaluate_run(
     metas = [SCRIPTED] + [_row_meta(p, m, run_dir) for p, m in chosen]
     kw = dict(cases=cases, seed=seed, max_steps=max_steps, chunk=chunk, traced=traced)
     out, trace, info = evaluate_policies(
-        cfg, [None, *actors], [1] + [m["k"] for m in metas[1:]], **kw
+        cfg, [None, *actors], [1] + [m["k"] for m in metas[1:]], devices=devices, **kw
     )
     result = _result(cfg, out, info, metas, kw)
     _write(run_dir / "eval", "eval", result)
@@ -655,7 +678,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-steps", type=int, default=1500, help="step cap per case")
     ap.add_argument("--chunk", type=int, default=32, help="policies per compiled batch")
     ap.add_argument("--no-figures", action="store_true", help="skip figures (report still)")
-    args = ap.parse_args(argv)
+    ap.add_argument("--devices", type=int, default=1, help="devices to lay the policies over")
+    args = ap.parse_intermixed_args(argv)
     try:
         if args.cases < 1 or args.max_steps < 1 or args.chunk < 1:
             raise EvalError("--cases, --max-steps and --chunk must be at least 1")
@@ -679,6 +703,7 @@ def main(argv: list[str] | None = None) -> int:
             seed=args.seed,
             max_steps=args.max_steps,
             chunk=args.chunk,
+            devices=args.devices,
         )
         print(format_table(result["rows"]))
         from jaxlc import figures, report

@@ -4,6 +4,7 @@
     python -m jaxlc.sweep --config configs/smoke.toml --out runs/smoke
     python -m jaxlc.sweep train.envs_per_model=64 grid.k=[1,2] --seeds 3
     python -m jaxlc.sweep --devices 4                      # models laid over 4 devices
+    python -m jaxlc.sweep --distributed ...                # one process per host (README)
 
 The scan runs in chunks of ``train.chunk_steps``; between chunks the host saves checkpoints
 (the actor of every model at episodes checkpoint_every, 2*checkpoint_every, ...), and at the
@@ -15,6 +16,12 @@ under the run directory:
     RUN_DIR/metrics/episodes.npz           per model: return, steps, reason, reward terms
     RUN_DIR/metrics/steps.npz              per scan step and model: losses, transitions
     RUN_DIR/summary.md, summary.json       last-100-episode success rate and return
+
+Multi-host (``--distributed``): every process runs this same program after
+``jax.distributed.initialize``; the models axis spans the devices of all processes. Each
+process writes the checkpoints of the models on its own devices; process 0 writes the files
+of the whole run (config, full state, metrics, summary), so the run directory must be on a
+file system that every host sees.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -30,6 +38,7 @@ from typing import Any
 import flax.serialization
 import jax
 import numpy as np
+from jax.experimental import multihost_utils
 
 from jaxlc import checkpoint, config, train
 from jaxlc.reward import REASONS, SUCCESS
@@ -71,6 +80,43 @@ def model_meta(cfg: config.Config, grid: train.Grid, i: int) -> dict[str, Any]:
         **cell,
         "config_hash": cfg.hash(),
     }
+
+
+def to_host(tree: Any) -> Any:
+    """Numpy copy of a pytree of (possibly sharded) arrays, whole on every process."""
+    if jax.process_count() == 1:
+        return jax.device_get(tree)
+    return multihost_utils.process_allgather(tree, tiled=True)
+
+
+def owned_models(n_models: int, devices: list[jax.Device]) -> np.ndarray:
+    """``(n_models,)`` bool: which models live on this process's devices. The models axis
+    is padded to a multiple of the device count and cut into equal blocks, one per device
+    (``train.make_grid_fns``)."""
+    block = -(-n_models // len(devices))
+    owner = np.asarray([devices[i // block].process_index for i in range(n_models)])
+    return owner == jax.process_index()
+
+
+def distributed_init() -> None:
+    """``jax.distributed.initialize`` from the usual environment: JAX_COORDINATOR_ADDRESS,
+    JAX_NUM_PROCESSES and JAX_PROCESS_ID when set, else JAX's own detection (Slurm, Open
+    MPI)."""
+    env = os.environ
+    try:
+        n = int(env["JAX_NUM_PROCESSES"]) if "JAX_NUM_PROCESSES" in env else None
+        pid = int(env["JAX_PROCESS_ID"]) if "JAX_PROCESS_ID" in env else None
+    except ValueError:
+        raise config.ConfigError(
+            "--distributed: JAX_NUM_PROCESSES and JAX_PROCESS_ID must be integers"
+        ) from None
+    try:
+        jax.distributed.initialize(num_processes=n, process_id=pid)
+    except (ValueError, RuntimeError) as err:
+        raise config.ConfigError(
+            f"--distributed: cannot start JAX's distributed runtime ({err}); set "
+            "JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES and JAX_PROCESS_ID, or run under Slurm"
+        ) from None
 
 
 def checkpoint_path(run_dir: Path, i: int, seed: int, episode: int) -> Path:
@@ -154,6 +200,22 @@ def prepare_run_dir(out: Path, cfg: config.Config, force: bool) -> None:
     checkpoint.write_text_atomic(existing, config.to_toml(cfg))
 
 
+def _prepare_everywhere(out: Path, cfg: config.Config, force: bool) -> None:
+    """``prepare_run_dir`` on process 0; the others learn whether it refused."""
+    problem = ""
+    if jax.process_index() == 0:
+        try:
+            prepare_run_dir(out, cfg, force)
+        except config.ConfigError as err:
+            problem = str(err)
+    if jax.process_count() > 1:
+        refused = multihost_utils.broadcast_one_to_all(np.asarray(bool(problem)))
+        if bool(refused) and not problem:
+            problem = f"process 0 refused the run directory '{out}'; see its message"
+    if problem:
+        raise config.ConfigError(problem)
+
+
 class NumericalFault(RuntimeError):
     """A model produced a non-finite loss, reward or observation; the run stopped."""
 
@@ -165,7 +227,9 @@ def state_path(run_dir: Path) -> Path:
 def _save_state(out: Path, state: train.TrainState, host: dict[str, Any]) -> None:
     """The whole run, device state and host bookkeeping, in one atomic file: a resume always
     sees a state and the bookkeeping that goes with it."""
-    blob = flax.serialization.to_bytes({"state": jax.device_get(state), "host": host})
+    blob = flax.serialization.to_bytes({"state": to_host(state), "host": host})
+    if jax.process_index() != 0:
+        return
     out_path = state_path(out)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     checkpoint.write_bytes_atomic(out_path, blob)
@@ -218,15 +282,19 @@ def run_sweep(
     from tqdm import tqdm
 
     n_dev = len(jax.devices()) if devices is None else devices
+    lead = jax.process_index() == 0  # writes the files of the whole run
     if not 1 <= n_dev <= len(jax.devices()):
         raise config.ConfigError(
             f"--devices: must be between 1 and {len(jax.devices())} (the devices JAX sees), "
             f"got {n_dev}"
         )
+    if jax.process_count() > 1 and n_dev != len(jax.devices()):
+        raise config.ConfigError("--devices: a multi-host run uses every device of every host")
     if not resume:
-        prepare_run_dir(out, cfg, force)
+        _prepare_everywhere(out, cfg, force)
     grid = train.make_grid(cfg)
     init, run = train.make_grid_fns(cfg, grid, jax.devices()[:n_dev])
+    mine = owned_models(grid.size, jax.devices()[:n_dev])
     t = cfg.train
     t0 = time.perf_counter()
     state = init(train.model_keys(cfg, grid))
@@ -239,11 +307,12 @@ def run_sweep(
     bar = tqdm(
         total=grid.size * t.episodes,
         unit="ep",
-        disable=not progress,
+        disable=not (progress and lead),
         desc=f"{grid.size} models",
         dynamic_ncols=True,
     )
-    done_eps = int(np.minimum(np.asarray(state.episodes), t.episodes).sum())
+    counters = to_host({"step": state.step, "episodes": state.episodes})
+    done_eps = int(np.minimum(counters["episodes"], t.episodes).sum())
     bar.update(done_eps)
     last_save = time.perf_counter()
 
@@ -258,14 +327,12 @@ def run_sweep(
 
     try:
         while True:
-            step0 = int(np.asarray(state.step)[0])
-            if (np.asarray(state.episodes) >= t.episodes).all() or (
-                t.max_steps and step0 >= t.max_steps
-            ):
+            step0 = int(counters["step"][0])
+            if (counters["episodes"] >= t.episodes).all() or (t.max_steps and step0 >= t.max_steps):
                 break
             t_chunk = time.perf_counter()
             new_state, metrics = run(state, t.chunk_steps)
-            metrics = jax.device_get(metrics)
+            metrics = to_host(metrics)
             fault = _first_fault(np.asarray(metrics["finite"]), step0)
             if fault is not None:
                 step, i = fault
@@ -281,15 +348,18 @@ def run_sweep(
                     f"scan step {step}; stopped without saving it ({kept})"
                 )
             state = new_state
+            counters = to_host(
+                {"step": state.step, "episodes": state.episodes, "snap": state.snap_episode}
+            )
             step_metrics.append(metrics)
             env_steps += t.chunk_steps * t.envs_per_model * grid.size
 
             # The snapshot slot holds each actor at the last checkpoint episode it passed.
-            snap_ep = np.asarray(state.snap_episode)
+            snap_ep = counters["snap"]
             new = np.nonzero(snap_ep > saved)[0]
             if len(new):
-                actors = jax.device_get(state.snap_actor)
-                for i in new:
+                actors = to_host(state.snap_actor)
+                for i in new[mine[new]]:
                     params = jax.tree.map(lambda a, i=i: a[i], actors)
                     meta = {**model_meta(cfg, grid, int(i)), "episode": int(snap_ep[i])}
                     checkpoint.save(
@@ -297,13 +367,17 @@ def run_sweep(
                     )
                 saved[new] = snap_ep[new]
 
-            if time.perf_counter() - last_save >= t.save_every_s:
+            # Every process takes the same decision (process 0's clock) and joins the gather.
+            due = time.perf_counter() - last_save >= t.save_every_s
+            if jax.process_count() > 1:
+                due = bool(multihost_utils.broadcast_one_to_all(np.asarray(due)))
+            if due:
                 _save_state(out, state, snapshot_host())
                 last_save = time.perf_counter()
-            now = int(np.minimum(np.asarray(state.episodes), t.episodes).sum())
+            now = int(np.minimum(counters["episodes"], t.episodes).sum())
             recent = metrics["successes"].sum() / max(1, metrics["episodes_ended"].sum())
             rate = t.chunk_steps * t.envs_per_model * grid.size / (time.perf_counter() - t_chunk)
-            per_model = np.minimum(np.asarray(state.episodes), t.episodes)
+            per_model = np.minimum(counters["episodes"], t.episodes)
             bar.set_postfix(
                 per_model=f"{per_model.min()}-{per_model.max()}",
                 success=f"{recent:.0%}",
@@ -321,10 +395,8 @@ def run_sweep(
     _save_state(out, state, host_now)
     wall = float(host_now["wall_s"])
 
-    log = {k: np.asarray(v) for k, v in jax.device_get(state.log).__dict__.items()}
-    episodes = np.asarray(state.episodes)
-    _save_npz(out / "metrics" / "episodes.npz", {**log, "episodes": episodes})
-    _save_npz(out / "metrics" / "steps.npz", host_now["metrics"])
+    log = {k: np.asarray(v) for k, v in to_host(state.log).__dict__.items()}
+    episodes = counters["episodes"]
     rows = summarise(cfg, grid, log, episodes)
     summary = {
         "wall_s": wall,
@@ -332,7 +404,15 @@ def run_sweep(
         "models": rows,
         "config_hash": cfg.hash(),
         "device": jax.devices()[0].device_kind,
+        "devices": n_dev,
+        "processes": jax.process_count(),
     }
+    if jax.process_count() > 1:  # every checkpoint is on disk before the run is declared done
+        multihost_utils.sync_global_devices("jaxlc.sweep: checkpoints written")
+    if not lead:
+        return summary
+    _save_npz(out / "metrics" / "episodes.npz", {**log, "episodes": episodes})
+    _save_npz(out / "metrics" / "steps.npz", host_now["metrics"])
     checkpoint.write_text_atomic(out / "summary.md", summary_markdown(rows, wall, env_steps))
     checkpoint.write_text_atomic(out / "summary.json", json.dumps(summary, indent=1))
     return summary
@@ -363,8 +443,20 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="devices to lay the models over (default: all JAX sees)",
     )
-    args = ap.parse_args(argv)
+    ap.add_argument(
+        "--distributed",
+        action="store_true",
+        help="multi-host: start jax.distributed from the environment (README); needs --out "
+        "or --resume on a shared file system",
+    )
+    args = ap.parse_intermixed_args(argv)
     try:
+        if args.distributed:
+            if args.out is None and args.resume is None:
+                raise config.ConfigError(
+                    "--distributed: pass --out DIR (the same on every host), or --resume DIR"
+                )
+            distributed_init()
         if args.resume is not None:
             if args.overrides or args.config or args.seeds is not None or args.out:
                 raise config.ConfigError(
@@ -403,6 +495,8 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 130
+    if jax.process_index() != 0:
+        return 0
     print(summary_markdown(summary["models"], summary["wall_s"], summary["env_steps"]))
     print(
         f"Run directory: {out}\n  config:      {out / 'config.toml'}\n"

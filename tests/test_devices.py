@@ -1,9 +1,18 @@
 """The models axis laid over several devices gives the results of one device."""
 
 import os
+import socket
 import subprocess
 import sys
 import textwrap
+
+import flax.serialization
+import jax
+import numpy as np
+
+from jaxlc import checkpoint, sweep
+
+from .conftest import SMOKE
 
 SCRIPT = textwrap.dedent("""
     import jax, numpy as np
@@ -21,6 +30,17 @@ SCRIPT = textwrap.dedent("""
     for n in (3, 4):
         for a, b in zip(jax.tree.leaves(results[1]), jax.tree.leaves(results[n]), strict=True):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-5)
+    # Evaluation lays its policies over the devices the same way (5 policies: padded to 6).
+    from jaxlc import evaluate
+    actors = [jax.tree.map(lambda a, i=i: a[i], results[1].learner.actor) for i in range(4)]
+    evals = {
+        n: evaluate.evaluate_policies(cfg, [None, *actors], [1, 1, 1, 2, 2], cases=6,
+                                      max_steps=600, traced=1, devices=n)[0]
+        for n in (1, 3)
+    }
+    assert evals[1]["reason"].shape == (5, 6)
+    np.testing.assert_array_equal(evals[1]["reason"], evals[3]["reason"])
+    np.testing.assert_allclose(evals[1]["ret"], evals[3]["ret"], rtol=1e-4, atol=1e-3)
     print("devices ok")
 """)
 
@@ -36,3 +56,56 @@ def test_grid_over_3_and_4_cpu_devices_matches_one_device():
     )
     assert done.returncode == 0, done.stderr[-3000:]
     assert "devices ok" in done.stdout
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_two_processes_with_jax_distributed_match_one_process(smoke_run, tmp_path):
+    """Two processes on loopback, one CPU device each, run the smoke sweep together: each
+    writes the checkpoints of its own models, process 0 the run's files, and the params
+    equal those of the one-process run."""
+    ref_dir, _ = smoke_run
+    out = tmp_path / "two_hosts"
+    port = _free_port()
+    cmd = [sys.executable, "-m", "jaxlc.sweep", "--config", str(SMOKE), "--out", str(out)]
+    procs = []
+    for pid in (0, 1):
+        env = {
+            **os.environ,
+            "JAX_PLATFORMS": "cpu",
+            "JAX_COORDINATOR_ADDRESS": f"127.0.0.1:{port}",
+            "JAX_NUM_PROCESSES": "2",
+            "JAX_PROCESS_ID": str(pid),
+        }
+        procs.append(
+            subprocess.Popen(
+                [*cmd, "--distributed", "--no-progress"],
+                env=env,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+        )
+    outputs = [p.communicate(timeout=600) for p in procs]
+    for p, (_, err) in zip(procs, outputs, strict=True):
+        assert p.returncode == 0, err[-3000:]
+    assert "Run directory" in outputs[0][0] and "Run directory" not in outputs[1][0]
+
+    def state(run_dir):
+        raw = flax.serialization.msgpack_restore(sweep.state_path(run_dir).read_bytes())
+        return raw["state"]
+
+    ref, got = state(ref_dir), state(out)
+    np.testing.assert_array_equal(got["episodes"], ref["episodes"])
+    for net in ("actor", "critic"):
+        for a, b in zip(
+            jax.tree.leaves(ref["learner"][net]), jax.tree.leaves(got["learner"][net]), strict=True
+        ):
+            np.testing.assert_allclose(b, a, rtol=1e-4, atol=1e-5)
+    names = lambda d: sorted(p.relative_to(d) for p in checkpoint.list_checkpoints(d))  # noqa: E731
+    assert names(out) == names(ref_dir) and names(out)
+    assert (out / "summary.json").exists() and (out / "metrics" / "episodes.npz").exists()
