@@ -105,7 +105,10 @@ class DDPGConfig:
     noise_sigma: float = _f(0.2, 0.0, 2.0)
     noise_clip: float = _f(2.0, 0.0, 10.0, open_lo=True, doc="truncation, in sigmas")
     updates_per_step: int = _f(1, 1, 64, doc="gradient updates per scan step per model")
-    td3: bool = _f(False)
+    td3: bool = _f(False, doc="TD3 instead of DDPG (an option, never the paper's default)")
+    td3_target_noise: float = _f(0.2, 0.0, 2.0, doc="TD3 target smoothing sigma, tanh units")
+    td3_target_clip: float = _f(0.5, 0.0, 2.0, doc="TD3 target smoothing noise clip")
+    td3_policy_delay: int = _f(2, 1, 100, doc="TD3: critic updates per actor/target update")
 
 
 @dataclass(frozen=True)

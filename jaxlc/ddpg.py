@@ -64,7 +64,10 @@ def init_learner(key: jax.Array, obs_dim: int, cfg: DDPGConfig, act_dim: int = 1
     obs = jnp.zeros((1, obs_dim), jnp.float32)
     act = jnp.zeros((1, act_dim), jnp.float32)
     actor_params = actor.init(k_actor, obs)
-    critic_params = critic.init(k_critic, obs, act)
+    if cfg.td3:  # twin critics: every critic leaf gets a leading axis of 2
+        critic_params = jax.vmap(lambda k: critic.init(k, obs, act))(jax.random.split(k_critic))
+    else:
+        critic_params = critic.init(k_critic, obs, act)
     return Learner(
         actor=actor_params,
         critic=critic_params,
@@ -87,7 +90,11 @@ def _step(
 
 
 def update(
-    learner: Learner, batch: dict[str, jax.Array], hyper: Hyper, cfg: DDPGConfig
+    learner: Learner,
+    batch: dict[str, jax.Array],
+    hyper: Hyper,
+    cfg: DDPGConfig,
+    key: jax.Array | None = None,
 ) -> tuple[Learner, dict[str, jax.Array]]:
     """One DDPG update from a batch (keys and shapes as ``replay.sample`` returns them).
 
@@ -99,23 +106,38 @@ def update(
     (OpenAI baselines' DDPG), so the critic and actor passes are independent and XLA can
     overlap them. The actor's gradient differentiates only the actor's params: the critic's
     weight gradients are never formed on that pass.
+
+    With ``cfg.td3`` (an option, never the default) it is TD3 (Fujimoto et al. 2018): twin
+    critics regress on the smaller target Q, the target action is smoothed with clipped noise
+    drawn from ``key``, and the actor and both targets move only every ``td3_policy_delay``-th
+    update; the critic loss is the sum of the twins' losses.
     """
-    if cfg.td3:
-        raise NotImplementedError("ddpg.td3: TD3 is not implemented; plain DDPG is the default")
     actor, critic = make_networks(cfg, batch["action"].shape[-1])
     obs, act, next_obs = batch["obs"], batch["action"], batch["next_obs"]
+    # TD3's twin critics: (2, batch) Q values from params with a leading axis of 2
+    q_all = jax.vmap(critic.apply, (0, None, None)) if cfg.td3 else critic.apply
 
-    next_q = critic.apply(
-        learner.critic_target, next_obs, actor.apply(learner.actor_target, next_obs)
-    )
+    next_act = actor.apply(learner.actor_target, next_obs)
+    if cfg.td3:
+        if key is None:
+            raise ValueError("ddpg.update: TD3 needs a key for its target-action noise")
+        noise = cfg.td3_target_noise * jax.random.normal(key, next_act.shape, next_act.dtype)
+        clip = cfg.td3_target_clip
+        next_act = jnp.clip(next_act + jnp.clip(noise, -clip, clip), -1.0, 1.0)
+        next_q = jnp.min(q_all(learner.critic_target, next_obs, next_act), axis=0)
+    else:
+        next_q = critic.apply(learner.critic_target, next_obs, next_act)
     y = batch["reward"] + cfg.gamma * (1.0 - batch["terminated"]) * next_q  # (batch,)
 
     def critic_loss(params: Params) -> tuple[jax.Array, jax.Array]:
-        q = critic.apply(params, obs, act)  # (batch,)
-        return jnp.mean(jnp.square(y - q)), q
+        q = q_all(params, obs, act)  # (batch,), or (2, batch) for TD3
+        return jnp.sum(jnp.mean(jnp.square(y - q), axis=-1)), q
+
+    # The actor ascends Q (TD3: the first twin's).
+    first_critic = jax.tree.map(lambda x: x[0], learner.critic) if cfg.td3 else learner.critic
 
     def actor_loss(params: Params) -> jax.Array:
-        return -jnp.mean(critic.apply(learner.critic, obs, actor.apply(params, obs)))
+        return -jnp.mean(critic.apply(first_critic, obs, actor.apply(params, obs)))
 
     (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(learner.critic)
     a_loss, a_grads = jax.value_and_grad(actor_loss)(learner.actor)
@@ -125,6 +147,14 @@ def update(
     actor_p, actor_opt, actor_t = _step(
         learner.actor, a_grads, learner.actor_opt, hyper.actor_lr, learner.actor_target, cfg.tau
     )
+    if cfg.td3:
+        delayed = learner.step % cfg.td3_policy_delay == 0
+        keep = lambda new, old: jax.tree.map(lambda n, o: jnp.where(delayed, n, o), new, old)  # noqa: E731
+        actor_p, actor_opt, actor_t = keep(
+            (actor_p, actor_opt, actor_t),
+            (learner.actor, learner.actor_opt, learner.actor_target),
+        )
+        critic_t = keep(critic_t, learner.critic_target)
     new = Learner(actor_p, critic_p, actor_t, critic_t, actor_opt, critic_opt, learner.step + 1)
     return new, {"critic_loss": c_loss, "actor_loss": a_loss, "mean_q": jnp.mean(q)}
 

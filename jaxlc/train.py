@@ -205,7 +205,8 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
 
         # DDPG updates once the memory holds one batch [P]/[S].
         def one_update(learner: ddpg.Learner, k: Array):
-            return ddpg.update(learner, replay.sample(memory, k, d.batch_size), hyper.ddpg, d)
+            batch = replay.sample(memory, k, d.batch_size)
+            return ddpg.update(learner, batch, hyper.ddpg, d, key=jax.random.fold_in(k, 1))
 
         new_learner, losses = jax.lax.scan(
             one_update, ts.learner, jax.random.split(k_update, d.updates_per_step)

@@ -211,3 +211,50 @@ def test_benchmark_tiny_runs(tmp_path):
         assert math.isfinite(figures[name]) and figures[name] > 0, name
     assert out.read_text().count("\n") == 2
     assert bench.update_flops(14, (300, 600), 64) > 10 * 2 * 64 * 300 * 600
+
+
+# ---- TD3, the option -------------------------------------------------------------------
+
+TD3 = dataclasses.replace(CFG, td3=True, td3_target_noise=0.0, td3_policy_delay=2)
+
+
+@pytest.fixture(scope="module")
+def td3_fns():
+    init = jax.jit(lambda key: ddpg.init_learner(key, OBS_DIM, TD3))
+    update = jax.jit(lambda lrn, b, h, k: ddpg.update(lrn, b, h, TD3, key=k))
+    return init, update
+
+
+def test_td3_regresses_twins_on_the_smaller_target_and_delays_the_actor(td3_fns):
+    init, update = td3_fns
+    learner = jax.device_get(init(jax.random.key(3)))
+    twins = [jax.tree.map(lambda x, i=i: x[i], learner.critic) for i in range(2)]
+    assert not np.allclose(
+        twins[0]["params"]["mlp"]["Dense_0"]["kernel"],
+        twins[1]["params"]["mlp"]["Dense_0"]["kernel"],
+    ), "the twins must start apart"
+    batch = _batch(3)
+    s, a, s2 = batch["obs"], batch["action"], batch["next_obs"]
+    # With no target noise, y = r + gamma (1 - d) min_i Q'_i(s', mu'(s')).
+    targets = [jax.tree.map(lambda x, i=i: x[i], learner.critic_target) for i in range(2)]
+    a2 = _mu(learner.actor_target, s2)
+    y = batch["reward"] + TD3.gamma * (1 - batch["terminated"]) * np.minimum(
+        _q(targets[0], s2, a2), _q(targets[1], s2, a2)
+    )
+    want = sum(float(np.mean((y - _q(c, s, a)) ** 2)) for c in twins)
+    key = jax.random.key(0)
+    new, metrics = update(learner, batch, HYPER, key)
+    np.testing.assert_allclose(float(metrics["critic_loss"]), want, rtol=1e-5)
+    # step 0: actor and both targets move; step 1: only the critics do.
+    moved = lambda x, y: (
+        not all(  # noqa: E731
+            np.array_equal(u, v)
+            for u, v in zip(jax.tree.leaves(x), jax.tree.leaves(y), strict=True)
+        )
+    )
+    assert moved(new.actor, learner.actor) and moved(new.critic_target, learner.critic_target)
+    newer, _ = update(jax.device_get(new), batch, HYPER, key)
+    assert moved(newer.critic, new.critic)
+    assert not moved(newer.actor, new.actor)
+    assert not moved(newer.actor_target, new.actor_target)
+    assert not moved(newer.critic_target, new.critic_target)

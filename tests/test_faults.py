@@ -110,6 +110,7 @@ def _bad_cases(tmp_path, smoke_run):
         (["--config", str(SMOKE), "--out", str(run_dir)], "finished run"),
         (["--resume", str(empty)], "holds no run"),
         (["--resume", str(run_dir), "train.episodes=80"], "drop --config"),
+        (["--distributed", "--config", str(SMOKE)], "--distributed: pass --out"),
         (["evaluate", "--checkpoint", str(truncated)], "truncated or corrupt"),
     ]
 
