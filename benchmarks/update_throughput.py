@@ -36,6 +36,8 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
 
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
@@ -96,9 +98,11 @@ def matmul_call(n: int) -> Callable[[], jax.Array]:
 
 
 def grid_update_call(
-    cfg: DDPGConfig, models: int, memories: Sequence[int], updates: int
+    cfg: DDPGConfig, models: int, memories: Sequence[int], updates: int, devices: int = 1
 ) -> Callable[[], object]:
-    """``updates`` vmapped sample + update steps of ``models`` models in one ``lax.scan``."""
+    """``updates`` vmapped sample + update steps of ``models`` models in one ``lax.scan``;
+    with ``devices > 1`` the models are laid over that many devices (``shard_map``, as the
+    sweep's ``--devices`` does; ``models`` must be a multiple of ``devices``)."""
     cap_max = max(memories)
     caps = jnp.asarray([memories[i % len(memories)] for i in range(models)], jnp.int32)
     k_init, k_run = jax.random.split(jax.random.key(1))
@@ -121,15 +125,22 @@ def grid_update_call(
     def one(learner: ddpg.Learner, mem: replay.Replay, h: ddpg.Hyper, key: jax.Array):
         return ddpg.update(learner, replay.sample(mem, key, cfg.batch_size), h, cfg)
 
-    @jax.jit
-    def run(learners: ddpg.Learner, memory: replay.Replay, hyper: ddpg.Hyper, key: jax.Array):
+    def scan(learners: ddpg.Learner, memory: replay.Replay, hyper: ddpg.Hyper, keys: jax.Array):
         def body(carry: ddpg.Learner, k: jax.Array) -> tuple[ddpg.Learner, jax.Array]:
-            new, metrics = jax.vmap(one)(carry, memory, hyper, jax.random.split(k, models))
+            new, metrics = jax.vmap(one)(carry, memory, hyper, k)
             return new, metrics["critic_loss"]
 
-        return jax.lax.scan(body, learners, jax.random.split(key, updates))
+        return jax.lax.scan(body, learners, keys)
 
-    return lambda: run(learners, memory, hyper, k_run)
+    if devices > 1:
+        mesh = Mesh(np.asarray(jax.devices()[:devices]), ("models",))
+        specs = (P("models"), P("models"), P("models"), P(None, "models"))
+        scan = jax.shard_map(
+            scan, mesh=mesh, in_specs=specs, out_specs=(P("models"), P(None, "models"))
+        )
+    keys = jax.vmap(lambda k: jax.random.split(k, models))(jax.random.split(k_run, updates))
+    run = jax.jit(scan)
+    return lambda: run(learners, memory, hyper, keys)
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, float]:
@@ -142,15 +153,28 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--matmul-n", type=int, default=2048)
     p.add_argument("--out", type=Path, default=RESULTS / "update_throughput.csv")
+    p.add_argument(
+        "--devices",
+        type=int,
+        default=1,
+        help="lay the models over this many devices (on a CPU: host devices, made here)",
+    )
     p.add_argument("--tiny", action="store_true", help="small sizes, for tests")
     args = p.parse_args(argv)
+    if args.devices > 1 and jax.default_backend() == "cpu" and len(jax.devices()) < args.devices:
+        raise SystemExit(
+            f"--devices {args.devices}: JAX sees {len(jax.devices())} CPU device(s); run with "
+            f"XLA_FLAGS=--xla_force_host_platform_device_count={args.devices}"
+        )
     if args.tiny:
         args.models, args.batch, args.hidden, args.memories = 3, 8, [16, 32], [64, 96, 128]
         args.updates, args.repeats, args.matmul_n = 5, 2, 128
 
     cfg = dataclasses.replace(DDPGConfig(), hidden=tuple(args.hidden), batch_size=args.batch)
     time_dot = _timed(matmul_call(args.matmul_n))
-    time_grid = _timed(grid_update_call(cfg, args.models, args.memories, args.updates))
+    time_grid = _timed(
+        grid_update_call(cfg, args.models, args.memories, args.updates, args.devices)
+    )
     dot_s, grid_s = [], []
     for _ in range(args.repeats):  # alternate, so both see the same load from other processes
         dot_s.append(time_dot())
@@ -163,6 +187,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     row = {
         "backend": jax.default_backend(),
         "models": args.models,
+        "devices": args.devices,
         "batch": args.batch,
         "hidden": "x".join(map(str, args.hidden)),
         "memories": "/".join(map(str, args.memories)),

@@ -86,7 +86,14 @@ def to_host(tree: Any) -> Any:
     """Numpy copy of a pytree of (possibly sharded) arrays, whole on every process."""
     if jax.process_count() == 1:
         return jax.device_get(tree)
-    return multihost_utils.process_allgather(tree, tiled=True)
+
+    def whole(a: Any) -> np.ndarray:
+        # host data (e.g. a state read back for --resume) is already whole on every process
+        if not isinstance(a, jax.Array):
+            return np.asarray(a)
+        return np.asarray(multihost_utils.process_allgather(a, tiled=True))
+
+    return jax.tree.map(whole, tree)
 
 
 def owned_models(n_models: int, devices: list[jax.Device]) -> np.ndarray:
