@@ -245,13 +245,12 @@ def test_td3_regresses_twins_on_the_smaller_target_and_delays_the_actor(td3_fns)
     key = jax.random.key(0)
     new, metrics = update(learner, batch, HYPER, key)
     np.testing.assert_allclose(float(metrics["critic_loss"]), want, rtol=1e-5)
+
     # step 0: actor and both targets move; step 1: only the critics do.
-    moved = lambda x, y: (
-        not all(  # noqa: E731
-            np.array_equal(u, v)
-            for u, v in zip(jax.tree.leaves(x), jax.tree.leaves(y), strict=True)
-        )
-    )
+    def moved(x, y):
+        pairs = zip(jax.tree.leaves(x), jax.tree.leaves(y), strict=True)
+        return not all(np.array_equal(u, v) for u, v in pairs)
+
     assert moved(new.actor, learner.actor) and moved(new.critic_target, learner.critic_target)
     newer, _ = update(jax.device_get(new), batch, HYPER, key)
     assert moved(newer.critic, new.critic)
