@@ -508,9 +508,15 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"Run directory: {out}\n  config:      {out / 'config.toml'}\n"
         f"  checkpoints: {out / 'checkpoints'}\n  metrics:     {out / 'metrics'}\n"
-        f"  summary:     {out / 'summary.md'}\n"
-        f"Evaluate with: python -m jaxlc.evaluate {out}"
+        f"  summary:     {out / 'summary.md'}"
     )
+    if checkpoint.list_checkpoints(out):
+        print(f"Evaluate with: python -m jaxlc.evaluate {out}")
+    else:
+        print(
+            f"No checkpoint was saved (the first comes at episode {cfg.train.checkpoint_every}"
+            " of a model); train longer before evaluating"
+        )
     return 0
 
 
