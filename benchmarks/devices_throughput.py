@@ -18,7 +18,6 @@ GPUs, and ``--devices`` cannot exceed their number.
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import platform
 import statistics
@@ -53,6 +52,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
     root = Path(__file__).resolve().parent.parent
     if str(root) not in sys.path:
         sys.path.insert(0, str(root))
+    from sim_throughput import write_csv  # this script's folder is on sys.path
+
     from jaxlc import config, train
 
     cfg = config.load(
@@ -97,12 +98,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
             f"{first:>14.1f}",
             flush=True,
         )
-    out = args.csv or root / "benchmarks" / "results" / "devices_throughput.csv"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(args.csv or root / "benchmarks" / "results" / "devices_throughput.csv", rows)
     return rows
 
 

@@ -26,6 +26,15 @@ import jaxlc
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
+def write_csv(path: Path, rows: list[dict]) -> None:
+    """Result rows (dicts with the same keys, in column order) as a CSV table at ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
 def make_runner(env, params, n_envs: int, steps: int):
     """A jitted ``(state, key) -> (state, rl_steps)`` scanning ``steps`` env-steps."""
 
@@ -94,11 +103,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
         )
     best = max(rows, key=lambda r: r["env_steps_per_s"])
     print(f"best: {best['env_steps_per_s']:,.0f} env-steps/s at N = {best['envs']}")
-    args.csv.parent.mkdir(parents=True, exist_ok=True)
-    with args.csv.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(args.csv, rows)
     return rows
 
 

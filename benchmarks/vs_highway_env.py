@@ -26,7 +26,6 @@ highway-env's best setting. The table goes to stdout and a CSV to
 from __future__ import annotations
 
 import argparse
-import csv
 import functools
 import os
 import platform
@@ -230,11 +229,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"best:    jaxlc N={jx_best['envs']} {jx_best['env_steps_per_s']:,.0f} / highway-env "
         f"{hw_best['setting']} {hw_best['env_steps_per_s']:,.0f} = {ratio_best:,.0f}x"
     )
-    args.csv.parent.mkdir(parents=True, exist_ok=True)
-    with args.csv.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    sim_throughput.write_csv(args.csv, rows)
     print(f"wrote {args.csv}")
     return {
         "rows": rows,
