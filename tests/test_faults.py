@@ -33,7 +33,8 @@ def _leaves(run_dir):
     return jax.tree.leaves(raw["state"])
 
 
-def test_sigkill_then_resume_ends_bit_for_bit_like_an_uninterrupted_run(smoke_run, tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["sigkill", "ctrl-c"])
+def test_interrupt_then_resume_ends_bit_for_bit_like_an_uninterrupted_run(smoke_run, tmp_path, sig):
     ref_dir, _ = smoke_run
     out = tmp_path / "killed"
     cmd = [
@@ -46,14 +47,17 @@ def test_sigkill_then_resume_ends_bit_for_bit_like_an_uninterrupted_run(smoke_ru
         str(out),
         "--no-progress",
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    # Kill it right after its first full-state save, mid-run.
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # Interrupt it right after its first full-state save, mid-run.
     deadline = time.time() + 300
     while not sweep.state_path(out).exists() and time.time() < deadline:
         time.sleep(0.05)
     assert sweep.state_path(out).exists(), "the run never saved its state"
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
+    os.kill(proc.pid, sig)
+    _, err = proc.communicate(timeout=300)
+    if sig == signal.SIGINT:  # Ctrl-C: saves, says how to go on, exits 130
+        assert proc.returncode == 130, err[-2000:]
+        assert err.strip().splitlines()[-1].startswith("interrupted: state saved; continue with")
     assert not (out / "summary.json").exists(), "the kill must land before the end"
     done = subprocess.run(
         [sys.executable, "-m", "jaxlc.sweep", "--resume", str(out), "--no-progress"],
