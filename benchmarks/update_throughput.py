@@ -161,14 +161,15 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     )
     p.add_argument("--tiny", action="store_true", help="small sizes, for tests")
     args = p.parse_args(argv)
-    if args.devices > 1 and jax.default_backend() == "cpu" and len(jax.devices()) < args.devices:
-        raise SystemExit(
-            f"--devices {args.devices}: JAX sees {len(jax.devices())} CPU device(s); run with "
-            f"XLA_FLAGS=--xla_force_host_platform_device_count={args.devices}"
-        )
     if args.tiny:
         args.models, args.batch, args.hidden, args.memories = 3, 8, [16, 32], [64, 96, 128]
         args.updates, args.repeats, args.matmul_n = 5, 2, 128
+    if args.devices > len(jax.devices()) or args.models % args.devices:
+        raise SystemExit(
+            f"--devices {args.devices}: must divide --models ({args.models}) and be at most the "
+            f"{len(jax.devices())} device(s) JAX sees (on a CPU, run with "
+            f"XLA_FLAGS=--xla_force_host_platform_device_count={args.devices})"
+        )
 
     cfg = dataclasses.replace(DDPGConfig(), hidden=tuple(args.hidden), batch_size=args.batch)
     time_dot = _timed(matmul_call(args.matmul_n))

@@ -282,11 +282,21 @@ def run_jaxlc_one(
     if hit is not None:
         at_step = int(jax.device_get(state.log.at_step[0, hit]))
         t_hit = float(out["chunk_end"][at_step // cfg.train.chunk_steps])
-    wall = out["wall_s"]
     return {
         "system": f"jaxlc {jax.__version__} trainer, {cfg.train.envs_per_model} envs/model",
         "models": 1,
         "episodes": len(success),
+        **_throughput(out),
+        "time_to_target_s": t_hit,
+        "episode_of_target": hit + 1 if hit is not None else float("nan"),
+        "success_last_window": float(success[-window:].mean()) if len(success) else float("nan"),
+    }
+
+
+def _throughput(out: dict[str, Any]) -> dict[str, Any]:
+    """The rate columns of a jaxlc row, from what ``_train_until`` measured."""
+    wall = out["wall_s"]
+    return {
         "wall_s": wall,
         "updates": out["updates"],
         "updates_per_s": out["updates"] / wall,
@@ -295,9 +305,6 @@ def run_jaxlc_one(
         "transitions_per_s": out["transitions"] / wall,
         "env_steps_per_s": out["env_steps"] / wall,
         "compile_s": out["compile_s"],
-        "time_to_target_s": t_hit,
-        "episode_of_target": hit + 1 if hit is not None else float("nan"),
-        "success_last_window": float(success[-window:].mean()) if len(success) else float("nan"),
     }
 
 
@@ -309,20 +316,12 @@ def run_jaxlc_grid(
     out = _train_until(
         cfg, lambda state, _: bool(np.min(np.asarray(state.episodes)) >= episodes), max_seconds
     )
-    wall = out["wall_s"]
     done = np.minimum(np.asarray(out["state"].episodes), cfg.train.episodes)
     return {
         "system": f"jaxlc {jax.__version__} grid, {cfg.train.envs_per_model} envs/model",
         "models": out["grid"].size,
         "episodes": int(done.min()),
-        "wall_s": wall,
-        "updates": out["updates"],
-        "updates_per_s": out["updates"] / wall,
-        "update_only_per_s": float("nan"),
-        "transitions": out["transitions"],
-        "transitions_per_s": out["transitions"] / wall,
-        "env_steps_per_s": out["env_steps"] / wall,
-        "compile_s": out["compile_s"],
+        **_throughput(out),
         "time_to_target_s": float("nan"),
         "episode_of_target": float("nan"),
         "success_last_window": float("nan"),
