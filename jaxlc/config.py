@@ -89,6 +89,7 @@ class EnvConfig:
     w3: float = _f(0.075, 0.0)
     w4: float = _f(1.0, 0.0)
     reward_scale: float = _f(1.0, 0.0, open_lo=True, doc="multiplies every reward term")
+    offset_obs_scale: float = _f(3.7, 0.0, 100.0, open_lo=True, doc="m per unit of obs dd")
 
 
 @dataclass(frozen=True)
@@ -123,6 +124,9 @@ class TrainConfig:
     save_every_s: float = _f(60.0, 0.0, doc="s between full-state saves (0: every chunk)")
     seeds: int = _f(1, 1, 1024)
     seed: int = _f(0, 0)
+    anneal_from: float = _f(1.0, 0.0, 1.0, doc="fraction of episodes where annealing starts")
+    noise_final: float = _f(1.0, 0.0, 1.0, doc="noise sigma multiplier at the last episode")
+    lr_final: float = _f(1.0, 0.0, 1.0, doc="learning-rate multiplier at the last episode")
 
 
 @dataclass(frozen=True)

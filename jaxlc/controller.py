@@ -22,6 +22,6 @@ def scripted_action(obs: Array, params: EnvParams, pole: float = DEFAULT_POLE) -
     v = jnp.maximum(obs[..., 0] * _OBS_SCALE[0], 1.0)
     psi = obs[..., 2] * _OBS_SCALE[2]
     omega = obs[..., 3] * _OBS_SCALE[3]
-    e = obs[..., 4] * params.lane_width
+    e = obs[..., 4] * params.offset_obs_scale
     a_lat = -(pole**3 * e + 3 * pole**2 * v * psi + 3 * pole * v * omega) / v
     return jnp.clip(a_lat / params.max_yaw_acc, -1.0, 1.0)[..., None]

@@ -22,7 +22,8 @@ When an episode ends the ego leaves the road and the env goes back to WAIT on th
 observation, which is what a learner bootstraps from.
 
 Observation (``OBS_DIM`` = 14, normalised), in this order:
-  0 v/30  1 a_long/3  2 psi/0.1  3 omega/0.1  4 offset/W  5 held action  6 manoeuvre time/limit
+  0 v/30  1 a_long/3  2 psi/0.1  3 omega/0.1  4 offset/offset_obs_scale (default W = 3.7 m)
+  5 held action  6 manoeuvre time/limit
   7 curvature*100  8 lead net gap/100  9 lead dv/10  10 lag net gap/100  11 lag dv/10
   12 current-lane leader net gap/100  13 its dv/10
 Gaps are clipped to [-10, 100] m; a missing vehicle reads gap 100 m, dv 0 (dv = v_other - v).
@@ -97,6 +98,7 @@ class EnvParams:
     w3: float = 0.075
     w4: float = 1.0
     reward_scale: float = 1.0
+    offset_obs_scale: float = 3.7
     gamma: float = 0.98
     k: int = 1
 
@@ -226,7 +228,7 @@ def observation(state: EnvState, p: EnvParams) -> Array:
             eg.accel / _OBS_SCALE[1],
             eg.psi / _OBS_SCALE[2],
             eg.omega / _OBS_SCALE[3],
-            lateral_offset(eg, p) / p.lane_width,
+            lateral_offset(eg, p) / p.offset_obs_scale,
             eg.held,
             eg.steps * p.dt / p.manoeuvre_time_limit,
             p.curvature * 100.0 * jnp.ones_like(eg.v),

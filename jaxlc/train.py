@@ -30,7 +30,7 @@ from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
 from jaxlc import ddpg, replay
-from jaxlc.config import Config
+from jaxlc.config import Config, TrainConfig
 from jaxlc.env import ACT_DIM, OBS_DIM, EnvParams, EnvState, LaneChangeEnv
 from jaxlc.networks import make_networks
 from jaxlc.reward import SUCCESS
@@ -159,6 +159,21 @@ def _select(pred: Array, new: Any, old: Any) -> Any:
     return jax.tree.map(lambda n, o: jnp.where(pred, n, o), new, old)
 
 
+def anneal(h: ddpg.Hyper, episodes: Array, t: TrainConfig) -> ddpg.Hyper:
+    """Per-model noise sigma and learning rates after ``episodes`` finished episodes: scaled
+    linearly from 1 at ``t.anneal_from`` of ``t.episodes`` to ``t.noise_final`` /
+    ``t.lr_final`` at the last episode. The paper's constants are ``noise_final = lr_final =
+    1`` (the default), which leaves every value unchanged bit for bit."""
+    start = t.anneal_from * t.episodes
+    frac = jnp.clip((episodes - start) / max(t.episodes - start, 1.0), 0.0, 1.0)
+    lr = 1.0 - (1.0 - t.lr_final) * frac
+    return ddpg.Hyper(
+        actor_lr=h.actor_lr * lr,
+        critic_lr=h.critic_lr * lr,
+        noise_sigma=h.noise_sigma * (1.0 - (1.0 - t.noise_final) * frac),
+    )
+
+
 def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
     """``init(key, hyper) -> TrainState`` and ``step(state, hyper) -> (state, metrics)`` for
     ONE model; the grid vmaps them."""
@@ -191,10 +206,11 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
         params = base.replace(k=hyper.k)
         key, k_noise, k_env, k_update = jax.random.split(ts.key, 4)
         learning = ts.episodes < t.episodes
+        h = anneal(hyper.ddpg, ts.episodes, t)
 
         # Act in every env; only RL-phase steps are transitions.
         mu = actor_net.apply(ts.learner.actor, ts.obs)  # (envs, 1)
-        action = ddpg.explore(k_noise, mu, hyper.ddpg.noise_sigma, d.noise_clip)
+        action = ddpg.explore(k_noise, mu, h.noise_sigma, d.noise_clip)
         obs, env_state, reward, term, trunc, info = jax.vmap(env.step, (0, 0, 0, None))(
             jax.random.split(k_env, n_envs), ts.env, action, params
         )
@@ -206,7 +222,7 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
         # DDPG updates once the memory holds one batch [P]/[S].
         def one_update(learner: ddpg.Learner, k: Array):
             batch = replay.sample(memory, k, d.batch_size)
-            return ddpg.update(learner, batch, hyper.ddpg, d, key=jax.random.fold_in(k, 1))
+            return ddpg.update(learner, batch, h, d, key=jax.random.fold_in(k, 1))
 
         new_learner, losses = jax.lax.scan(
             one_update, ts.learner, jax.random.split(k_update, d.updates_per_step)

@@ -380,6 +380,25 @@ def test_vmap_equals_envs_stepped_one_by_one(env_params):
             np.testing.assert_allclose(a, b[i], rtol=1e-5, atol=1e-5)
 
 
+def test_offset_observation_scale_changes_units_not_the_controller(env_params, reset_batch):
+    """``offset_obs_scale`` only rescales obs[4] (m per unit): every other column, and the
+    scripted controller's action, which reads the offset back in metres, stay the same."""
+    env, p = env_params
+    keys = jax.random.split(jax.random.PRNGKey(16), 64)
+    obs, state = reset_batch(keys, p)
+    q = p.replace(offset_obs_scale=1.0)
+    obs_q = jax.vmap(E.observation, (0, None))(state, q)
+    metres = jax.vmap(E.lateral_offset, (0, None))(state.ego, p)
+    np.testing.assert_allclose(obs[:, 4] * p.offset_obs_scale, metres, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(obs_q[:, 4], metres, rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(np.delete(obs_q, 4, 1), np.delete(obs, 4, 1))
+    moved = obs.at[:, 4].set(jnp.linspace(-1.0, 1.0, 64)).at[:, 2].set(0.05)  # mid-manoeuvre
+    moved_q = moved.at[:, 4].multiply(p.offset_obs_scale)
+    np.testing.assert_allclose(
+        scripted_action(moved_q, q), scripted_action(moved, p), rtol=1e-5, atol=1e-6
+    )
+
+
 def test_scripted_controller_completes_lane_changes(env_params, rollout, reset_batch):
     env, p = env_params
     obs, state = reset_batch(jax.random.split(jax.random.PRNGKey(14), 128), p)

@@ -1,5 +1,6 @@
 """The fused trainer: grid under vmap, checkpoints, the sweep CLI, a real learning signal."""
 
+import dataclasses
 import json
 
 import jax
@@ -115,6 +116,7 @@ def test_sweep_refuses_a_run_dir_of_another_config(smoke_run, capsys):
         ("grid.k=[]", "at least one"),
         ("ddpg.gamma=two", "must be a number"),
         ("env.no_such_key=1", "unknown config key 'env.no_such_key'"),
+        ("train.noise_final=1.5", "train.noise_final': must be >= 0 and <= 1"),
     ],
 )
 def test_bad_config_values_get_one_clear_line(override, words, capsys, tmp_path):
@@ -123,6 +125,31 @@ def test_bad_config_values_get_one_clear_line(override, words, capsys, tmp_path)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0], err
     assert not (tmp_path / "r").exists()
+
+
+def test_tuned_config_is_the_paper_with_only_tau_changed():
+    paper, tuned = config.load(), config.load(config.CONFIG_DIR / "tuned.toml")
+    assert tuned.ddpg.tau == 0.005 != paper.ddpg.tau
+    assert tuned == dataclasses.replace(paper, ddpg=dataclasses.replace(paper.ddpg, tau=0.005))
+
+
+def test_anneal_schedule_is_linear_from_its_start_and_off_by_default():
+    h = train.ddpg.Hyper(
+        actor_lr=jnp.float32(1e-4), critic_lr=jnp.float32(1e-3), noise_sigma=jnp.float32(0.2)
+    )
+    off = config.TrainConfig()  # the paper: constant noise and rates, unchanged bit for bit
+    for ep in (0, 2500, 5000):
+        same = train.anneal(h, jnp.int32(ep), off)
+        pairs = zip(jax.tree.leaves(same), jax.tree.leaves(h), strict=True)
+        assert all(np.array_equal(a, b) for a, b in pairs)
+    t = config.TrainConfig(episodes=5000, anneal_from=0.5, noise_final=0.1, lr_final=0.2)
+    # (episodes, multiplier of sigma, multiplier of the rates), worked by hand
+    for ep, m_noise, m_lr in [(1000, 1.0, 1.0), (2500, 1.0, 1.0), (3750, 0.55, 0.6),
+                              (5000, 0.1, 0.2), (7000, 0.1, 0.2)]:  # fmt: skip
+        got = train.anneal(h, jnp.int32(ep), t)
+        np.testing.assert_allclose(got.noise_sigma, 0.2 * m_noise, rtol=1e-6)
+        np.testing.assert_allclose(got.actor_lr, 1e-4 * m_lr, rtol=1e-6)
+        np.testing.assert_allclose(got.critic_lr, 1e-3 * m_lr, rtol=1e-6)
 
 
 def test_a_short_run_learns(smoke_cfg):
