@@ -49,6 +49,7 @@ from jaxlc.controller import scripted_action
 from jaxlc.env import ACT_DIM, OBS_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
 from jaxlc.networks import make_networks
 from jaxlc.reward import REASONS
+from jaxlc.train import check_devices
 
 OUTCOMES = ("unfinished",) + REASONS[1:]  # index = reason code; 0: hit the step cap
 MEASURES = (
@@ -334,11 +335,7 @@ def evaluate_policies(
     so one compiled program serves all) to bound memory; a chunk is a multiple of ``devices``,
     over which its policies are laid.
     """
-    if not 1 <= devices <= len(jax.devices()):
-        raise EvalError(
-            f"--devices: must be between 1 and {len(jax.devices())} (the devices JAX sees), "
-            f"got {devices}"
-        )
+    check_devices(devices, EvalError)
     start, rollout = programs(cfg, max_steps, devices)
     cs = start(case_keys(seed, cases))
     idx = pick_traced(cs, traced)

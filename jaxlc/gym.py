@@ -395,10 +395,25 @@ def render_frame(
     return img
 
 
-def _params_from(config: Config | EnvConfig | None, k: int, params: EnvParams | None) -> EnvParams:
-    if params is not None:
-        return params
-    return make(config, k=k)[1]
+def _configure(
+    env: Any,
+    config: Config | EnvConfig | None,
+    k: int,
+    params: EnvParams | None,
+    render_mode: str | None,
+    max_skip_steps: int,
+) -> tuple[spaces.Box, spaces.Box]:
+    """The constructor arguments both wrappers share: checks ``render_mode``, sets
+    ``params``, ``render_mode`` and ``max_skip_steps`` on ``env``, and returns one env's
+    observation and action spaces."""
+    if render_mode is not None and render_mode not in env.metadata["render_modes"]:
+        raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+    env.params = params if params is not None else make(config, k=k)[1]
+    env.render_mode = render_mode
+    env.max_skip_steps = int(max_skip_steps)
+    low, high = observation_bounds(env.params)
+    obs_space = spaces.Box(low, high, (OBS_DIM,), np.float32)
+    return obs_space, spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
 
 
 def _reason_names(codes: np.ndarray) -> np.ndarray:
@@ -448,14 +463,9 @@ class LaneChangeGymEnv(gymnasium.Env[np.ndarray, np.ndarray]):
         render_mode: str | None = None,
         max_skip_steps: int = DEFAULT_MAX_SKIP_STEPS,
     ) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        self.params = _params_from(config, k, params)
-        self.render_mode = render_mode
-        self.max_skip_steps = int(max_skip_steps)
-        low, high = observation_bounds(self.params)
-        self.observation_space = spaces.Box(low, high, (OBS_DIM,), np.float32)
-        self.action_space = spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
+        self.observation_space, self.action_space = _configure(
+            self, config, k, params, render_mode, max_skip_steps
+        )
         self._programs = _programs(self.params, self.max_skip_steps, render_mode is not None)
         self._key: Array | None = None
         self._state: EnvState | None = None  # the state acted in, or the terminal one
@@ -546,15 +556,10 @@ class LaneChangeVectorEnv(VectorEnv):
         render_mode: str | None = None,
         max_skip_steps: int = DEFAULT_MAX_SKIP_STEPS,
     ) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.single_observation_space, self.single_action_space = _configure(
+            self, config, k, params, render_mode, max_skip_steps
+        )
         self.num_envs = int(num_envs)
-        self.params = _params_from(config, k, params)
-        self.render_mode = render_mode
-        self.max_skip_steps = int(max_skip_steps)
-        low, high = observation_bounds(self.params)
-        self.single_observation_space = spaces.Box(low, high, (OBS_DIM,), np.float32)
-        self.single_action_space = spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._programs = _programs(self.params, self.max_skip_steps, False)

@@ -290,11 +290,7 @@ def run_sweep(
 
     n_dev = len(jax.devices()) if devices is None else devices
     lead = jax.process_index() == 0  # writes the files of the whole run
-    if not 1 <= n_dev <= len(jax.devices()):
-        raise config.ConfigError(
-            f"--devices: must be between 1 and {len(jax.devices())} (the devices JAX sees), "
-            f"got {n_dev}"
-        )
+    train.check_devices(n_dev)
     if jax.process_count() > 1 and n_dev != len(jax.devices()):
         raise config.ConfigError("--devices: a multi-host run uses every device of every host")
     if not resume:

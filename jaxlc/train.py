@@ -30,7 +30,7 @@ from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
 from jaxlc import ddpg, replay
-from jaxlc.config import Config, TrainConfig
+from jaxlc.config import Config, ConfigError, TrainConfig
 from jaxlc.env import ACT_DIM, OBS_DIM, EnvParams, EnvState, LaneChangeEnv
 from jaxlc.networks import make_networks
 from jaxlc.reward import SUCCESS
@@ -281,6 +281,15 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
         return ts, metrics
 
     return init, step
+
+
+def check_devices(n: int, error: type[Exception] = ConfigError) -> None:
+    """Raise ``error`` unless ``1 <= n <=`` the devices JAX sees (``--devices`` of the sweep
+    and of evaluation)."""
+    if not 1 <= n <= len(jax.devices()):
+        raise error(
+            f"--devices: must be between 1 and {len(jax.devices())} (the devices JAX sees), got {n}"
+        )
 
 
 def make_grid_fns(
