@@ -9,10 +9,18 @@ Measured in one run, so that both figures see the same machine state:
    cap_max of their maximum) and runs ``ddpg.update``; ``--updates`` steps run in one
    ``lax.scan``; median over ``--repeats`` calls after a compiling call;
 3. achieved GFLOP/s of the update = grid-updates/s x models x ``update_flops`` and its share of
-   the peak. Only matmul FLOPs count (see ``update_flops``); elementwise work, Adam and the
-   sampling gather are the overhead that keeps the share below 100 %.
+   the peak. Only matmul FLOPs count (see ``update_products``); elementwise work, Adam and the
+   sampling gather are the overhead that keeps the share below 100 %;
+4. where one grid update's time goes: its matrix products timed alone at their own shapes
+   (``products_alone``: their share of the peak is the ceiling of (3) with these kernels),
+   its Adam + soft-target pass alone (``optimizer_alone``), and the rest (sampling, ReLU,
+   tanh, losses; negative when the parts overlap inside the update), beside the bandwidth
+   of a plain streamed ``a + 1e-3 b`` over as much memory as the Adam pass (``stream``);
+5. ``share_ceiling``: the share that an update made of nothing but its products (at their
+   speed alone) and an Adam/target pass moving its minimum 36 bytes per parameter at the
+   streamed bandwidth would reach. (4) and (5) run on one device.
 
-Timed calls of (1) and (2) alternate so that both see the same load from other processes; the
+Timed calls of (1), (2) and (4) alternate so that all see the same load from other processes; the
 share is also given from the fastest call of each ("best_of"), and the 1-minute load average is
 recorded, because a shared machine makes single figures noisy. ``XLA_FLAGS`` in the environment
 applies to both measurements.
@@ -50,11 +58,15 @@ from jaxlc.env import OBS_DIM  # noqa: E402
 RESULTS = ROOT / "benchmarks" / "results"
 
 
-def update_flops(obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int = 1) -> int:
-    """Matmul FLOPs of one ``ddpg.update`` of one model (2 per multiply-add).
+def update_products(
+    obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int = 1
+) -> list[tuple[int, int, int]]:
+    """The matrix products ``(m, k, n)`` (an ``(m, k) @ (k, n)``) of one ``ddpg.update`` of
+    one model.
 
-    A dense layer ``in -> out`` on ``batch`` rows costs ``F = 2 * batch * in * out`` forward;
-    its backward costs ``F`` for the weight gradient and ``F`` for the input gradient. Counted:
+    A dense layer ``in -> out`` on ``batch`` rows is ``(batch, in, out)`` forward; its backward
+    is ``(in, batch, out)`` for the weight gradient and ``(batch, out, in)`` for the input
+    gradient. Counted:
 
     - target actor on s' and target critic on (s', mu'(s')): one forward each;
     - critic on (s, a): forward, weight gradients of every layer, input gradients of every
@@ -66,14 +78,32 @@ def update_flops(obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int =
     actor = list(zip((obs_dim, *hidden), (*hidden, act_dim), strict=True))
     critic = list(zip((obs_dim + act_dim, *hidden), (*hidden, 1), strict=True))
 
-    def f(layers: list[tuple[int, int]]) -> int:
-        return sum(2 * batch * i * o for i, o in layers)
+    def fwd(layers: list[tuple[int, int]]) -> list[tuple[int, int, int]]:
+        return [(batch, i, o) for i, o in layers]
 
-    first_action_cols = 2 * batch * act_dim * hidden[0]
-    target = f(actor) + f(critic)
-    critic_step = f(critic) + f(critic) + f(critic[1:])
-    actor_step = f(actor) + f(critic) + f(critic[1:]) + first_action_cols + f(actor) + f(actor[1:])
+    def wgrad(layers: list[tuple[int, int]]) -> list[tuple[int, int, int]]:
+        return [(i, batch, o) for i, o in layers]
+
+    def igrad(layers: list[tuple[int, int]]) -> list[tuple[int, int, int]]:
+        return [(batch, o, i) for i, o in layers]
+
+    target = fwd(actor) + fwd(critic)
+    critic_step = fwd(critic) + wgrad(critic) + igrad(critic[1:])
+    actor_step = (
+        fwd(actor)
+        + fwd(critic)
+        + igrad(critic[1:])
+        + [(batch, hidden[0], act_dim)]  # the first critic layer's action columns
+        + wgrad(actor)
+        + igrad(actor[1:])
+    )
     return target + critic_step + actor_step
+
+
+def update_flops(obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int = 1) -> int:
+    """Matmul FLOPs of one ``ddpg.update`` of one model: 2 per multiply-add of
+    ``update_products``."""
+    return sum(2 * m * k * n for m, k, n in update_products(obs_dim, hidden, batch, act_dim))
 
 
 def _timed(fn: Callable[[], object]) -> Callable[[], float]:
@@ -95,6 +125,68 @@ def matmul_call(n: int) -> Callable[[], jax.Array]:
     b = jax.random.normal(kb, (n, n), jnp.float32)
     dot = jax.jit(jnp.dot)
     return lambda: dot(a, b)
+
+
+def _scanned(body: Callable, carry: object, steps: int) -> Callable[[], object]:
+    """``steps`` iterations of ``carry = body(carry)`` in one jitted ``lax.scan``: buffers are
+    updated in place, as in the grid update's scan, and a call costs one dispatch."""
+    run = jax.jit(lambda c: jax.lax.scan(lambda c, _: (body(c), None), c, None, steps)[0])
+    return lambda: run(carry)
+
+
+def stream_call(n: int, steps: int) -> Callable[[], object]:
+    """``a <- a + 1e-3 b`` over two ``(n,)`` float32 arrays, ``steps`` times: each step reads
+    ``8 n`` bytes and writes ``4 n``, the memory bandwidth that an elementwise pass sees."""
+    ka, kb = jax.random.split(jax.random.key(5))
+    b = jax.random.normal(kb, (n,))
+    return _scanned(lambda a: a + 1e-3 * b, jax.random.normal(ka, (n,)), steps)
+
+
+def kernels_call(
+    products: Sequence[tuple[int, int, int]], models: int, steps: int
+) -> Callable[[], object]:
+    """Every product of ``products`` alone, batched over ``models`` as the vmapped update
+    batches it (``(models, m, k) @ (models, k, n)``), ``steps`` times in a chain: the time XLA's
+    matmul kernels need for one grid update's FLOPs with nothing else around them.
+
+    Each step adds a 1e-30 multiple of one element of every product to one element of every
+    left operand, so that no product can be hoisted out of the loop or dropped, at the cost of
+    a few scalar operations."""
+    keys = jax.random.split(jax.random.key(3), len(products))
+    ab = [
+        (jax.random.normal(ka, (models, m, k)), jax.random.normal(kb, (models, k, n)))
+        for (m, k, n), (ka, kb) in zip(products, map(jax.random.split, keys), strict=True)
+    ]
+    right = [b for _, b in ab]
+
+    def body(left: list[jax.Array]) -> list[jax.Array]:
+        out = [jnp.einsum("bmk,bkn->bmn", a, b) for a, b in zip(left, right, strict=True)]
+        tick = 1e-30 * sum(o[:, 0, 0] for o in out)  # (models,)
+        return [a.at[:, 0, 0].add(tick) for a in left]
+
+    return _scanned(body, [a for a, _ in ab], steps)
+
+
+def optimizer_call(cfg: DDPGConfig, models: int, steps: int) -> Callable[[], object]:
+    """``ddpg.optimizer_step`` (Adam and the soft target update) of the actor and the critic
+    of ``models`` models, vmapped, with fixed gradients, ``steps`` times: the update's
+    elementwise pass over every parameter, alone. It moves at least 36 bytes per parameter:
+    params, gradient, both Adam moments and the target read, and all but the gradient
+    written."""
+    init = jax.jit(jax.vmap(lambda k: ddpg.init_learner(k, OBS_DIM, cfg)))
+    lrn = init(jax.random.split(jax.random.key(4), models))
+    grads = jax.tree.map(lambda x: jnp.full_like(x, 1e-3), (lrn.critic, lrn.actor))
+
+    def one(lrn: ddpg.Learner, grads: tuple[ddpg.Params, ddpg.Params]) -> ddpg.Learner:
+        c, c_opt, c_t = ddpg.optimizer_step(
+            lrn.critic, grads[0], lrn.critic_opt, cfg.critic_lr, lrn.critic_target, cfg.tau
+        )
+        a, a_opt, a_t = ddpg.optimizer_step(
+            lrn.actor, grads[1], lrn.actor_opt, cfg.actor_lr, lrn.actor_target, cfg.tau
+        )
+        return ddpg.Learner(a, c, a_t, c_t, a_opt, c_opt, lrn.step + 1)
+
+    return _scanned(lambda lrn: jax.vmap(one)(lrn, grads), lrn, steps)
 
 
 def grid_update_call(
@@ -152,6 +244,12 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     p.add_argument("--updates", type=int, default=200, help="updates per timed scan")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--matmul-n", type=int, default=2048)
+    p.add_argument(
+        "--stream-n",
+        type=int,
+        default=0,
+        help="floats per streamed array (default: 4.5 per parameter, the Adam pass's footprint)",
+    )
     p.add_argument("--out", type=Path, default=RESULTS / "update_throughput.csv")
     p.add_argument(
         "--devices",
@@ -163,7 +261,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     args = p.parse_args(argv)
     if args.tiny:
         args.models, args.batch, args.hidden, args.memories = 3, 8, [16, 32], [64, 96, 128]
-        args.updates, args.repeats, args.matmul_n = 5, 2, 128
+        args.updates, args.repeats, args.matmul_n, args.stream_n = 5, 2, 128, 1 << 12
     if args.devices > len(jax.devices()) or args.models % args.devices:
         raise SystemExit(
             f"--devices {args.devices}: must divide --models ({args.models}) and be at most the "
@@ -176,14 +274,36 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     time_grid = _timed(
         grid_update_call(cfg, args.models, args.memories, args.updates, args.devices)
     )
-    dot_s, grid_s = [], []
-    for _ in range(args.repeats):  # alternate, so both see the same load from other processes
+    products = update_products(OBS_DIM, cfg.hidden, cfg.batch_size)
+    time_kernels = _timed(kernels_call(products, args.models, args.updates))
+    time_optimizer = _timed(optimizer_call(cfg, args.models, args.updates))
+    shapes = jax.eval_shape(lambda k: ddpg.init_learner(k, OBS_DIM, cfg), jax.random.key(0))
+    params = args.models * sum(x.size for x in jax.tree.leaves((shapes.actor, shapes.critic)))
+    stream_n = args.stream_n or int(4.5 * params)  # two arrays of 36 bytes per parameter
+    time_stream = _timed(stream_call(stream_n, args.updates))
+    dot_s, grid_s, kernels_s, optimizer_s, stream_s = [], [], [], [], []
+    for _ in range(args.repeats):  # alternate, so all see the same load from other processes
         dot_s.append(time_dot())
         grid_s.append(time_grid())
+        kernels_s.append(time_kernels())
+        optimizer_s.append(time_optimizer())
+        stream_s.append(time_stream())
     peak = 2 * args.matmul_n**3 / statistics.median(dot_s) / 1e9
     rate = args.updates / statistics.median(grid_s)
     flops = update_flops(OBS_DIM, cfg.hidden, cfg.batch_size)
     achieved = rate * args.models * flops / 1e9
+    # the decomposition of one grid update's time, ms: its products alone (the ceiling of the
+    # share with these kernels), its Adam/target pass alone, and what remains
+    update_ms = 1e3 / rate
+    kernels_ms = 1e3 * statistics.median(kernels_s) / args.updates
+    optimizer_ms = 1e3 * statistics.median(optimizer_s) / args.updates
+    kernels_share = args.models * flops / (kernels_ms / 1e3) / 1e9 / peak
+    optimizer_gbps = 36 * params / (optimizer_ms / 1e3) / 1e9
+    stream_gbps = 12 * stream_n * args.updates / statistics.median(stream_s) / 1e9
+    # the share if an update were only its products at their speed alone plus an Adam/target
+    # pass that moves its minimum 36 bytes per parameter at the streamed bandwidth
+    floor_ms = kernels_ms + 36 * params / stream_gbps / 1e6
+    ceiling = args.models * flops / (floor_ms / 1e3) / 1e9 / peak
     best = args.updates / min(grid_s) * args.models * flops / (2 * args.matmul_n**3 / min(dot_s))
     row = {
         "backend": jax.default_backend(),
@@ -201,6 +321,14 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
         "achieved_gflops": round(achieved, 2),
         "share_of_peak": round(achieved / peak, 4),
         "share_of_peak_best_of": round(best, 4),
+        "update_ms": round(update_ms, 3),
+        "products_alone_ms": round(kernels_ms, 3),
+        "products_alone_share_of_peak": round(kernels_share, 4),
+        "optimizer_alone_ms": round(optimizer_ms, 3),
+        "optimizer_alone_gbps": round(optimizer_gbps, 2),
+        "stream_gbps": round(stream_gbps, 2),
+        "share_ceiling": round(ceiling, 4),
+        "rest_ms": round(update_ms - kernels_ms - optimizer_ms, 3),
         "loadavg_1min": round(os.getloadavg()[0], 2),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -218,6 +346,13 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
         "achieved_gflops": achieved,
         "share_of_peak": achieved / peak,
         "share_of_peak_best_of": best,
+        "update_ms": update_ms,
+        "products_alone_ms": kernels_ms,
+        "products_alone_share_of_peak": kernels_share,
+        "optimizer_alone_ms": optimizer_ms,
+        "optimizer_alone_gbps": optimizer_gbps,
+        "stream_gbps": stream_gbps,
+        "share_ceiling": ceiling,
     }
 
 

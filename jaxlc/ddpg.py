@@ -79,10 +79,14 @@ def init_learner(key: jax.Array, obs_dim: int, cfg: DDPGConfig, act_dim: int = 1
     )
 
 
-def _step(
+def optimizer_step(
     params: Params, grads: Params, opt: optax.OptState, lr: jax.Array, target: Params, tau: float
 ) -> tuple[Params, optax.OptState, Params]:
-    """One Adam step at the traced rate ``lr``, then the soft target update, eqs. (6)/(7)."""
+    """One Adam step at the traced rate ``lr``, then the soft target update, eqs. (6)/(7).
+
+    Elementwise over every parameter, so memory-bound: on a CPU it is a large part of an
+    update's time (``benchmarks/update_throughput.py`` times it on its own).
+    """
     updates, opt = _adam.update(grads, opt, params)
     params = jax.tree.map(lambda p, u: p - lr * u, params, updates)
     target = jax.tree.map(lambda t, p: t + tau * (p - t), target, params)
@@ -141,10 +145,10 @@ def update(
 
     (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(learner.critic)
     a_loss, a_grads = jax.value_and_grad(actor_loss)(learner.actor)
-    critic_p, critic_opt, critic_t = _step(
+    critic_p, critic_opt, critic_t = optimizer_step(
         learner.critic, c_grads, learner.critic_opt, hyper.critic_lr, learner.critic_target, cfg.tau
     )
-    actor_p, actor_opt, actor_t = _step(
+    actor_p, actor_opt, actor_t = optimizer_step(
         learner.actor, a_grads, learner.actor_opt, hyper.actor_lr, learner.actor_target, cfg.tau
     )
     if cfg.td3:
