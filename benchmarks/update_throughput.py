@@ -23,7 +23,7 @@ Measured in one run, so that both figures see the same machine state:
 Timed calls of (1), (2) and (4) alternate so that all see the same load from other processes; the
 share is also given from the fastest call of each ("best_of"), and the 1-minute load average is
 recorded, because a shared machine makes single figures noisy. ``XLA_FLAGS`` in the environment
-applies to both measurements.
+applies to all of them.
 
 Usage: ``python benchmarks/update_throughput.py [--models 9 --batch 64 --repeats 5]``;
 ``--tiny`` shrinks everything for tests. Writes ``benchmarks/results/update_throughput.csv``.
