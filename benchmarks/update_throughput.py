@@ -167,14 +167,20 @@ def kernels_call(
     return _scanned(body, [a for a, _ in ab], steps)
 
 
+def _learners(cfg: DDPGConfig, models: int, key: jax.Array) -> ddpg.Learner:
+    """``models`` fresh learners stacked on a leading axis (one jitted init: eager takes
+    seconds)."""
+    init = jax.jit(jax.vmap(lambda k: ddpg.init_learner(k, OBS_DIM, cfg)))
+    return init(jax.random.split(key, models))
+
+
 def optimizer_call(cfg: DDPGConfig, models: int, steps: int) -> Callable[[], object]:
     """``ddpg.optimizer_step`` (Adam and the soft target update) of the actor and the critic
     of ``models`` models, vmapped, with fixed gradients, ``steps`` times: the update's
     elementwise pass over every parameter, alone. It moves at least 36 bytes per parameter:
     params, gradient, both Adam moments and the target read, and all but the gradient
     written."""
-    init = jax.jit(jax.vmap(lambda k: ddpg.init_learner(k, OBS_DIM, cfg)))
-    lrn = init(jax.random.split(jax.random.key(4), models))
+    lrn = _learners(cfg, models, jax.random.key(4))
     grads = jax.tree.map(lambda x: jnp.full_like(x, 1e-3), (lrn.critic, lrn.actor))
 
     def one(lrn: ddpg.Learner, grads: tuple[ddpg.Params, ddpg.Params]) -> ddpg.Learner:
@@ -198,8 +204,7 @@ def grid_update_call(
     cap_max = max(memories)
     caps = jnp.asarray([memories[i % len(memories)] for i in range(models)], jnp.int32)
     k_init, k_run = jax.random.split(jax.random.key(1))
-    init = jax.jit(jax.vmap(lambda k: ddpg.init_learner(k, OBS_DIM, cfg)))  # eager: seconds
-    learners = init(jax.random.split(k_init, models))
+    learners = _learners(cfg, models, k_init)
     hyper = jax.vmap(lambda _: ddpg.Hyper.from_config(cfg))(jnp.arange(models))
 
     # host-side random transitions: one compiled vmapped add, called until the largest is full
