@@ -22,7 +22,9 @@ import numpy as np
 from flax import serialization, traverse_util
 
 __all__ = [
+    "TRAIN_STATE_FILE",
     "CheckpointError",
+    "WriteError",
     "list_checkpoints",
     "load",
     "save",
@@ -32,15 +34,28 @@ __all__ = [
 ]
 
 
+# A sweep's full training state (``RUN_DIR/state/``): not a checkpoint, read by --resume.
+TRAIN_STATE_FILE = "train_state.msgpack"
+
+
 class CheckpointError(Exception):
     """A checkpoint cannot be written or read; the message names the problem and the fix."""
 
 
+class WriteError(CheckpointError):
+    """A file could not be written; ``remedy`` says what the user must do about the disk,
+    so a caller that knows what comes next (the sweep: ``--resume``) can say the rest."""
+
+    def __init__(self, path: Path, reason: str, remedy: str) -> None:
+        self.path, self.reason, self.remedy = path, reason, remedy
+        super().__init__(f"cannot write {path}: {reason}; {remedy} and save again")
+
+
 # --------------------------------------------------------------------------- atomic writes
 
-_FIXES = {
-    errno.ENOSPC: "free some disk space and save again",
-    errno.EDQUOT: "free some disk quota and save again",
+_REMEDIES = {
+    errno.ENOSPC: "free some disk space",
+    errno.EDQUOT: "free some disk quota",
     errno.EACCES: "make the directory writable or choose another output directory",
     errno.EPERM: "make the directory writable or choose another output directory",
     errno.EROFS: "choose an output directory on a writable file system",
@@ -48,10 +63,9 @@ _FIXES = {
 }
 
 
-def _write_error(path: Path, err: OSError) -> CheckpointError:
-    reason = err.strerror or str(err)
-    fix = _FIXES.get(err.errno or 0, "check the output directory and save again")
-    return CheckpointError(f"cannot write {path}: {reason}; {fix}")
+def _write_error(path: Path, err: OSError) -> WriteError:
+    remedy = _REMEDIES.get(err.errno or 0, "check the output directory")
+    return WriteError(path, err.strerror or str(err), remedy)
 
 
 def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> Path:
@@ -202,6 +216,13 @@ def _corrupt(path: Path, reason: str) -> CheckpointError:
 
 def _read_meta(msgpack_path: Path, json_path: Path) -> dict[str, Any]:
     if not json_path.exists():
+        if msgpack_path.name == TRAIN_STATE_FILE:
+            run_dir = msgpack_path.parent.parent
+            raise CheckpointError(
+                f"{msgpack_path} is a run's full training state, not a checkpoint: continue "
+                f"the run with python -m jaxlc.sweep --resume {run_dir}, or load a policy from "
+                f"{run_dir / 'checkpoints'}"
+            )
         if msgpack_path.exists():
             raise CheckpointError(
                 f"checkpoint {msgpack_path} is incomplete: {json_path.name} is missing, so its "

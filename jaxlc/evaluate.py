@@ -43,7 +43,7 @@ from jax import Array
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-from jaxlc import checkpoint, config
+from jaxlc import checkpoint, config, machine
 from jaxlc.checkpoint import CheckpointError
 from jaxlc.controller import scripted_action
 from jaxlc.env import ACT_DIM, OBS_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
@@ -675,11 +675,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-steps", type=int, default=1500, help="step cap per case")
     ap.add_argument("--chunk", type=int, default=32, help="policies per compiled batch")
     ap.add_argument("--no-figures", action="store_true", help="skip figures (report still)")
-    ap.add_argument("--devices", type=int, default=1, help="devices to lay the policies over")
+    ap.add_argument(
+        "--devices",
+        type=int,
+        default=None,
+        help="devices to lay the policies over (default: every GPU; on a CPU, host devices as "
+        "jaxlc/machine.py picks for --chunk policies; XLA_FLAGS overrides it)",
+    )
     args = ap.parse_intermixed_args(argv)
     try:
         if args.cases < 1 or args.max_steps < 1 or args.chunk < 1:
             raise EvalError("--cases, --max-steps and --chunk must be at least 1")
+        auto = args.devices is None
+        machine.use_host_devices(machine.host_devices_for(args.chunk) if auto else args.devices)
         if args.checkpoint is not None:
             result = evaluate_checkpoint(
                 args.checkpoint,
@@ -700,7 +708,7 @@ def main(argv: list[str] | None = None) -> int:
             seed=args.seed,
             max_steps=args.max_steps,
             chunk=args.chunk,
-            devices=args.devices,
+            devices=len(jax.devices()) if auto else args.devices,
         )
         print(format_table(result["rows"]))
         from jaxlc import figures, report

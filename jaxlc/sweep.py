@@ -30,6 +30,7 @@ import argparse
 import io
 import json
 import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -40,7 +41,7 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
-from jaxlc import checkpoint, config, train
+from jaxlc import checkpoint, config, machine, train
 from jaxlc.reward import REASONS, SUCCESS
 
 # The paper's Table 1 numbers the models by (k, memory size).
@@ -162,13 +163,15 @@ def summarise(
     return rows
 
 
-def summary_markdown(
-    rows: list[dict[str, Any]], wall_s: float, env_steps: int, last: int = 100
-) -> str:
+def summary_markdown(summary: dict[str, Any], last: int = 100) -> str:
+    """The summary as markdown: one line of speed, with the machine that gave it, and a table."""
+    rows, wall_s, env_steps = summary["models"], summary["wall_s"], summary["env_steps"]
     lines = [
         f"Wall time {wall_s:.0f} s, {env_steps:,} env-steps ({env_steps / wall_s:,.0f}/s), "
         f"{sum(r['episodes'] for r in rows):,} episodes "
-        f"({sum(r['episodes'] for r in rows) / wall_s:.1f}/s).",
+        f"({sum(r['episodes'] for r in rows) / wall_s:.1f}/s), on {summary['devices']} "
+        f"{summary['device']} device(s); float32 matmul peak of this machine "
+        f"{summary['matmul_peak_gflops']:.0f} GFLOP/s.",
         "",
         f"| model | seed | episodes | success (last {last}) | return (last {last}) | "
         f"manoeuvre steps | out of bounds / collision / timeout |",
@@ -228,7 +231,19 @@ class NumericalFault(RuntimeError):
 
 
 def state_path(run_dir: Path) -> Path:
-    return run_dir / "state" / "train_state.msgpack"
+    return run_dir / "state" / checkpoint.TRAIN_STATE_FILE
+
+
+# Test hook: with this variable set, a run stops after its first full-state save and waits
+# for a signal, so an interrupt lands mid-run however fast or slow the machine is.
+HOLD_ENV = "JAXLC_HOLD_AFTER_SAVE"
+HOLD_LINE = "jaxlc: state saved; holding for a signal"
+
+
+def _hold_for_a_signal() -> None:
+    print(f"{HOLD_LINE} ({HOLD_ENV} is set)", file=sys.stderr, flush=True)
+    while True:  # only a signal that raises (Ctrl-C) or kills ends the wait
+        signal.pause()
 
 
 def _save_state(out: Path, state: train.TrainState, host: dict[str, Any]) -> None:
@@ -307,8 +322,9 @@ def run_sweep(
     saved = np.array(host["saved"], np.int64)  # a writable copy: last checkpoint episode per model
     step_metrics = [host["metrics"]] if host["metrics"] else []
     env_steps = int(host["env_steps"])
+    total_eps = grid.size * t.episodes
     bar = tqdm(
-        total=grid.size * t.episodes,
+        total=total_eps,
         unit="ep",
         disable=not (progress and lead),
         desc=f"{grid.size} models",
@@ -318,6 +334,9 @@ def run_sweep(
     done_eps = int(np.minimum(counters["episodes"], t.episodes).sum())
     bar.update(done_eps)
     last_save = time.perf_counter()
+    hold = bool(os.environ.get(HOLD_ENV))
+    pace: tuple[float, int] | None = None  # (clock, episodes) once the first chunk compiled
+    eta_said = False
 
     def snapshot_host() -> dict[str, Any]:
         metrics = {k: np.concatenate([m[k] for m in step_metrics]) for k in step_metrics[0]}
@@ -377,6 +396,8 @@ def run_sweep(
             if due:
                 _save_state(out, state, snapshot_host())
                 last_save = time.perf_counter()
+                if hold:
+                    _hold_for_a_signal()
             now = int(np.minimum(counters["episodes"], t.episodes).sum())
             recent = metrics["successes"].sum() / max(1, metrics["episodes_ended"].sum())
             rate = t.chunk_steps * t.envs_per_model * grid.size / (time.perf_counter() - t_chunk)
@@ -388,6 +409,16 @@ def run_sweep(
             )
             bar.update(now - done_eps)
             done_eps = now
+            if pace is None:
+                pace = (time.perf_counter(), now)
+            elif lead and not eta_said and now - pace[1] >= 0.02 * (total_eps - pace[1]):
+                eta = (time.perf_counter() - pace[0]) / (now - pace[1]) * (total_eps - now)
+                tqdm.write(
+                    f"jaxlc: {rate:,.0f} env-steps/s; ETA {eta / 60:.1f} min at the pace so "
+                    "far (early episodes are the shortest)",
+                    file=sys.stderr,
+                )
+                eta_said = True
     except KeyboardInterrupt:
         bar.close()
         if step_metrics:
@@ -409,6 +440,8 @@ def run_sweep(
         "device": jax.devices()[0].device_kind,
         "devices": n_dev,
         "processes": jax.process_count(),
+        # wall times travel between machines only with the machine's speed beside them
+        "matmul_peak_gflops": machine.matmul_peak_gflops() if lead else float("nan"),
     }
     if jax.process_count() > 1:  # every checkpoint is on disk before the run is declared done
         multihost_utils.sync_global_devices("jaxlc.sweep: checkpoints written")
@@ -416,9 +449,21 @@ def run_sweep(
         return summary
     _save_npz(out / "metrics" / "episodes.npz", {**log, "episodes": episodes})
     _save_npz(out / "metrics" / "steps.npz", host_now["metrics"])
-    checkpoint.write_text_atomic(out / "summary.md", summary_markdown(rows, wall, env_steps))
+    checkpoint.write_text_atomic(out / "summary.md", summary_markdown(summary))
     checkpoint.write_text_atomic(out / "summary.json", json.dumps(summary, indent=1))
     return summary
+
+
+def _after_write_error(err: checkpoint.WriteError, out: Path | None) -> str:
+    """What a user does after a failed write, once this process has exited: fix the disk,
+    then resume from the last save (written atomically, so it is intact) or start again."""
+    head = f"cannot write {err.path}: {err.reason}; {err.remedy}"
+    if out is not None and state_path(out).exists():
+        return (
+            f"{head}, then continue with python -m jaxlc.sweep --resume {out} "
+            "(the last saved state is intact)"
+        )
+    return f"{head}, then run the same command again (no training state was saved yet)"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -444,7 +489,8 @@ def main(argv: list[str] | None = None) -> int:
         "--devices",
         type=int,
         default=None,
-        help="devices to lay the models over (default: all JAX sees)",
+        help="devices to lay the models over (default: every GPU; on a CPU, the host-device "
+        "count that trains fastest, see jaxlc/machine.py; XLA_FLAGS overrides it)",
     )
     ap.add_argument(
         "--distributed",
@@ -453,6 +499,7 @@ def main(argv: list[str] | None = None) -> int:
         "or --resume on a shared file system",
     )
     args = ap.parse_intermixed_args(argv)
+    out = None
     try:
         if args.distributed:
             if args.out is None and args.resume is None:
@@ -478,6 +525,10 @@ def main(argv: list[str] | None = None) -> int:
                 overrides.append(f"train.seeds={args.seeds}")
             cfg = config.load(args.config, overrides)
             out = args.out or Path("runs") / f"{time.strftime('%Y%m%d-%H%M%S')}-{cfg.hash()}"
+        if not args.distributed:  # a multi-host run uses the hosts' devices as they are
+            models = len(train.grid_cells(cfg)) * cfg.train.seeds
+            auto = args.devices is None
+            machine.use_host_devices(machine.host_devices_for(models) if auto else args.devices)
         summary = run_sweep(
             cfg,
             out,
@@ -486,6 +537,9 @@ def main(argv: list[str] | None = None) -> int:
             resume=args.resume is not None,
             devices=args.devices,
         )
+    except checkpoint.WriteError as err:
+        print(f"error: {_after_write_error(err, out)}", file=sys.stderr)
+        return 2
     except (config.ConfigError, checkpoint.CheckpointError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -500,7 +554,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     if jax.process_index() != 0:
         return 0
-    print(summary_markdown(summary["models"], summary["wall_s"], summary["env_steps"]))
+    print(summary_markdown(summary))
     print(
         f"Run directory: {out}\n  config:      {out / 'config.toml'}\n"
         f"  checkpoints: {out / 'checkpoints'}\n  metrics:     {out / 'metrics'}\n"

@@ -93,8 +93,9 @@ class Grid:
         return len(self.cell_of)
 
 
-def make_grid(cfg: Config) -> Grid:
-    """Cartesian product of the grid axes (k outermost) times ``train.seeds`` seeds."""
+def grid_cells(cfg: Config) -> tuple[dict[str, Any], ...]:
+    """Cartesian product of the grid axes, k outermost. Plain Python, so a CLI can size the
+    grid before JAX starts (``machine.use_host_devices``)."""
     g, d = cfg.grid, cfg.ddpg
     axes = {
         "k": g.k,
@@ -103,9 +104,14 @@ def make_grid(cfg: Config) -> Grid:
         "critic_lr": g.critic_lr or (d.critic_lr,),
         "noise_sigma": g.noise_sigma or (d.noise_sigma,),
     }
-    cells = tuple(
+    return tuple(
         dict(zip(axes, values, strict=True)) for values in itertools.product(*axes.values())
     )
+
+
+def make_grid(cfg: Config) -> Grid:
+    """The grid's cells (``grid_cells``) times ``train.seeds`` seeds."""
+    cells = grid_cells(cfg)
     models = [(c, s) for c in range(len(cells)) for s in range(cfg.train.seeds)]
 
     def col(name: str, dtype: Any) -> Array:

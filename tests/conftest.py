@@ -6,6 +6,9 @@ from jaxlc import config, sweep
 
 SMOKE = config.CONFIG_DIR / "smoke.toml"
 
+# Only stops a hung subprocess; never a speed judgement: a run slower than this is broken.
+HANG_GUARD_S = 3600
+
 
 @pytest.fixture(scope="session")
 def smoke_cfg():

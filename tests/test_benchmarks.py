@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from .conftest import HANG_GUARD_S
+
 BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
 
 
@@ -17,7 +19,7 @@ def _bench(script: str, args: list[str], out: Path, env: dict | None = None):
         [sys.executable, str(BENCH / script), *args, "--csv", str(out)],
         capture_output=True,
         text=True,
-        timeout=600,
+        timeout=HANG_GUARD_S,
         env=env,
     )
     assert done.returncode == 0, done.stderr[-2000:]

@@ -12,7 +12,7 @@ import numpy as np
 
 from jaxlc import checkpoint, sweep
 
-from .conftest import SMOKE
+from .conftest import HANG_GUARD_S, SMOKE
 
 SCRIPT = textwrap.dedent("""
     import jax, numpy as np
@@ -52,7 +52,11 @@ def test_grid_over_3_and_4_cpu_devices_matches_one_device():
         "JAX_PLATFORMS": "cpu",
     }
     done = subprocess.run(
-        [sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=900
+        [sys.executable, "-c", SCRIPT],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=HANG_GUARD_S,
     )
     assert done.returncode == 0, done.stderr[-3000:]
     assert "devices ok" in done.stdout
@@ -90,7 +94,7 @@ def test_two_processes_with_jax_distributed_match_one_process(smoke_run, tmp_pat
                 text=True,
             )
         )
-    outputs = [p.communicate(timeout=600) for p in procs]
+    outputs = [p.communicate(timeout=HANG_GUARD_S) for p in procs]
     for p, (_, err) in zip(procs, outputs, strict=True):
         assert p.returncode == 0, err[-3000:]
     assert "Run directory" in outputs[0][0] and "Run directory" not in outputs[1][0]

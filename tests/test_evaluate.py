@@ -20,6 +20,8 @@ from jaxlc.evaluate import OUTCOMES
 from jaxlc.report import FIGURES
 from jaxlc.train import policy
 
+from .conftest import HANG_GUARD_S
+
 SMOKE = Path(__file__).resolve().parent.parent / "configs" / "smoke.toml"
 CASES, CHUNK = 60, 4  # 60 cases: ~40 lane changes, enough for the success-rate thresholds
 
@@ -134,7 +136,7 @@ def test_dir_without_checkpoints_exits_2_with_one_line(tmp_path: Path, with_conf
         [sys.executable, "-m", "jaxlc.evaluate", str(tmp_path), "--no-figures"],
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=HANG_GUARD_S,
     )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()

@@ -1,11 +1,11 @@
 """A sweep that survives: kill and resume, bad input, numerical faults."""
 
+import errno
 import hashlib
 import os
 import signal
 import subprocess
 import sys
-import time
 
 import flax.serialization
 import jax
@@ -14,7 +14,7 @@ import pytest
 
 from jaxlc import checkpoint, sweep
 
-from .conftest import SMOKE
+from .conftest import HANG_GUARD_S, SMOKE
 
 
 def _tree_of_files(root):
@@ -46,21 +46,42 @@ def test_interrupt_then_resume_ends_bit_for_bit_like_an_uninterrupted_run(smoke_
         "--out",
         str(out),
         "--no-progress",
+        "--devices",  # one CPU device, as the in-process reference run
+        "1",
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    # Interrupt it right after its first full-state save, mid-run.
-    deadline = time.time() + 300
-    while not sweep.state_path(out).exists() and time.time() < deadline:
-        time.sleep(0.05)
-    assert sweep.state_path(out).exists(), "the run never saved its state"
+    # The run holds after its first full-state save until a signal comes (sweep.HOLD_ENV),
+    # so the interrupt lands mid-run whatever the machine's speed: no clock, no race.
+    env = {**os.environ, sweep.HOLD_ENV: "1"}
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env
+    )
+    seen = []
+    for line in proc.stderr:  # blocks until the run holds, or ends
+        seen.append(line)
+        if line.startswith(sweep.HOLD_LINE):
+            break
+    else:
+        pytest.fail(f"the run ended without holding: {''.join(seen)[-2000:]}")
+    assert sweep.state_path(out).exists(), "the run held before saving its state"
     os.kill(proc.pid, sig)
-    _, err = proc.communicate(timeout=300)
+    _, err = proc.communicate(timeout=HANG_GUARD_S)
     if sig == signal.SIGINT:  # Ctrl-C: saves, says how to go on, exits 130
         assert proc.returncode == 130, err[-2000:]
         assert err.strip().splitlines()[-1].startswith("interrupted: state saved; continue with")
+    else:
+        assert proc.returncode == -signal.SIGKILL
     assert not (out / "summary.json").exists(), "the kill must land before the end"
     done = subprocess.run(
-        [sys.executable, "-m", "jaxlc.sweep", "--resume", str(out), "--no-progress"],
+        [
+            sys.executable,
+            "-m",
+            "jaxlc.sweep",
+            "--resume",
+            str(out),
+            "--no-progress",
+            "--devices",
+            "1",
+        ],
         capture_output=True,
         text=True,
     )
@@ -158,3 +179,36 @@ def test_non_finite_values_stop_the_run_naming_the_model(tmp_path, capsys):
     assert "non-finite" in err[0] and "scan step" in err[0]
     assert not (out / "summary.json").exists()
     assert not sweep.state_path(out).exists(), "a faulty state must not be saved"
+
+
+def test_loading_the_training_state_as_a_checkpoint_points_to_resume(smoke_run):
+    run_dir, _ = smoke_run
+    with pytest.raises(checkpoint.CheckpointError) as info:
+        checkpoint.load(sweep.state_path(run_dir))
+    msg = str(info.value)
+    assert "training state, not a checkpoint" in msg and f"--resume {run_dir}" in msg
+    assert "interrupted" not in msg
+
+
+def test_full_disk_mid_run_says_free_space_then_resume(tmp_path, capsys, monkeypatch):
+    """The second full-state save meets a full disk: the process exits 2 with one line that
+    says to free space and resume, and the first save is still whole and loadable."""
+    out = tmp_path / "full"
+    real_replace = checkpoint.os.replace
+    first_state = {}
+
+    def replace(src, dst):
+        if str(dst) == str(sweep.state_path(out)):
+            if first_state:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            first_state["bytes"] = open(src, "rb").read()
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(checkpoint.os, "replace", replace)
+    rc = sweep.main(["--config", str(SMOKE), "--out", str(out), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert os.strerror(errno.ENOSPC) in err[0] and "free some disk space" in err[0]
+    assert f"--resume {out}" in err[0] and "save again" not in err[0]
+    assert sweep.state_path(out).read_bytes() == first_state["bytes"]
+    assert not (out / "summary.json").exists()

@@ -1,0 +1,59 @@
+"""The machine a run is on: the host-device layout that trains fastest on a CPU, and the
+float32 matmul peak that lets a reader scale a wall time from one machine to another.
+
+XLA runs a CPU computation on one device; ``--xla_force_host_platform_device_count=N``
+splits the CPU into N host devices, and the sweep lays its models over them with
+``shard_map`` (``train.make_grid_fns``), each block of models in a program of its own. That
+flag is read once, when JAX starts its backends, so ``use_host_devices`` must run before the
+first JAX computation of the process (the CLIs call it first thing).
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+
+HOST_DEVICES_FLAG = "--xla_force_host_platform_device_count"
+
+
+def host_devices_for(models: int, cores: int | None = None) -> int:
+    """Host devices to lay ``models`` over on a CPU of ``cores`` cores: the largest divisor of
+    ``models`` (so no padded copies run) that is at most ``cores + 1``. Measured on 2 cores
+    (README, "Devices"): 9 models train fastest on 3 host devices, small grids gain nothing
+    from more devices than cores + 1."""
+    cores = cores or os.cpu_count() or 1
+    return max(d for d in range(1, min(models, cores + 1) + 1) if models % d == 0)
+
+
+def use_host_devices(n: int) -> bool:
+    """Ask XLA for ``n`` CPU host devices unless the user's ``XLA_FLAGS`` already sets the
+    count or JAX has started (then the flag could not take effect). Returns whether it was
+    set. Harmless on a GPU machine: the flag shapes only the CPU platform."""
+    from jax._src import xla_bridge  # the one place JAX says whether its backends started
+
+    flags = os.environ.get("XLA_FLAGS", "")
+    if n < 1 or HOST_DEVICES_FLAG in flags or xla_bridge.backends_are_initialized():
+        return False
+    os.environ["XLA_FLAGS"] = f"{flags} {HOST_DEVICES_FLAG}={n}".strip()
+    return True
+
+
+def matmul_peak_gflops(n: int = 2048, repeats: int = 5) -> float:
+    """GFLOP/s of a jitted float32 ``(n, n) @ (n, n)`` on JAX's first device, median of
+    ``repeats`` calls after one to compile: the machine's speed for the work a DDPG update is
+    made of. Shared machines here measured 199 to 445 GFLOP/s."""
+    ka, kb = jax.random.split(jax.random.key(0))
+    a = jax.random.normal(ka, (n, n), jnp.float32)
+    b = jax.random.normal(kb, (n, n), jnp.float32)
+    dot = jax.jit(jnp.dot)
+    jax.block_until_ready(dot(a, b))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(dot(a, b))
+        times.append(time.perf_counter() - t0)
+    return 2 * n**3 / statistics.median(times) / 1e9
