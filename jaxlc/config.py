@@ -79,6 +79,11 @@ class EnvConfig:
     # ego lateral
     max_yaw_acc: float = _f(0.5, 0.0, 10.0, open_lo=True, doc="A in a_lat = A*action, rad/s^2")
     manoeuvre_time_limit: float = _f(10.0, 0.0, 120.0, open_lo=True, doc="s")
+    terminal_timeout: bool = _f(
+        False,
+        doc="true: a timeout is terminal and the manoeuvre time is observed; false: it "
+        "truncates (the learner bootstraps) and the time is not observed (obs[6] = 0)",
+    )
     border: float = _f(3.7, 0.0, 20.0, open_lo=True, doc="D, m (paper: = lane width)")
     success_offset: float = _f(0.2, 0.0, open_lo=True, doc="m")
     success_heading: float = _f(0.02, 0.0, open_lo=True, doc="rad")
@@ -100,7 +105,7 @@ class DDPGConfig:
     actor_lr: float = _f(1e-4, 0.0, 1.0, open_lo=True)
     critic_lr: float = _f(1e-3, 0.0, 1.0, open_lo=True)
     gamma: float = _f(0.98, 0.0, 1.0, open_lo=True)
-    tau: float = _f(0.001, 0.0, 1.0, open_lo=True)
+    tau: float = _f(0.005, 0.0, 1.0, open_lo=True)
     batch_size: int = _f(64, 1, 65536)
     final_init: float = _f(3e-3, 0.0, open_lo=True)
     noise_sigma: float = _f(0.2, 0.0, 2.0)

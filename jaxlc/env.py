@@ -23,9 +23,9 @@ observation, which is what a learner bootstraps from.
 
 Observation (``OBS_DIM`` = 14, normalised), in this order:
   0 v/30  1 a_long/3  2 psi/0.1  3 omega/0.1  4 offset/offset_obs_scale (default W = 3.7 m)
-  5 held action  6 manoeuvre time/limit
+  5 held action  6 manoeuvre time/limit (0 unless ``terminal_timeout``: see ``observation``)
   7 curvature*100  8 lead net gap/100  9 lead dv/10  10 lag net gap/100  11 lag dv/10
-  12 current-lane leader net gap/100  13 its dv/10
+  12 leader net gap/100 in the lane that holds the ego's centre  13 its dv/10
 Gaps are clipped to [-10, 100] m; a missing vehicle reads gap 100 m, dv 0 (dv = v_other - v).
 """
 
@@ -89,6 +89,7 @@ class EnvParams:
     b_safe: float = 4.0
     max_yaw_acc: float = 0.5
     manoeuvre_time_limit: float = 10.0
+    terminal_timeout: bool = False
     border: float = 3.7
     success_offset: float = 0.2
     success_heading: float = 0.02
@@ -189,14 +190,20 @@ def _lane_row(a: Array, lane: Array, lanes: int) -> Array:
     return jnp.sum(jnp.where(sel, a, 0), axis=0)
 
 
+def current_lane(eg: Ego, p: EnvParams) -> Array:
+    """Index of the lane that holds the ego's centre (the origin lane until it crosses)."""
+    return jnp.clip(jnp.floor(eg.y / p.lane_width), 0, p.lanes - 1).astype(jnp.int32)
+
+
 def _observe_lanes(tr: Traffic, eg: Ego, p: EnvParams) -> tuple[gap.Neighbours, Array, Array]:
-    """Target-lane neighbours and the own-lane leader of the ego (meaningless in WAIT)."""
+    """Target-lane neighbours and the leader in the ego's current lane (meaningless in WAIT)."""
     row = lambda a: _lane_row(a, eg.target, p.lanes)  # noqa: E731
     nb = gap.neighbours(row(tr.x), row(tr.v), row(tr.v0), row(tr.active), eg.x)
-    o = p.lanes // 2
-    ahead = tr.active[o] & (tr.x[o] > eg.x)
-    lx = jnp.min(jnp.where(ahead, tr.x[o], gap.FAR))
-    lv = jnp.max(jnp.where(ahead & (tr.x[o] == lx), tr.v[o], -gap.FAR))
+    cur = current_lane(eg, p)
+    cx, cv = _lane_row(tr.x, cur, p.lanes), _lane_row(tr.v, cur, p.lanes)  # (slots,)
+    ahead = _lane_row(tr.active, cur, p.lanes) & (cx > eg.x)
+    lx = jnp.min(jnp.where(ahead, cx, gap.FAR))
+    lv = jnp.max(jnp.where(ahead & (cx == lx), cv, -gap.FAR))
     has = jnp.any(ahead)
     return nb, gap.net_gap(lx, eg.x, p.vehicle_length, has), jnp.where(has, lv, eg.v)
 
@@ -230,7 +237,9 @@ def observation(state: EnvState, p: EnvParams) -> Array:
             eg.omega / _OBS_SCALE[3],
             lateral_offset(eg, p) / p.offset_obs_scale,
             eg.held,
-            eg.steps * p.dt / p.manoeuvre_time_limit,
+            # A truncated timeout is bootstrapped, so the time must not be observed: values
+            # at time = limit are never learned as current states (Pardo et al., 2018).
+            jnp.where(p.terminal_timeout, eg.steps * p.dt / p.manoeuvre_time_limit, 0.0),
             p.curvature * 100.0 * jnp.ones_like(eg.v),
             gap_obs(nb.a1_x - L - eg.x, nb.has_a1),
             dv_obs(nb.a1_v, nb.has_a1),
@@ -483,18 +492,20 @@ class LaneChangeEnv:
     def step(
         self, key: Array, state: EnvState, action: Array, params: EnvParams
     ) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
-        """Advance one dt. ``terminated``/``truncated`` refer to the RL manoeuvre (timeout is
-        a truncation); ``info`` has the reward terms, phase and ``reason`` codes of
-        ``jaxlc.reward.REASONS``."""
+        """Advance one dt. ``terminated``/``truncated`` refer to the RL manoeuvre (a timeout
+        truncates unless ``params.terminal_timeout``); ``info`` has the reward terms, phase
+        and ``reason`` codes of ``jaxlc.reward.REASONS``."""
         state, r, info = _advance(key, state, action, params, spawn=True)
         reason = info["reason"]
         rl = info["rl_step"]
+        timeout = rl & (reason == reward.TIMEOUT)
         terminated = rl & (
             (reason == reward.SUCCESS)
             | (reason == reward.OUT_OF_BOUNDS)
             | (reason == reward.COLLISION)
         )
-        truncated = rl & (reason == reward.TIMEOUT)
+        terminated = terminated | (timeout & params.terminal_timeout)
+        truncated = timeout & ~params.terminal_timeout
         return observation(state, params), state, r, terminated, truncated, info
 
 

@@ -299,6 +299,54 @@ def _lag_scene(env, p, yielding):
     return s.replace(nb=nb, leader_gap=lg, leader_v=lv)
 
 
+@pytest.mark.parametrize("terminal", [False, True])
+def test_timeout_semantics_are_consistent(env_params, terminal):
+    """A timeout either truncates with the manoeuvre time unobserved (the default: the learner
+    bootstraps from states it has learned) or is terminal with the time observed."""
+    env, p = env_params
+    p = p.replace(terminal_timeout=terminal)
+    s = _quiet_state(env, p, jax.random.PRNGKey(4))
+    limit = round(p.manoeuvre_time_limit / p.dt)
+    ego = s.ego.replace(  # under RL control, keeping its lane (|offset| = W), one step to go
+        phase=jnp.int32(E.RL), x=jnp.float32(200.0), target=jnp.int32(0), steps=jnp.int32(limit - 1)
+    )
+    s = s.replace(ego=ego)
+    before = E.observation(s, p)
+    obs, _, _, term, trunc, info = env.step(jax.random.PRNGKey(5), s, jnp.zeros(1), p)
+    assert int(info["reason"]) == reward.TIMEOUT
+    assert (bool(term), bool(trunc)) == (terminal, not terminal)
+    if terminal:
+        assert float(before[6]) == pytest.approx((limit - 1) / limit) and float(obs[6]) == 1.0
+    else:
+        assert float(before[6]) == 0.0 and float(obs[6]) == 0.0
+
+
+@pytest.mark.parametrize(("lane_of_centre", "leader_x"), [(1, 260.0), (0, 230.0)])
+def test_own_lane_leader_is_in_the_lane_that_holds_the_egos_centre(
+    env_params, lane_of_centre, leader_x
+):
+    """Origin lane 1 has a vehicle at 260 m, target lane 0 one at 230 m; the ego at 200 m
+    follows (and observes) the one in the lane its centre is in, before and after crossing."""
+    env, p = env_params
+    s = _quiet_state(env, p, jax.random.PRNGKey(3))
+    tr = s.traffic
+    x = jnp.zeros_like(tr.x).at[1, 0].set(260.0).at[0, 0].set(230.0)
+    tr = tr.replace(
+        x=x,
+        v=jnp.full_like(x, 20.0),
+        active=jnp.zeros_like(tr.active).at[1, 0].set(True).at[0, 0].set(True),
+    )
+    y = (lane_of_centre + 0.45) * p.lane_width  # just inside the lane, near the line
+    ego = s.ego.replace(
+        phase=jnp.int32(E.RL), x=jnp.float32(200.0), y=jnp.float32(y), target=jnp.int32(0)
+    )
+    assert int(E.current_lane(ego, p)) == lane_of_centre
+    _, leader_gap, leader_v = E._observe_lanes(tr, ego, p)
+    assert float(leader_gap) == pytest.approx(leader_x - p.vehicle_length - 200.0)
+    obs = E.observation(s.replace(traffic=tr, ego=ego, leader_gap=leader_gap, leader_v=leader_v), p)
+    assert float(obs[12]) == pytest.approx((leader_x - p.vehicle_length - 200.0) / 100.0)
+
+
 @pytest.mark.parametrize("yielding", [True, False])
 def test_yielding_lag_opens_the_gap_and_a_non_yielding_one_does_not(env_params, yielding):
     env, p = env_params
