@@ -660,6 +660,14 @@ def _episodes_arg(text: str) -> list[int]:
     return values
 
 
+def _host_devices(args: argparse.Namespace) -> int:
+    """``machine.host_devices_for`` a chunk of policies, each an actor over every case."""
+    run_cfg = args.run_dir / "config.toml" if args.run_dir else None
+    cfg = config.load(run_cfg) if run_cfg and run_cfg.exists() else config.Config()
+    widths = (OBS_DIM, *cfg.ddpg.hidden, ACT_DIM)
+    return machine.host_devices_for(args.chunk, machine.largest_product(args.cases, widths))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m jaxlc.evaluate",
@@ -680,14 +688,14 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         default=None,
         help="devices to lay the policies over (default: every GPU; on a CPU, host devices as "
-        "jaxlc/machine.py picks for --chunk policies; XLA_FLAGS overrides it)",
+        "jaxlc/machine.py picks for --chunk policies over --cases; XLA_FLAGS overrides it)",
     )
     args = ap.parse_intermixed_args(argv)
     try:
         if args.cases < 1 or args.max_steps < 1 or args.chunk < 1:
             raise EvalError("--cases, --max-steps and --chunk must be at least 1")
         auto = args.devices is None
-        machine.use_host_devices(machine.host_devices_for(args.chunk) if auto else args.devices)
+        machine.use_host_devices(_host_devices(args) if auto else args.devices)
         if args.checkpoint is not None:
             result = evaluate_checkpoint(
                 args.checkpoint,

@@ -42,6 +42,7 @@ import numpy as np
 from jax.experimental import multihost_utils
 
 from jaxlc import checkpoint, config, machine, train
+from jaxlc.env import ACT_DIM, OBS_DIM
 from jaxlc.reward import REASONS, SUCCESS
 
 # The paper's Table 1 numbers the models by (k, memory size).
@@ -527,8 +528,10 @@ def main(argv: list[str] | None = None) -> int:
             out = args.out or Path("runs") / f"{time.strftime('%Y%m%d-%H%M%S')}-{cfg.hash()}"
         if not args.distributed:  # a multi-host run uses the hosts' devices as they are
             models = len(train.grid_cells(cfg)) * cfg.train.seeds
-            auto = args.devices is None
-            machine.use_host_devices(machine.host_devices_for(models) if auto else args.devices)
+            d = cfg.ddpg
+            product = machine.largest_product(d.batch_size, (OBS_DIM, *d.hidden, ACT_DIM))
+            auto = machine.host_devices_for(models, product)
+            machine.use_host_devices(auto if args.devices is None else args.devices)
         summary = run_sweep(
             cfg,
             out,
