@@ -49,6 +49,7 @@ from jaxlc.controller import scripted_action
 from jaxlc.env import ACT_DIM, OBS_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
 from jaxlc.networks import make_networks
 from jaxlc.reward import REASONS
+from jaxlc.stats import CELL_AXES, final_rows
 from jaxlc.train import check_devices
 
 OUTCOMES = ("unfinished",) + REASONS[1:]  # index = reason code; 0: hit the step cap
@@ -62,9 +63,14 @@ MEASURES = (
     "r_s",
     "r_e",
     "r_d",
+    "timeout_offset_m",
+    "timeout_heading",
+    "timeout_yaw_rate",
 )
 EVAL_FIELDS = (
-    ("label", "model", "seed", "k", "memory", "episode", "cases", "performed") + OUTCOMES + MEASURES
+    ("label", "model", "cell", "seed", "k", "memory", "episode", "cases", "performed")
+    + OUTCOMES
+    + MEASURES
 )
 
 
@@ -107,6 +113,11 @@ class Outcome:
     peak_lat_acc: Array  # max |v * omega|, m/s^2
     peak_yaw_rate: Array  # max |omega|, rad/s
     overshoot: Array  # max distance past the target centre line, m (0 if none)
+    # The ego at the manoeuvre's last step (NaN without one), so a timeout's cause shows:
+    # short of the lane (offset < 0), swinging (large omega) or just outside the success box.
+    final_offset: Array  # signed offset to the target centre line toward the target side, m
+    final_psi: Array  # heading, rad
+    final_omega: Array  # yaw rate, rad/s
 
 
 @flax.struct.dataclass
@@ -197,6 +208,9 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
             peak_lat_acc=f0,
             peak_yaw_rate=f0,
             overshoot=jnp.full(pc, -jnp.inf),
+            final_offset=jnp.full(pc, jnp.nan),
+            final_psi=jnp.full(pc, jnp.nan),
+            final_omega=jnp.full(pc, jnp.nan),
         )
         trace = _empty_trace(n_pol, traced.shape[0], limit + 2, base)
         trace = _record(trace, 0, state, traced, jnp.ones((n_pol, traced.shape[0]), bool))
@@ -220,6 +234,9 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
             def peak(acc: Array, value: Array) -> Array:
                 return jnp.maximum(acc, jnp.where(live, value, acc))
 
+            def last(acc: Array, value: Array) -> Array:
+                return jnp.where(live, value, acc)
+
             out = out.replace(
                 reason=jnp.where(live, info["reason"], out.reason),
                 ret=add(out.ret, r),
@@ -230,6 +247,9 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
                 peak_lat_acc=peak(out.peak_lat_acc, lat),
                 peak_yaw_rate=peak(out.peak_yaw_rate, jnp.abs(new.ego.omega)),
                 overshoot=peak(out.overshoot, info["offset"] * side),
+                final_offset=last(out.final_offset, info["offset"] * side),
+                final_psi=last(out.final_psi, new.ego.psi),
+                final_omega=last(out.final_omega, new.ego.omega),
             )
             ended = info["reason"] != 0
             done = done | (live & (ended | (new.time >= max_steps)))
@@ -382,17 +402,24 @@ def _mean(values: np.ndarray) -> float:
     return float(np.mean(values)) if values.size else math.nan
 
 
+def _median_abs(values: np.ndarray) -> float:
+    return float(np.median(np.abs(values))) if values.size else math.nan
+
+
 def summarise(out: dict[str, np.ndarray], dt: float) -> list[dict[str, Any]]:
     """One row per policy: outcome counts (they add up to the cases) and the measures.
 
     Return and reward terms average over the cases that performed a lane change; duration,
     peak lateral acceleration, peak yaw rate and overshoot over the successful ones, which is
-    what compares with human lane changes (~3-8 s).
+    what compares with human lane changes (~3-8 s). ``timeout_*`` are medians over the
+    timeouts of the final |offset| (m), |heading| (rad) and |yaw rate| (rad/s), to set beside
+    the success box.
     """
     rows = []
     for p in range(out["reason"].shape[0]):
         reason, performed = out["reason"][p], out["performed"][p]
         ok = reason == OUTCOMES.index("success")
+        late = reason == OUTCOMES.index("timeout")
         n_perf = int(performed.sum())
         rows.append(
             {
@@ -406,6 +433,9 @@ def summarise(out: dict[str, np.ndarray], dt: float) -> list[dict[str, Any]]:
                 "peak_yaw_rate": _mean(out["peak_yaw_rate"][p][ok]),
                 "overshoot_m": _mean(out["overshoot"][p][ok]),
                 **{t: _mean(out[t][p][performed]) for t in ("r_s", "r_e", "r_d")},
+                "timeout_offset_m": _median_abs(out["final_offset"][p][late]),
+                "timeout_heading": _median_abs(out["final_psi"][p][late]),
+                "timeout_yaw_rate": _median_abs(out["final_omega"][p][late]),
             }
         )
     return rows
@@ -469,7 +499,8 @@ def select_checkpoints(
     return chosen or found
 
 
-META_KEYS = ("label", "model", "seed", "k", "memory", "episode")
+# The cell's axes beside k and memory, so that runs can be matched cell by cell (stats).
+META_KEYS = ("label", "model", "seed", "k", "memory", "episode", "cell") + CELL_AXES[2:]
 SCRIPTED = {"label": "scripted controller", **dict.fromkeys(META_KEYS[1:]), "checkpoint": None}
 
 
@@ -572,6 +603,11 @@ def _result(
         "right": int((info["side"] < 0).sum()),
         "before_rl": {name: int((early == code).sum()) for code, name in enumerate(OUTCOMES)},
         "traced": info["traced"].tolist(),
+        "success_box": {
+            "offset_m": cfg.env.success_offset,
+            "heading": cfg.env.success_heading,
+            "yaw_rate": cfg.env.success_yaw_rate,
+        },
         "rows": rows,
     }
 
@@ -607,17 +643,6 @@ def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     checkpoint.write_bytes_atomic(path, buf.getvalue())
-
-
-def final_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Each model's row at its last evaluated checkpoint (the scripted row left out)."""
-    last: dict[int, dict[str, Any]] = {}
-    for r in rows:
-        if r["model"] is not None and (
-            r["model"] not in last or r["episode"] > last[r["model"]]["episode"]
-        ):
-            last[r["model"]] = r
-    return [last[m] for m in sorted(last)]
 
 
 def rank_models(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
