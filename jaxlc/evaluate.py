@@ -19,7 +19,17 @@ draw. "Left" is toward higher y (lane index up; y points left of the driving dir
 Outcome buckets are the reason codes of ``jaxlc.reward`` with 0 read as "unfinished" (hit
 the step cap), so every case lands in exactly one bucket. Writes ``RUN_DIR/eval/eval.json``,
 ``eval.csv``, ``cases.npz`` (per policy and case) and ``traces.npz`` (the few drawn cases),
-then the figures and ``RUN_DIR/report.md`` (skip with ``--no-figures``).
+the statistics over seeds (``jaxlc.stats``: ``cells.json``, ``cells.csv``,
+``improvement.csv``), then the figures and ``RUN_DIR/report.md`` (skip figures with
+``--no-figures``).
+
+    python -m jaxlc.evaluate --compare RUN_A RUN_B [--out DIR]
+
+compares two runs that are already evaluated (their ``eval/eval.json``; nothing is
+re-evaluated): per cell and checkpoint, B - A of the mean success rate with a bootstrap
+interval, into ``DIR`` (default ``RUN_B/compare_<name of RUN_A>/``): ``compare.md``,
+``compare.csv``, ``compare.png``. Runs whose cells or checkpoint episodes differ are
+refused (exit status 2).
 """
 
 from __future__ import annotations
@@ -43,13 +53,13 @@ from jax import Array
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-from jaxlc import checkpoint, config
+from jaxlc import checkpoint, config, stats
 from jaxlc.checkpoint import CheckpointError
 from jaxlc.controller import scripted_action
 from jaxlc.env import ACT_DIM, OBS_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
 from jaxlc.networks import make_networks
 from jaxlc.reward import REASONS
-from jaxlc.stats import CELL_AXES, final_rows
+from jaxlc.stats import CELL_AXES, StatsError, final_rows
 from jaxlc.train import check_devices
 
 OUTCOMES = ("unfinished",) + REASONS[1:]  # index = reason code; 0: hit the step cap
@@ -536,6 +546,7 @@ def evaluate_run(
     )
     result = _result(cfg, out, info, metas, kw)
     _write(run_dir / "eval", "eval", result)
+    write_seed_stats(run_dir / "eval", result["rows"])
     ids = {
         "policy_model": np.asarray([-1 if m["model"] is None else m["model"] for m in metas]),
         "policy_episode": np.asarray([m["episode"] or 0 for m in metas]),
@@ -630,13 +641,60 @@ def _json_safe(obj: Any) -> Any:
     return obj
 
 
-def _csv(rows: list[dict[str, Any]]) -> str:
+def _csv(rows: list[dict[str, Any]], fields: Sequence[str] = EVAL_FIELDS) -> str:
     buf = io.StringIO()
-    w = csv.DictWriter(buf, EVAL_FIELDS, extrasaction="ignore", lineterminator="\n")
+    w = csv.DictWriter(buf, fields, extrasaction="ignore", lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: r[k] if _defined(r.get(k)) else "" for k in EVAL_FIELDS})
+        w.writerow({k: r[k] if _defined(r.get(k)) else "" for k in fields})
     return buf.getvalue()
+
+
+def write_seed_stats(out_dir: Path, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """``cells.json`` (everything), ``cells.csv`` (per cell and checkpoint) and
+    ``improvement.csv`` (P(X > Y) of the final success rate) from eval rows; returns the
+    JSON's content."""
+    cells = stats.cells_of(rows)
+    doc = {
+        "confidence": stats.CONFIDENCE,
+        "resamples": stats.RESAMPLES,
+        "note": stats.seeds_note(cells),
+        "cells": stats.cell_table(cells),
+        "final": stats.final_table(cells),
+        "improvement": stats.improvement_table(cells),
+        "claims": stats.claims(cells),
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(_json_safe(doc), indent=1) + "\n"
+    checkpoint.write_text_atomic(out_dir / "cells.json", text)
+    for name, table in (("cells", doc["cells"]), ("improvement", doc["improvement"])):
+        fields = list(table[0]) if table else []
+        checkpoint.write_text_atomic(out_dir / f"{name}.csv", _csv(table, fields))
+    return doc
+
+
+def _eval_rows(run_dir: Path) -> list[dict[str, Any]]:
+    path = run_dir / "eval" / "eval.json"
+    if not path.is_file():
+        raise EvalError(f"{path} is missing; run python -m jaxlc.evaluate {run_dir} first")
+    return json.loads(path.read_text(encoding="utf-8"))["rows"]
+
+
+def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
+    """Per-cell differences B - A of the mean success rate of two evaluated runs (their
+    ``eval/eval.json``; nothing is re-evaluated): writes ``compare.md``, ``compare.csv`` and
+    ``compare.png`` into ``out`` (default ``run_b/compare_<name of run_a>``); returns it."""
+    run_a, run_b = Path(run_a), Path(run_b)
+    table = stats.compare(stats.cells_of(_eval_rows(run_a)), stats.cells_of(_eval_rows(run_b)))
+    out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
+    out.mkdir(parents=True, exist_ok=True)
+    checkpoint.write_text_atomic(out / "compare.csv", _csv(table, list(table[0])))
+    from jaxlc import figures, report
+
+    figures.fig_compare(table, run_a.name, run_b.name, out / "compare.png")
+    text = report.compare_markdown(table, run_a, run_b)
+    checkpoint.write_text_atomic(out / "compare.md", text)
+    return out
 
 
 def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -701,8 +759,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--chunk", type=int, default=32, help="policies per compiled batch")
     ap.add_argument("--no-figures", action="store_true", help="skip figures (report still)")
     ap.add_argument("--devices", type=int, default=1, help="devices to lay the policies over")
+    ap.add_argument(
+        "--compare",
+        nargs=2,
+        type=Path,
+        metavar=("RUN_A", "RUN_B"),
+        help="compare two evaluated runs cell by cell (B - A); no evaluation",
+    )
+    ap.add_argument("--out", type=Path, default=None, help="--compare: output directory")
     args = ap.parse_intermixed_args(argv)
     try:
+        if args.compare is not None:
+            out = compare_runs(*args.compare, args.out)
+            print(f"Wrote {out / 'compare.md'}, compare.csv, compare.png")
+            return 0
         if args.cases < 1 or args.max_steps < 1 or args.chunk < 1:
             raise EvalError("--cases, --max-steps and --chunk must be at least 1")
         if args.checkpoint is not None:
@@ -732,7 +802,7 @@ def main(argv: list[str] | None = None) -> int:
 
         made = [] if args.no_figures else figures.make_all(args.run_dir)
         path = report.write_report(args.run_dir)
-    except (EvalError, CheckpointError, config.ConfigError, OSError) as err:
+    except (EvalError, StatsError, CheckpointError, config.ConfigError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print(f"Wrote {args.run_dir / 'eval'}, {len(made)} figures, {path}")
