@@ -425,9 +425,9 @@ def claims(cells: Sequence[Cell]) -> list[dict[str, str]]:
             v = verdict(math.nan, math.nan, len(best.seeds))
         else:
             v = "supported" if d["mean_hi"] >= 1.0 - 1e-9 else "not supported"
-        figures = f"mean success {_p(d['mean'], d['mean_lo'], d['mean_hi'])} over " + (
-            f"{len(best.seeds)} seeds"
-        )
+        ci = f" [{100 * d['mean_lo']:.1f}, {100 * d['mean_hi']:.1f}]" * math.isfinite(d["mean_lo"])
+        n = len(best.seeds)
+        figures = f"mean success {100 * d['mean']:.1f}%{ci} over {n} seed{'s' * (n != 1)}"
         out.append({**claim_d, "figures": figures, "verdict": v})
     return out
 
