@@ -86,7 +86,8 @@ def _timeout_line(result: dict[str, Any], best: dict[str, Any] | None) -> list[s
     )
     return [
         "",
-        f"Its {best['timeout']} timeouts end at a median |Δd| of "
+        f"Its {best['timeout']} timeout{'s end' if best['timeout'] > 1 else ' ends'} at a "
+        f"median |Δd| of "
         f"{_f(best['timeout_offset_m'], '.3f')} m from the target centre line, |ψ| "
         f"{_f(best['timeout_heading'], '.3f')} rad and |ω| {_f(best['timeout_yaw_rate'], '.3f')} "
         f"rad/s{limits}: a large |Δd| with a small |ω| is stopping short, a large |ω| "

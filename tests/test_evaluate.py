@@ -128,7 +128,8 @@ def test_every_figure_and_the_report_are_written(run) -> None:
 def test_manoeuvres_keep_their_final_state(run) -> None:
     run_dir, cfg, result = run
     cases = np.load(run_dir / "eval" / "cases.npz")
-    performed, reason = cases["performed"], cases["reason"]
+    reason = cases["reason"]  # (policies, cases); "performed" is the cases' (the same for all)
+    performed = np.broadcast_to(cases["performed"], reason.shape)
     final = {n: cases[n] for n in ("final_offset", "final_psi", "final_omega")}
     for name, v in final.items():
         assert np.isfinite(v[performed]).all() and np.isnan(v[~performed]).all(), name

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxlc import evaluate, report, stats
+from jaxlc import evaluate, figures, report, stats
 from jaxlc.evaluate import OUTCOMES
 from jaxlc.sweep import PAPER_LABELS
 
@@ -230,3 +230,23 @@ def test_compare_needs_evaluated_runs(tmp_path: Path, capsys) -> None:
     assert evaluate.main(["--compare", str(a), str(tmp_path / "nothing")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "eval.json is missing" in err[0]
+
+
+def test_figures_draw_bands_over_several_seeds(tmp_path: Path) -> None:
+    grid = _grid(best=0.9, seeds=3)
+    rows = _rows(grid)
+    run = _run_dir(tmp_path / "run", rows)
+    models = [r for r in rows if r["model"] is not None and r["episode"] == EPISODES[-1]]
+    summary = {"models": [{k: r[k] for k in ("model", "cell", "label")} for r in models]}
+    (run / "summary.json").write_text(json.dumps(summary))
+    rng = np.random.default_rng(0)
+    (run / "metrics").mkdir()
+    np.savez(
+        run / "metrics" / "episodes.npz",
+        ret=rng.normal(-500, 100, (len(models), 400)),
+        episodes=np.full(len(models), 400),
+    )
+    for name in ("traces.npz", "cases.npz"):  # fig6 reads only eval.json from these files
+        np.savez(run / "eval" / name, x=np.zeros(1))
+    made = [figures.fig3_returns(run), figures.fig6_checkpoints(run), figures.profiles(run)]
+    assert all(p is not None and p.stat().st_size > 0 for p in made)
