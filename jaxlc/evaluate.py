@@ -19,7 +19,17 @@ draw. "Left" is toward higher y (lane index up; y points left of the driving dir
 Outcome buckets are the reason codes of ``jaxlc.reward`` with 0 read as "unfinished" (hit
 the step cap), so every case lands in exactly one bucket. Writes ``RUN_DIR/eval/eval.json``,
 ``eval.csv``, ``cases.npz`` (per policy and case) and ``traces.npz`` (the few drawn cases),
-then the figures and ``RUN_DIR/report.md`` (skip with ``--no-figures``).
+the statistics over seeds (``jaxlc.stats``: ``cells.json``, ``cells.csv``,
+``improvement.csv``), then the figures and ``RUN_DIR/report.md`` (skip figures with
+``--no-figures``).
+
+    python -m jaxlc.evaluate --compare RUN_A RUN_B [--out DIR]
+
+compares two runs that are already evaluated (their ``eval/eval.json``; nothing is
+re-evaluated): per cell and checkpoint, B - A of the mean success rate with a bootstrap
+interval, into ``DIR`` (default ``RUN_B/compare_<name of RUN_A>/``): ``compare.md``,
+``compare.csv``, ``compare.png``. Runs whose cells or checkpoint episodes differ are
+refused (exit status 2).
 """
 
 from __future__ import annotations
@@ -43,12 +53,13 @@ from jax import Array
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-from jaxlc import checkpoint, config, machine
+from jaxlc import checkpoint, config, machine, stats
 from jaxlc.checkpoint import CheckpointError
 from jaxlc.controller import scripted_action
 from jaxlc.env import ACT_DIM, OBS_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
 from jaxlc.networks import make_networks
 from jaxlc.reward import REASONS
+from jaxlc.stats import CELL_AXES, StatsError, final_rows
 from jaxlc.train import check_devices
 
 OUTCOMES = ("unfinished",) + REASONS[1:]  # index = reason code; 0: hit the step cap
@@ -62,9 +73,14 @@ MEASURES = (
     "r_s",
     "r_e",
     "r_d",
+    "timeout_offset_m",
+    "timeout_heading",
+    "timeout_yaw_rate",
 )
 EVAL_FIELDS = (
-    ("label", "model", "seed", "k", "memory", "episode", "cases", "performed") + OUTCOMES + MEASURES
+    ("label", "model", "cell", "seed", "k", "memory", "episode", "cases", "performed")
+    + OUTCOMES
+    + MEASURES
 )
 
 
@@ -107,6 +123,11 @@ class Outcome:
     peak_lat_acc: Array  # max |v * omega|, m/s^2
     peak_yaw_rate: Array  # max |omega|, rad/s
     overshoot: Array  # max distance past the target centre line, m (0 if none)
+    # The ego at the manoeuvre's last step (NaN without one), so a timeout's cause shows:
+    # short of the lane (offset < 0), swinging (large omega) or just outside the success box.
+    final_offset: Array  # signed offset to the target centre line toward the target side, m
+    final_psi: Array  # heading, rad
+    final_omega: Array  # yaw rate, rad/s
 
 
 @flax.struct.dataclass
@@ -197,6 +218,9 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
             peak_lat_acc=f0,
             peak_yaw_rate=f0,
             overshoot=jnp.full(pc, -jnp.inf),
+            final_offset=jnp.full(pc, jnp.nan),
+            final_psi=jnp.full(pc, jnp.nan),
+            final_omega=jnp.full(pc, jnp.nan),
         )
         trace = _empty_trace(n_pol, traced.shape[0], limit + 2, base)
         trace = _record(trace, 0, state, traced, jnp.ones((n_pol, traced.shape[0]), bool))
@@ -220,6 +244,9 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
             def peak(acc: Array, value: Array) -> Array:
                 return jnp.maximum(acc, jnp.where(live, value, acc))
 
+            def last(acc: Array, value: Array) -> Array:
+                return jnp.where(live, value, acc)
+
             out = out.replace(
                 reason=jnp.where(live, info["reason"], out.reason),
                 ret=add(out.ret, r),
@@ -230,6 +257,9 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
                 peak_lat_acc=peak(out.peak_lat_acc, lat),
                 peak_yaw_rate=peak(out.peak_yaw_rate, jnp.abs(new.ego.omega)),
                 overshoot=peak(out.overshoot, info["offset"] * side),
+                final_offset=last(out.final_offset, info["offset"] * side),
+                final_psi=last(out.final_psi, new.ego.psi),
+                final_omega=last(out.final_omega, new.ego.omega),
             )
             ended = info["reason"] != 0
             done = done | (live & (ended | (new.time >= max_steps)))
@@ -382,17 +412,24 @@ def _mean(values: np.ndarray) -> float:
     return float(np.mean(values)) if values.size else math.nan
 
 
+def _median_abs(values: np.ndarray) -> float:
+    return float(np.median(np.abs(values))) if values.size else math.nan
+
+
 def summarise(out: dict[str, np.ndarray], dt: float) -> list[dict[str, Any]]:
     """One row per policy: outcome counts (they add up to the cases) and the measures.
 
     Return and reward terms average over the cases that performed a lane change; duration,
     peak lateral acceleration, peak yaw rate and overshoot over the successful ones, which is
-    what compares with human lane changes (~3-8 s).
+    what compares with human lane changes (~3-8 s). ``timeout_*`` are medians over the
+    timeouts of the final |offset| (m), |heading| (rad) and |yaw rate| (rad/s), to set beside
+    the success box.
     """
     rows = []
     for p in range(out["reason"].shape[0]):
         reason, performed = out["reason"][p], out["performed"][p]
         ok = reason == OUTCOMES.index("success")
+        late = reason == OUTCOMES.index("timeout")
         n_perf = int(performed.sum())
         rows.append(
             {
@@ -406,6 +443,9 @@ def summarise(out: dict[str, np.ndarray], dt: float) -> list[dict[str, Any]]:
                 "peak_yaw_rate": _mean(out["peak_yaw_rate"][p][ok]),
                 "overshoot_m": _mean(out["overshoot"][p][ok]),
                 **{t: _mean(out[t][p][performed]) for t in ("r_s", "r_e", "r_d")},
+                "timeout_offset_m": _median_abs(out["final_offset"][p][late]),
+                "timeout_heading": _median_abs(out["final_psi"][p][late]),
+                "timeout_yaw_rate": _median_abs(out["final_omega"][p][late]),
             }
         )
     return rows
@@ -469,7 +509,8 @@ def select_checkpoints(
     return chosen or found
 
 
-META_KEYS = ("label", "model", "seed", "k", "memory", "episode")
+# The cell's axes beside k and memory, so that runs can be matched cell by cell (stats).
+META_KEYS = ("label", "model", "seed", "k", "memory", "episode", "cell") + CELL_AXES[2:]
 SCRIPTED = {"label": "scripted controller", **dict.fromkeys(META_KEYS[1:]), "checkpoint": None}
 
 
@@ -505,6 +546,7 @@ def evaluate_run(
     )
     result = _result(cfg, out, info, metas, kw)
     _write(run_dir / "eval", "eval", result)
+    write_seed_stats(run_dir / "eval", result["rows"])
     ids = {
         "policy_model": np.asarray([-1 if m["model"] is None else m["model"] for m in metas]),
         "policy_episode": np.asarray([m["episode"] or 0 for m in metas]),
@@ -572,6 +614,11 @@ def _result(
         "right": int((info["side"] < 0).sum()),
         "before_rl": {name: int((early == code).sum()) for code, name in enumerate(OUTCOMES)},
         "traced": info["traced"].tolist(),
+        "success_box": {
+            "offset_m": cfg.env.success_offset,
+            "heading": cfg.env.success_heading,
+            "yaw_rate": cfg.env.success_yaw_rate,
+        },
         "rows": rows,
     }
 
@@ -594,30 +641,66 @@ def _json_safe(obj: Any) -> Any:
     return obj
 
 
-def _csv(rows: list[dict[str, Any]]) -> str:
+def _csv(rows: list[dict[str, Any]], fields: Sequence[str] = EVAL_FIELDS) -> str:
     buf = io.StringIO()
-    w = csv.DictWriter(buf, EVAL_FIELDS, extrasaction="ignore", lineterminator="\n")
+    w = csv.DictWriter(buf, fields, extrasaction="ignore", lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: r[k] if _defined(r.get(k)) else "" for k in EVAL_FIELDS})
+        w.writerow({k: r[k] if _defined(r.get(k)) else "" for k in fields})
     return buf.getvalue()
+
+
+def write_seed_stats(out_dir: Path, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """``cells.json`` (everything), ``cells.csv`` (per cell and checkpoint) and
+    ``improvement.csv`` (P(X > Y) of the final success rate) from eval rows; returns the
+    JSON's content."""
+    cells = stats.cells_of(rows)
+    doc = {
+        "confidence": stats.CONFIDENCE,
+        "resamples": stats.RESAMPLES,
+        "note": stats.seeds_note(cells),
+        "cells": stats.cell_table(cells),
+        "final": stats.final_table(cells),
+        "improvement": stats.improvement_table(cells),
+        "claims": stats.claims(cells),
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(_json_safe(doc), indent=1) + "\n"
+    checkpoint.write_text_atomic(out_dir / "cells.json", text)
+    for name, table in (("cells", doc["cells"]), ("improvement", doc["improvement"])):
+        fields = list(table[0]) if table else []
+        checkpoint.write_text_atomic(out_dir / f"{name}.csv", _csv(table, fields))
+    return doc
+
+
+def _eval_rows(run_dir: Path) -> list[dict[str, Any]]:
+    path = run_dir / "eval" / "eval.json"
+    if not path.is_file():
+        raise EvalError(f"{path} is missing; run python -m jaxlc.evaluate {run_dir} first")
+    return json.loads(path.read_text(encoding="utf-8"))["rows"]
+
+
+def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
+    """Per-cell differences B - A of the mean success rate of two evaluated runs (their
+    ``eval/eval.json``; nothing is re-evaluated): writes ``compare.md``, ``compare.csv`` and
+    ``compare.png`` into ``out`` (default ``run_b/compare_<name of run_a>``); returns it."""
+    run_a, run_b = Path(run_a), Path(run_b)
+    table = stats.compare(stats.cells_of(_eval_rows(run_a)), stats.cells_of(_eval_rows(run_b)))
+    out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
+    out.mkdir(parents=True, exist_ok=True)
+    checkpoint.write_text_atomic(out / "compare.csv", _csv(table, list(table[0])))
+    from jaxlc import figures, report
+
+    figures.fig_compare(table, run_a.name, run_b.name, out / "compare.png")
+    text = report.compare_markdown(table, run_a, run_b)
+    checkpoint.write_text_atomic(out / "compare.md", text)
+    return out
 
 
 def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     checkpoint.write_bytes_atomic(path, buf.getvalue())
-
-
-def final_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Each model's row at its last evaluated checkpoint (the scripted row left out)."""
-    last: dict[int, dict[str, Any]] = {}
-    for r in rows:
-        if r["model"] is not None and (
-            r["model"] not in last or r["episode"] > last[r["model"]]["episode"]
-        ):
-            last[r["model"]] = r
-    return [last[m] for m in sorted(last)]
 
 
 def rank_models(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -690,8 +773,20 @@ def main(argv: list[str] | None = None) -> int:
         help="devices to lay the policies over (default: every GPU; on a CPU, host devices as "
         "jaxlc/machine.py picks for --chunk policies over --cases; XLA_FLAGS overrides it)",
     )
+    ap.add_argument(
+        "--compare",
+        nargs=2,
+        type=Path,
+        metavar=("RUN_A", "RUN_B"),
+        help="compare two evaluated runs cell by cell (B - A); no evaluation",
+    )
+    ap.add_argument("--out", type=Path, default=None, help="--compare: output directory")
     args = ap.parse_intermixed_args(argv)
     try:
+        if args.compare is not None:
+            out = compare_runs(*args.compare, args.out)
+            print(f"Wrote {out / 'compare.md'}, compare.csv, compare.png")
+            return 0
         if args.cases < 1 or args.max_steps < 1 or args.chunk < 1:
             raise EvalError("--cases, --max-steps and --chunk must be at least 1")
         auto = args.devices is None
@@ -723,7 +818,7 @@ def main(argv: list[str] | None = None) -> int:
 
         made = [] if args.no_figures else figures.make_all(args.run_dir)
         path = report.write_report(args.run_dir)
-    except (EvalError, CheckpointError, config.ConfigError, OSError) as err:
+    except (EvalError, StatsError, CheckpointError, config.ConfigError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print(f"Wrote {args.run_dir / 'eval'}, {len(made)} figures, {path}")

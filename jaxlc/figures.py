@@ -6,8 +6,11 @@ Fig. 3 total reward per training episode by model group; Fig. 4 manoeuvre steps 
 and critic loss per training step; Fig. 5 scenes at chosen checkpoints; Fig. 6 average
 return (and success rate) per checkpoint; Fig. 7 lane-change trajectories; and
 ``learning.gif``, lane changes across checkpoints (the paper's video of the learning
-progress). Training figures read ``metrics/`` and ``summary.json``; the others read
-``eval/`` (``python -m jaxlc.evaluate``). A figure whose data is missing is skipped.
+progress); ``profiles.png``, performance profiles (share of models above each success rate)
+by k. Training figures read ``metrics/`` and ``summary.json``; the others read ``eval/``
+(``python -m jaxlc.evaluate``). A figure whose data is missing is skipped. With several
+seeds per grid cell a line is the mean over seeds and its band the 95% bootstrap interval
+of that mean (``jaxlc.stats``).
 
 Returns span -2000 (out of bounds, eq. (11)) to about -100 (a smooth lane change): when a
 plot's returns span more than a decade its axis is symlog (linear near zero, log beyond).
@@ -32,7 +35,7 @@ from matplotlib.animation import PillowWriter  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 
-from jaxlc import config  # noqa: E402
+from jaxlc import config, stats  # noqa: E402
 from jaxlc.evaluate import OUTCOMES, rank_models  # noqa: E402
 
 # The paper's groups for Fig. 3 (one hyperparameter varies in each).
@@ -55,6 +58,7 @@ TAG_COLOURS = {
     "⑨": "tab:olive",
 }
 SCENE_BEHIND, SCENE_AHEAD = 90.0, 30.0  # m of road shown behind and ahead of the ego
+BAND_POINTS = 300  # bootstrap a training curve's band at this many points, not every episode
 
 
 # --------------------------------------------------------------------------- data
@@ -108,7 +112,8 @@ def _window(n: int) -> int:
 
 
 def _seed_curves(ax: Any, series: list[np.ndarray], colour: str, label: str) -> None:
-    """Mean over seeds as a line, min-max across seeds as a band (when several)."""
+    """Mean over seeds as a line, the bootstrap interval of that mean as a band (when
+    several seeds)."""
     n = min(len(s) for s in series)
     if n == 0:
         return
@@ -117,10 +122,12 @@ def _seed_curves(ax: Any, series: list[np.ndarray], colour: str, label: str) -> 
     x = np.arange(w, n + 1)
     with warnings.catch_warnings():  # all-NaN columns (no loss before updates start)
         warnings.simplefilter("ignore", RuntimeWarning)
-        mean, lo, hi = (f(curves, axis=0) for f in (np.nanmean, np.nanmin, np.nanmax))
+        mean = np.nanmean(curves, axis=0)
     ax.plot(x, mean, color=colour, lw=1.4, label=label)
     if len(series) > 1:
-        ax.fill_between(x, lo, hi, color=colour, alpha=0.2, lw=0)
+        at = np.unique(np.linspace(0, len(x) - 1, min(len(x), BAND_POINTS)).astype(int))
+        lo, hi = stats.mean_band(curves[:, at])
+        ax.fill_between(x[at], lo, hi, color=colour, alpha=0.2, lw=0)
 
 
 def _return_axis(ax: Any) -> None:
@@ -164,7 +171,10 @@ def fig3_returns(run_dir: Path) -> Path | None:
         _return_axis(ax)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("Fig. 3  Total reward per training episode (moving average; band: seeds)")
+    fig.suptitle(
+        "Fig. 3  Total reward per training episode (moving average; band: 95% interval of "
+        "the mean over seeds)"
+    )
     return _save(fig, run_dir / "figures" / "fig3_returns.png")
 
 
@@ -193,7 +203,7 @@ def fig4_steps_loss(run_dir: Path) -> Path | None:
     for ax in (a, b):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("Fig. 4  Training curves (moving average)")
+    fig.suptitle("Fig. 4  Training curves (moving average; band: 95% interval over seeds)")
     return _save(fig, run_dir / "figures" / "fig4_steps_loss.png")
 
 
@@ -202,27 +212,23 @@ def fig4_steps_loss(run_dir: Path) -> Path | None:
 
 def fig6_checkpoints(run_dir: Path) -> Path | None:
     """Average total return and success rate per checkpoint: one line per grid cell (mean
-    over its seeds, band min-max across them), the scripted controller dashed."""
+    over its seeds, band: the 95% bootstrap interval of that mean), the scripted controller
+    dashed."""
     data = _eval(run_dir)
     if data is None:
         return None
     result = data[0]
-    rows = [r for r in result["rows"] if r["model"] is not None]
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained")
-    labels = list(dict.fromkeys(r["label"] for r in rows))  # cells, in model order
-    for i, label in enumerate(labels):
-        mine = [r for r in rows if r["label"] == label]
-        episodes = sorted({r["episode"] for r in mine})
-        colour = _colour(label, i)
-        for ax, key, scale in ((a, "avg_return", 1.0), (b, "success_rate", 100.0)):
-            vals = [[scale * _num(r[key]) for r in mine if r["episode"] == e] for e in episodes]
+    for i, c in enumerate(stats.cells_of(result["rows"])):  # in model order
+        colour = _colour(c.label, i)
+        for ax, vals, scale in ((a, c.ret, 1.0), (b, c.success, 100.0)):
             with warnings.catch_warnings():  # a checkpoint with no lane change: all NaN
                 warnings.simplefilter("ignore", RuntimeWarning)
-                mean = [np.nanmean(v) for v in vals]
-                ax.plot(episodes, mean, "o-", color=colour, ms=3, label=label)
-                if max(len(v) for v in vals) > 1:
-                    lo, hi = [np.nanmin(v) for v in vals], [np.nanmax(v) for v in vals]
-                    ax.fill_between(episodes, lo, hi, color=colour, alpha=0.2, lw=0)
+                mean = np.nanmean(vals, axis=1)
+            ax.plot(c.episodes, scale * mean, "o-", color=colour, ms=3, label=c.label)
+            if len(c.seeds) > 1:
+                lo, hi = stats.mean_band(vals.T)
+                ax.fill_between(c.episodes, scale * lo, scale * hi, color=colour, alpha=0.2, lw=0)
     for r in result["rows"]:
         if r["model"] is None:
             a.axhline(_num(r["avg_return"]), color="k", ls="--", lw=1, label="scripted")
@@ -237,9 +243,79 @@ def fig6_checkpoints(run_dir: Path) -> Path | None:
     a.legend(fontsize=7)
     fig.suptitle(
         f"Fig. 6  {result['cases']} cases per checkpoint, {result['performed']} with a lane "
-        "change (averages over those; band: seeds)"
+        "change (averages over those; band: 95% interval of the mean over seeds)"
     )
     return _save(fig, run_dir / "figures" / "fig6_checkpoints.png")
+
+
+def profiles(run_dir: Path) -> Path | None:
+    """Performance profiles, one panel per k: for each cell the share of its models whose
+    success rate at their last checkpoint is above each level, with its 95% interval."""
+    path = run_dir / "eval" / "eval.json"
+    if not path.is_file():
+        return None
+    cells = stats.cells_of(json.loads(path.read_text())["rows"])
+    if not cells:
+        return None
+    ks = sorted({c.axes["k"] for c in cells}, key=lambda k: (k is None, k))
+    fig, axes = plt.subplots(
+        1, len(ks), figsize=(3.8 * len(ks) + 0.6, 3.6), squeeze=False, layout="constrained"
+    )
+    for ax, k in zip(axes[0], ks, strict=True):
+        for i, c in enumerate(cells):
+            if c.axes["k"] != k:
+                continue
+            share, lo, hi = stats.performance_profile([c.final_success])
+            colour = _colour(c.label, i)
+            ax.plot(100 * stats.TAUS, share, color=colour, lw=1.4, label=c.label)
+            if np.isfinite(lo).all():
+                ax.fill_between(100 * stats.TAUS, lo, hi, color=colour, alpha=0.2, lw=0)
+        ax.set(
+            title=f"k = {k}",
+            xlabel="success rate τ (%)",
+            ylabel="share of models above τ",
+            ylim=(-0.03, 1.03),
+        )
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    n = stats.fewest_seeds(cells)
+    fig.suptitle(
+        f"Performance profiles at each model's last checkpoint ({n} seed{'s' * (n != 1)} per "
+        "cell at least; band: 95% bootstrap interval)"
+    )
+    return _save(fig, run_dir / "figures" / "profiles.png")
+
+
+def fig_compare(table: list[dict[str, Any]], name_a: str, name_b: str, path: Path) -> Path:
+    """``--compare``: B - A of the mean success rate per cell (rows of ``stats.compare``),
+    (a) at the last checkpoint with its interval, (b) over checkpoints with bands."""
+    labels = list(dict.fromkeys(r["label"] for r in table))
+    last = max(r["episode"] for r in table)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 0.35 * len(labels) + 2.5), layout="constrained")
+    for i, label in enumerate(labels):
+        mine = sorted((r for r in table if r["label"] == label), key=lambda r: r["episode"])
+        d, lo, hi = (
+            100 * np.asarray([_num(r[k]) for r in mine]) for k in ("diff", "diff_lo", "diff_hi")
+        )
+        ep = [r["episode"] for r in mine]
+        colour = _colour(label, i)
+        j = ep.index(last)
+        err = None if not np.isfinite(lo[j]) else [[d[j] - lo[j]], [hi[j] - d[j]]]
+        a.errorbar(d[j], i, xerr=err, fmt="o", color=colour, capsize=3)
+        b.plot(ep, d, "o-", color=colour, ms=3, label=label)
+        if np.isfinite(lo).any():
+            b.fill_between(ep, lo, hi, color=colour, alpha=0.2, lw=0)
+    a.axvline(0, color="k", lw=0.8)
+    a.set_yticks(range(len(labels)), labels)
+    a.invert_yaxis()
+    a.set(title=f"(a) checkpoint {last}", xlabel="B − A success rate (points)")
+    b.axhline(0, color="k", lw=0.8)
+    b.set(title="(b) over checkpoints", xlabel="checkpoint (training episode)", ylabel="points")
+    b.legend(fontsize=7)
+    for ax in (a, b):
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"B = {name_b} against A = {name_a}: mean success rate (95% intervals)")
+    return _save(fig, path)
 
 
 def _num(v: Any) -> float:
@@ -471,6 +547,7 @@ def make_all(run_dir: Path) -> list[Path]:
         fig6_checkpoints,
         fig7_trajectories,
         learning_gif,
+        profiles,
     )
     return [path for make in makers if (path := make(run_dir)) is not None]
 

@@ -3,7 +3,8 @@
     python -m jaxlc.report RUN_DIR
 
 Reads ``RUN_DIR/eval/eval.json`` (``python -m jaxlc.evaluate``); every number in the report is
-computed from the run, the paper's only quoted.
+computed from the run, the paper's only quoted. With several seeds per grid cell the paper's
+claims get a verdict from intervals over seeds (the rules: ``jaxlc.stats``).
 """
 
 from __future__ import annotations
@@ -14,8 +15,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from jaxlc import stats
 from jaxlc.checkpoint import write_text_atomic
-from jaxlc.evaluate import OUTCOMES, EvalError, final_rows, rank_models
+from jaxlc.evaluate import OUTCOMES, EvalError, rank_models
+from jaxlc.stats import final_rows
 
 FIGURES = (
     ("fig3_returns.png", "Fig. 3: total reward per training episode"),
@@ -23,6 +26,7 @@ FIGURES = (
     ("fig5_scenes.png", "Fig. 5: scenes at chosen checkpoints"),
     ("fig6_checkpoints.png", "Fig. 6: average return and success rate per checkpoint"),
     ("fig7_trajectories.png", "Fig. 7: lane-change trajectories"),
+    ("profiles.png", "Performance profiles: share of models above each success rate"),
     ("learning.gif", "Video: lane changes across checkpoints"),
 )
 HUMAN_DURATION = (3.0, 8.0)  # s, SPEC.md "Evaluation"
@@ -45,8 +49,9 @@ def _table(rows: list[dict[str, Any]]) -> list[str]:
     lines = [
         "| model | seed | checkpoint | performed | success rate | avg return | "
         + " | ".join(e.replace("_", " ") for e in ends)
-        + " | duration (s) | peak lat. acc. (m/s²) | peak yaw rate (rad/s) | overshoot (m) |",
-        "|---" * (10 + len(ends)) + "|",
+        + " | duration (s) | peak lat. acc. (m/s²) | peak yaw rate (rad/s) | overshoot (m) "
+        "| timeouts: median final \\|Δd\\| (m) / \\|ψ\\| (rad) / \\|ω\\| (rad/s) |",
+        "|---" * (11 + len(ends)) + "|",
     ]
     for r in rows:
         lines.append(
@@ -55,9 +60,39 @@ def _table(rows: list[dict[str, Any]]) -> list[str]:
             f"| {_f(r['avg_return'], '.1f')} | "
             + " | ".join(str(r[e]) for e in ends)
             + f" | {_f(r['duration_s'])} | {_f(r['peak_lat_acc'])} | "
-            f"{_f(r['peak_yaw_rate'], '.3f')} | {_f(r['overshoot_m'], '.3f')} |"
+            f"{_f(r['peak_yaw_rate'], '.3f')} | {_f(r['overshoot_m'], '.3f')} | "
+            f"{_timeouts(r)} |"
         )
     return lines
+
+
+def _timeouts(r: dict[str, Any]) -> str:
+    keys = ("timeout_offset_m", "timeout_heading", "timeout_yaw_rate")
+    if not _defined(r.get(keys[0])):
+        return "–"
+    return " / ".join(_f(r[k], ".3f") for k in keys)
+
+
+def _timeout_line(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
+    """Where the best model's timeouts end, beside the success box."""
+    if best is None or not best.get("timeout") or not _defined(best.get("timeout_offset_m")):
+        return []
+    box = result.get("success_box", {})
+    limits = (
+        f" (success box: |Δd| ≤ {box['offset_m']:g} m, |ψ| ≤ {box['heading']:g} rad, "
+        f"|ω| ≤ {box['yaw_rate']:g} rad/s)"
+        if box
+        else ""
+    )
+    return [
+        "",
+        f"Its {best['timeout']} timeout{'s end' if best['timeout'] > 1 else ' ends'} at a "
+        f"median |Δd| of "
+        f"{_f(best['timeout_offset_m'], '.3f')} m from the target centre line, |ψ| "
+        f"{_f(best['timeout_heading'], '.3f')} rad and |ω| {_f(best['timeout_yaw_rate'], '.3f')} "
+        f"rad/s{limits}: a large |Δd| with a small |ω| is stopping short, a large |ω| "
+        "oscillating, all three near the box a tight success box.",
+    ]
 
 
 def _best_section(rows: list[dict[str, Any]]) -> tuple[list[str], dict[str, Any] | None]:
@@ -115,18 +150,92 @@ def rank_cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return sorted(cells, key=key, reverse=True)
 
 
-def _cell_section(rows: list[dict[str, Any]]) -> list[str]:
-    cells = rank_cells(rows)
-    if not cells or max(c["seeds"] for c in cells) < 2:
+def _ci(est: float, lo: float, hi: float, fmt: str, scale: float = 1.0) -> str:
+    if not _defined(est):
+        return "–"
+    text = format(scale * est, fmt)
+    if _defined(lo):
+        text += f" [{format(scale * lo, fmt)}, {format(scale * hi, fmt)}]"
+    return text
+
+
+def _seed_section(rows: list[dict[str, Any]]) -> list[str]:
+    """The paper's claims with verdicts from intervals over seeds, the cells' means and
+    IQMs, and the probability that each cell improves on each other."""
+    cells = stats.cells_of(rows)
+    if not cells:
         return []
-    lines = ["", "Grid cells, mean over seeds at the final checkpoint, best first:", ""]
-    lines += ["| cell | seeds | success rate | avg return |", "|---|---|---|---|"]
-    for c in cells:
-        lines.append(
-            f"| {c['label']} | {c['seeds']} | {_pct(c['success_rate'])} | "
-            f"{_f(c['avg_return'], '.1f')} |"
+    n = stats.fewest_seeds(cells)
+    note = stats.seeds_note(cells)
+    lines = [
+        "## The paper's claims over seeds",
+        "",
+        f"{len(cells)} grid cells, {n} seed{'s' * (n != 1)} in the smallest; each model at its "
+        "last evaluated checkpoint. Brackets: 95% bootstrap intervals over seeds (resampled "
+        "within each cell; `jaxlc.stats`, where the verdict rules are).",
+    ]
+    if note:
+        lines += ["", f"**Note: {note}**; every verdict is undecided (train with `--seeds N`)."]
+    lines += ["", "| claim | paper | this run | verdict |", "|---|---|---|---|"]
+    for c in stats.claims(cells):
+        lines.append(f"| {c['claim']} | {c['paper']} | {c['figures']} | **{c['verdict']}** |")
+    lines += [
+        "",
+        "| cell | seeds | success rate, mean | success rate, IQM | avg return, mean | "
+        "avg return, IQM |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in stats.final_table(cells):
+        s, ret = (
+            [(r[f"{m}_{q}"], r[f"{m}_{q}_lo"], r[f"{m}_{q}_hi"]) for q in ("mean", "iqm")]
+            for m in ("success", "return")
         )
-    return lines
+        lines.append(
+            f"| {r['label']} | {r['seeds']} | {_ci(*s[0], '.1f', 100)}% | "
+            f"{_ci(*s[1], '.1f', 100)}% | {_ci(*ret[0], '.1f')} | {_ci(*ret[1], '.1f')} |"
+        )
+    if len(cells) > 1:
+        p = {(r["x"], r["y"]): r for r in stats.improvement_table(cells)}
+        tags = [c.label.split()[0] for c in cells]
+        lines += [
+            "",
+            "Probability of improvement P(row > column) of the final success rate over pairs "
+            "of seeds (ties count half):",
+            "",
+            "| | " + " | ".join(tags) + " |",
+            "|---" * (len(cells) + 1) + "|",
+        ]
+        for x, tx in zip(cells, tags, strict=True):
+            vals = ["–" if x is y else f"{p[x.label, y.label]['p']:.2f}" for y in cells]
+            lines.append(f"| {tx} | " + " | ".join(vals) + " |")
+    return lines + [""]
+
+
+def compare_markdown(table: list[dict[str, Any]], run_a: Path, run_b: Path) -> str:
+    """The ``--compare`` table: per cell at the last common checkpoint, mean success rates
+    of both runs and B - A with its interval."""
+    last = max(r["episode"] for r in table)
+    lines = [
+        f"# {run_b.name} against {run_a.name}",
+        "",
+        f"Mean evaluated success rate over seeds per grid cell at checkpoint {last}; B − A "
+        "with a 95% bootstrap interval (each run's seeds resampled on their own). A: "
+        f"`{run_a}`, B: `{run_b}`. Every checkpoint: `compare.csv`.",
+        "",
+        "| cell | seeds A | seeds B | success A | success B | B − A (points) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in table:
+        if r["episode"] == last:
+            diff = _ci(r["diff"], r["diff_lo"], r["diff_hi"], "+.1f", 100)
+            lines.append(
+                f"| {r['label']} | {r['seeds_a']} | {r['seeds_b']} | {_pct(r['success_a'])} | "
+                f"{_pct(r['success_b'])} | {diff} |"
+            )
+    if min(min(r["seeds_a"], r["seeds_b"]) for r in table) < 2:
+        lines += ["", f"Note: {stats.SEEDS_NOTE} in each run."]
+    lines += ["", "![B − A per cell](compare.png)", ""]
+    return "\n".join(lines)
 
 
 def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
@@ -211,8 +320,9 @@ def build_report(run_dir: Path) -> str:
         "## Best model",
         "",
         *best_lines,
-        *_cell_section(rows),
+        *_timeout_line(result, best),
         "",
+        *_seed_section(rows),
         "## The paper's claims beside this run",
         "",
         *_claims(result, best),

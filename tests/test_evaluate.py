@@ -127,6 +127,42 @@ def test_every_figure_and_the_report_are_written(run) -> None:
         assert f"figures/{name}" in report
 
 
+def test_manoeuvres_keep_their_final_state(run) -> None:
+    run_dir, cfg, result = run
+    cases = np.load(run_dir / "eval" / "cases.npz")
+    reason = cases["reason"]  # (policies, cases); "performed" is the cases' (the same for all)
+    performed = np.broadcast_to(cases["performed"], reason.shape)
+    final = {n: cases[n] for n in ("final_offset", "final_psi", "final_omega")}
+    for name, v in final.items():
+        assert np.isfinite(v[performed]).all() and np.isnan(v[~performed]).all(), name
+    # The last step decided the outcome: successes end inside the success box, timeouts
+    # outside it.
+    e = cfg.env
+    inside = (
+        (np.abs(final["final_offset"]) <= e.success_offset)
+        & (np.abs(final["final_psi"]) <= e.success_heading)
+        & (np.abs(final["final_omega"]) <= e.success_yaw_rate)
+    )
+    assert inside[reason == OUTCOMES.index("success")].all()
+    assert not inside[reason == OUTCOMES.index("timeout")].any()
+    for r in result["rows"]:
+        for key in ("timeout_offset_m", "timeout_heading", "timeout_yaw_rate"):
+            assert (r[key] is not None and r[key] >= 0) if r["timeout"] else r[key] is None, key
+    assert result["success_box"]["offset_m"] == e.success_offset
+
+
+def test_seed_statistics_are_written_and_say_one_seed_is_not_enough(run) -> None:
+    run_dir, _, result = run
+    doc = json.loads((run_dir / "eval" / "cells.json").read_text())
+    assert "intervals need >= 2 seeds" in doc["note"]
+    n_cells = len({r["cell"] for r in result["rows"] if r["model"] is not None})
+    assert len(doc["final"]) == n_cells and len(doc["improvement"]) == n_cells * (n_cells - 1)
+    for name in ("cells.csv", "improvement.csv"):
+        assert (run_dir / "eval" / name).is_file(), name
+    report = (run_dir / "report.md").read_text()
+    assert "intervals need >= 2 seeds" in report and "undecided at 1 seed" in report
+
+
 @pytest.mark.parametrize("with_config", [False, True])
 def test_dir_without_checkpoints_exits_2_with_one_line(tmp_path: Path, with_config: bool) -> None:
     if with_config:  # a run that stopped before its first checkpoint

@@ -1,0 +1,475 @@
+"""Statistics over seeds: intervals, probability of improvement, performance profiles, and
+the verdicts on the paper's claims that ``report.md`` gives.
+
+A run trained with ``python -m jaxlc.sweep --seeds N`` holds N models per grid cell (same
+hyperparameters, different seeds); a *cell* is one ``(k, memory, actor_lr, critic_lr,
+noise_sigma)``. Everything here reads the rows of ``eval/eval.json`` (one per evaluated
+checkpoint) and is pure numpy/scipy, so reports and tests need no JAX.
+
+Intervals are 95% percentile bootstrap intervals from ``scipy.stats.bootstrap`` (2000
+resamples, a fixed generator so a report is reproducible). Resampling is stratified: the
+seeds of a cell are resampled within that cell, and two cells (or two runs) are resampled
+independently. With a handful of seeds the plain percentile interval is too narrow (about
+85-89% coverage of a mean at 8 seeds), so the level is widened as in Hesterberg's
+*expanded percentile interval* (2015): the percentile interval at the level whose normal
+quantile is ``sqrt(n / (n - 1)) * t_{n-1}`` (``expanded_level``; n = the fewest seeds of
+a sample), which covers about 95% from 8 seeds on; below ~5 seeds no bootstrap interval
+covers well, so read those as rough. With one seed per cell there is no interval (NaN)
+and the outputs say that intervals need >= 2 seeds.
+
+Measures: the mean and the interquartile mean (IQM, the mean of the middle 50% of seeds,
+Agarwal et al. 2021) of the evaluated success rate and average return; the probability of
+improvement ``P(X > Y) = P(x > y) + 0.5 P(x = y)`` over all pairs of a seed of X and a seed
+of Y; the performance profile, the share of models whose success rate is above each
+level tau in [0, 1].
+
+Verdicts on the paper's claims, from the evaluated success rate of each model at its last
+evaluated checkpoint (N below is the fewest seeds of a cell involved):
+
+(a) ④ (k=1, D=4000) is the best model: *supported* if for every other cell c the interval
+    of P(④ > c) lies above 0.5; *not supported* if for some cell c the interval of
+    P(c > ④) lies above 0.5; else *undecided at N seeds*.
+(b) A larger replay memory is better: X = the seeds of every cell with the grid's largest
+    memory (pooled over k and the other axes, resampled within their cells), Y = those with
+    the smallest: *supported* if the interval of P(X > Y) lies above 0.5, *not supported*
+    if it lies below 0.5, else *undecided at N seeds*.
+(c) A smaller k is better: as (b), the smallest k against the largest.
+(d) ④ succeeds in 100% of its lane changes: *supported* if the interval of ④'s mean
+    success rate reaches 1.0, *not supported* if its upper end is below 1.0.
+
+With one seed per cell every verdict is undecided.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.stats
+
+CONFIDENCE = 0.95
+RESAMPLES = 2000
+BATCH = 250  # resamples per vectorised call: bounds memory for figure bands of many points
+TAUS = np.linspace(0.0, 1.0, 101)
+CELL_AXES = ("k", "memory", "actor_lr", "critic_lr", "noise_sigma")
+PAPER_BEST = "④"  # the paper's Table 1 tag of k=1, D=4000 (sweep.PAPER_LABELS)
+SEEDS_NOTE = "intervals need >= 2 seeds per cell"
+
+
+class StatsError(ValueError):
+    """Data that cannot be compared; the message names the difference."""
+
+
+def final_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each model's row at its last evaluated checkpoint (the scripted row left out)."""
+    last: dict[int, dict[str, Any]] = {}
+    for r in rows:
+        if r["model"] is not None and (
+            r["model"] not in last or r["episode"] > last[r["model"]]["episode"]
+        ):
+            last[r["model"]] = r
+    return [last[m] for m in sorted(last)]
+
+
+# --------------------------------------------------------------------------- intervals
+
+
+def expanded_level(n: int, confidence: float = CONFIDENCE) -> float:
+    """Percentile level that makes a bootstrap interval of ``n`` observations cover about
+    ``confidence`` (Hesterberg's expanded percentile interval); NaN below 2."""
+    if n < 2:
+        return math.nan
+    z = math.sqrt(n / (n - 1)) * scipy.stats.t.ppf(0.5 + confidence / 2, n - 1)
+    # At 2 seeds the level rounds to 1, which scipy refuses; the interval is then the
+    # range of the resampled statistic either way.
+    return min(1.0 - 2.0 * scipy.stats.norm.sf(z), 1.0 - 1e-9)
+
+
+def interval(
+    samples: Sequence[np.ndarray], statistic: Callable[..., np.ndarray], seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)`` bootstrap interval of ``statistic(*samples, axis=-1)``, each sample
+    resampled on its own along its last axis (stratified); NaN where a sample has < 2.
+
+    ``samples``: arrays ``(..., n_i)``; ``statistic`` reduces the last axis and puts any
+    axes of its own first (scipy keeps resamples last)."""
+    samples = [np.asarray(s, float) for s in samples]
+    n = min(s.shape[-1] for s in samples)
+    if n < 2:
+        nan = np.full(np.shape(statistic(*samples, axis=-1)), np.nan)
+        return nan, nan
+    res = scipy.stats.bootstrap(
+        tuple(samples),
+        statistic,
+        vectorized=True,
+        paired=False,
+        axis=-1,
+        n_resamples=RESAMPLES,
+        batch=BATCH,
+        confidence_level=expanded_level(n),
+        method="percentile",
+        rng=np.random.default_rng(seed),
+    )
+    return np.asarray(res.confidence_interval.low), np.asarray(res.confidence_interval.high)
+
+
+def iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Interquartile mean: the mean of the middle 50% along ``axis``."""
+    return scipy.stats.trim_mean(x, 0.25, axis=axis)
+
+
+def _mean_iqm(x: np.ndarray, axis: int = -1) -> np.ndarray:
+    return np.stack([np.mean(x, axis=axis), iqm(x, axis=axis)])
+
+
+def _finite(x: Any) -> np.ndarray:
+    x = np.asarray(x, float)
+    return x[np.isfinite(x)]
+
+
+def describe(x: np.ndarray, seed: int = 0) -> dict[str, float]:
+    """Mean and IQM of ``x`` ``(seeds,)`` (NaNs dropped) with their intervals."""
+    x = _finite(x)
+    if x.size == 0:
+        return dict.fromkeys(("mean", "mean_lo", "mean_hi", "iqm", "iqm_lo", "iqm_hi"), math.nan)
+    est = _mean_iqm(x)
+    lo, hi = interval([x], _mean_iqm, seed)
+    return {
+        "mean": float(est[0]),
+        "mean_lo": float(lo[0]),
+        "mean_hi": float(hi[0]),
+        "iqm": float(est[1]),
+        "iqm_lo": float(lo[1]),
+        "iqm_hi": float(hi[1]),
+    }
+
+
+def prob_improvement(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
+    """``P(X > Y) + 0.5 P(X = Y)`` over every pair of an ``x`` and a ``y`` along ``axis``
+    (``x (..., n)``, ``y (..., m)`` -> ``(...)``)."""
+    x = np.moveaxis(np.asarray(x, float), axis, -1)[..., :, None]
+    y = np.moveaxis(np.asarray(y, float), axis, -1)[..., None, :]
+    return np.mean((x > y) + 0.5 * (x == y), axis=(-2, -1))
+
+
+def improvement(
+    xs: Sequence[np.ndarray], ys: Sequence[np.ndarray], seed: int = 0
+) -> tuple[float, float, float]:
+    """``(P(X > Y), lo, hi)``; X pools the seeds of the cells ``xs`` (each ``(seeds,)``),
+    Y those of ``ys``, each cell resampled within itself."""
+    xs, ys = [_finite(x) for x in xs], [_finite(y) for y in ys]
+    if not sum(x.size for x in xs) or not sum(y.size for y in ys):
+        return math.nan, math.nan, math.nan
+    n = len(xs)
+
+    def stat(*s: np.ndarray, axis: int = -1) -> np.ndarray:
+        return prob_improvement(np.concatenate(s[:n], axis), np.concatenate(s[n:], axis), axis)
+
+    lo, hi = interval([*xs, *ys], stat, seed)
+    return float(stat(*xs, *ys)), float(lo), float(hi)
+
+
+def difference(a: np.ndarray, b: np.ndarray, seed: int = 0) -> tuple[float, float, float]:
+    """``(mean(b) - mean(a), lo, hi)`` of two independent samples ``(seeds,)``."""
+    a, b = _finite(a), _finite(b)
+    if not a.size or not b.size:
+        return math.nan, math.nan, math.nan
+
+    def stat(a: np.ndarray, b: np.ndarray, axis: int = -1) -> np.ndarray:
+        return np.mean(b, axis=axis) - np.mean(a, axis=axis)
+
+    lo, hi = interval([a, b], stat, seed)
+    return float(stat(a, b)), float(lo), float(hi)
+
+
+def performance_profile(
+    samples: Sequence[np.ndarray], taus: np.ndarray = TAUS, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(share, lo, hi)``, each ``(taus,)``: the share of the models of ``samples`` (cells,
+    each ``(seeds,)`` of success rates) whose success is above each ``tau``."""
+    samples = [_finite(s) for s in samples]
+
+    def stat(*s: np.ndarray, axis: int = -1) -> np.ndarray:
+        above = np.concatenate(s, axis)[..., None] > taus  # (..., models, taus)
+        return np.moveaxis(np.mean(above, axis=-2), -1, 0)
+
+    lo, hi = interval(samples, stat, seed)
+    return stat(*samples), lo, hi
+
+
+def mean_band(curves: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)`` ``(points,)``: interval of the mean over seeds of ``curves (seeds,
+    points)`` at each point (NaN-aware, for training curves with gaps)."""
+
+    def stat(x: np.ndarray, axis: int = -1) -> np.ndarray:
+        return np.nanmean(x, axis=axis)
+
+    with warnings.catch_warnings():  # all-NaN points (no loss before updates start)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return interval([np.asarray(curves, float).T], stat, seed)
+
+
+# --------------------------------------------------------------------------- cells
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One grid cell's evaluated models; NaN where a seed lacks that checkpoint or no case
+    performed a lane change."""
+
+    key: tuple  # values of CELL_AXES
+    label: str
+    seeds: tuple[int, ...]
+    episodes: tuple[int, ...]
+    success: np.ndarray  # (episodes, seeds) success rate
+    ret: np.ndarray  # (episodes, seeds) average return
+    final_success: np.ndarray  # (seeds,) at each model's last evaluated checkpoint
+    final_ret: np.ndarray  # (seeds,)
+
+    @property
+    def axes(self) -> dict[str, Any]:
+        return dict(zip(CELL_AXES, self.key, strict=True))
+
+
+def cell_key(row: dict[str, Any]) -> tuple:
+    """The cell of an eval row (None for an axis an older eval.json lacks)."""
+    return tuple(row.get(a) for a in CELL_AXES)
+
+
+def _num(v: Any) -> float:
+    return math.nan if v is None else float(v)
+
+
+def cells_of(rows: list[dict[str, Any]]) -> list[Cell]:
+    """The cells of eval.json rows, in the order of their first model."""
+    models = [r for r in rows if r["model"] is not None]
+    finals = {r["model"]: r for r in final_rows(rows)}
+    keys = list(dict.fromkeys(cell_key(r) for r in models))
+    cells = []
+    for key in keys:
+        mine = [r for r in models if cell_key(r) == key]
+        seeds = sorted({r["seed"] for r in mine}, key=lambda s: (s is None, s))
+        episodes = sorted({r["episode"] for r in mine})
+        shape = (len(episodes), len(seeds))
+        success, ret = np.full(shape, np.nan), np.full(shape, np.nan)
+        for r in mine:
+            at = episodes.index(r["episode"]), seeds.index(r["seed"])
+            success[at], ret[at] = _num(r["success_rate"]), _num(r["avg_return"])
+        last = {r["seed"]: finals[r["model"]] for r in mine}
+        cells.append(
+            Cell(
+                key=key,
+                label=mine[0]["label"],
+                seeds=tuple(seeds),
+                episodes=tuple(episodes),
+                success=success,
+                ret=ret,
+                final_success=np.asarray([_num(last[s]["success_rate"]) for s in seeds]),
+                final_ret=np.asarray([_num(last[s]["avg_return"]) for s in seeds]),
+            )
+        )
+    return cells
+
+
+def fewest_seeds(cells: Sequence[Cell]) -> int:
+    return min((len(c.seeds) for c in cells), default=0)
+
+
+def seeds_note(cells: Sequence[Cell]) -> str | None:
+    """Why there are no intervals, or None when every cell has >= 2 seeds."""
+    n = fewest_seeds(cells)
+    if n >= 2:
+        return None
+    return f"{SEEDS_NOTE}; this run has {n} seed{'s' * (n != 1)} in its smallest cell"
+
+
+def _prefixed(prefix: str, d: dict[str, float]) -> dict[str, float]:
+    return {f"{prefix}_{k}": v for k, v in d.items()}
+
+
+def cell_table(cells: Sequence[Cell]) -> list[dict[str, Any]]:
+    """One row per cell and checkpoint episode: seeds, then mean and IQM (with intervals)
+    of the success rate and of the average return over the seeds."""
+    rows = []
+    for c in cells:
+        for i, e in enumerate(c.episodes):
+            rows.append(
+                {
+                    "label": c.label,
+                    **c.axes,
+                    "episode": e,
+                    "seeds": int(np.isfinite(c.ret[i]).sum()),
+                    **_prefixed("success", describe(c.success[i])),
+                    **_prefixed("return", describe(c.ret[i])),
+                }
+            )
+    return rows
+
+
+def final_table(cells: Sequence[Cell]) -> list[dict[str, Any]]:
+    """As ``cell_table`` at each model's last evaluated checkpoint, one row per cell."""
+    return [
+        {
+            "label": c.label,
+            **c.axes,
+            "seeds": len(c.seeds),
+            **_prefixed("success", describe(c.final_success)),
+            **_prefixed("return", describe(c.final_ret)),
+        }
+        for c in cells
+    ]
+
+
+def improvement_table(cells: Sequence[Cell]) -> list[dict[str, Any]]:
+    """P(X > Y) of the final success rate for every ordered pair of different cells."""
+    rows = []
+    for x in cells:
+        for y in cells:
+            if x is not y:
+                p, lo, hi = improvement([x.final_success], [y.final_success])
+                rows.append(
+                    {
+                        "x": x.label,
+                        "y": y.label,
+                        "seeds_x": len(x.seeds),
+                        "seeds_y": len(y.seeds),
+                        "p": p,
+                        "p_lo": lo,
+                        "p_hi": hi,
+                    }
+                )
+    return rows
+
+
+# --------------------------------------------------------------------------- verdicts
+
+
+def verdict(lo: float, hi: float, seeds: int) -> str:
+    """The rule for "X is better than Y" from the interval of P(X > Y)."""
+    if lo > 0.5:
+        return "supported"
+    if hi < 0.5:
+        return "not supported"
+    return f"undecided at {seeds} seed{'s' * (seeds != 1)}"
+
+
+def _p(p: float, lo: float, hi: float) -> str:
+    if not math.isfinite(p):
+        return "–"
+    ci = f" [{lo:.2f}, {hi:.2f}]" if math.isfinite(lo) else ""
+    return f"{p:.2f}{ci}"
+
+
+def _pooled(cells: Sequence[Cell], axis: str, value: Any) -> list[Cell]:
+    return [c for c in cells if c.axes[axis] == value]
+
+
+def _axis_claim(cells: Sequence[Cell], axis: str, better: Any, worse: Any, name: str) -> dict:
+    xs, ys = _pooled(cells, axis, better), _pooled(cells, axis, worse)
+    p, lo, hi = improvement([c.final_success for c in xs], [c.final_success for c in ys])
+    return {
+        "figures": f"P({name}={better} > {name}={worse}) = {_p(p, lo, hi)}, "
+        f"{len(xs)} against {len(ys)} cells pooled",
+        "verdict": verdict(lo, hi, fewest_seeds([*xs, *ys])),
+    }
+
+
+def claims(cells: Sequence[Cell]) -> list[dict[str, str]]:
+    """The paper's claims (module docstring), each ``{"claim", "paper", "figures",
+    "verdict"}``; the figures are point estimates with their intervals."""
+    out = []
+    best = next((c for c in cells if c.label.startswith(PAPER_BEST)), None)
+    others = [c for c in cells if c is not best]
+    claim_a = {"claim": "(a) ④ is the best model", "paper": "④ (k=1, D=4000) is best"}
+    if best is None or not others:
+        out.append({**claim_a, "figures": "the grid has no ④ and another cell", "verdict": "n/a"})
+    else:
+        ps = [(c, *improvement([best.final_success], [c.final_success])) for c in others]
+        n = fewest_seeds(cells)
+        if all(lo > 0.5 for _, _, lo, _ in ps):
+            v = "supported"
+        elif any(hi < 0.5 for _, _, _, hi in ps):
+            v = "not supported"
+        else:
+            v = verdict(math.nan, math.nan, n)
+        worst = min(ps, key=lambda t: (t[2], t[1]))  # the cell ④ is least clearly above
+        figures = (
+            f"smallest P(④ > other) = {_p(*worst[1:])} against {worst[0].label}; "
+            + ", ".join(f"{c.label.split()[0]} {p:.2f}" for c, p, _, _ in ps)
+        )
+        out.append({**claim_a, "figures": figures, "verdict": v})
+
+    for axis, name, claim, paper, pick in (
+        ("memory", "D", "(b) a larger replay memory is better", "D=8000 > D=2000", max),
+        ("k", "k", "(c) a smaller action-update step is better", "k=1 > k=4", min),
+    ):
+        values = sorted({c.axes[axis] for c in cells if c.axes[axis] is not None})
+        row = {"claim": claim, "paper": paper}
+        if len(values) < 2:
+            out.append({**row, "figures": f"the grid has one {name}", "verdict": "n/a"})
+            continue
+        better = pick(values)
+        worse = values[0] if better == values[-1] else values[-1]
+        out.append({**row, **_axis_claim(cells, axis, better, worse, name)})
+
+    claim_d = {"claim": "(d) ④ succeeds in 100% of lane changes", "paper": "100%"}
+    if best is None:
+        out.append({**claim_d, "figures": "the grid has no ④", "verdict": "n/a"})
+    else:
+        d = describe(best.final_success)
+        if not math.isfinite(d["mean_hi"]):
+            v = verdict(math.nan, math.nan, len(best.seeds))
+        else:
+            v = "supported" if d["mean_hi"] >= 1.0 - 1e-9 else "not supported"
+        ci = f" [{100 * d['mean_lo']:.1f}, {100 * d['mean_hi']:.1f}]" * math.isfinite(d["mean_lo"])
+        n = len(best.seeds)
+        figures = f"mean success {100 * d['mean']:.1f}%{ci} over {n} seed{'s' * (n != 1)}"
+        out.append({**claim_d, "figures": figures, "verdict": v})
+    return out
+
+
+# --------------------------------------------------------------------------- two runs
+
+
+def compare(a: Sequence[Cell], b: Sequence[Cell]) -> list[dict[str, Any]]:
+    """Per cell and checkpoint episode, the mean success rate of run B minus run A with its
+    interval (the runs' seeds resampled independently). Raises ``StatsError`` when the runs'
+    cells or checkpoint episodes differ."""
+    ka, kb = {c.key: c for c in a}, {c.key: c for c in b}
+    if set(ka) != set(kb):
+        only_a = [ka[k].label for k in ka if k not in kb]
+        only_b = [kb[k].label for k in kb if k not in ka]
+        raise StatsError(
+            f"the runs' grid cells differ (only in A: {only_a or 'none'}; only in B: "
+            f"{only_b or 'none'}); compare runs of the same grid"
+        )
+    for key, ca in ka.items():
+        if ca.episodes != kb[key].episodes:
+            raise StatsError(
+                f"the runs' checkpoint episodes of {ca.label} differ (A: {list(ca.episodes)}; "
+                f"B: {list(kb[key].episodes)}); evaluate both with the same --episodes"
+            )
+    rows = []
+    for key, ca in ka.items():
+        cb = kb[key]
+        for e, sa, sb in zip(ca.episodes, ca.success, cb.success, strict=True):
+            d, lo, hi = difference(sa, sb)
+            rows.append(
+                {
+                    "label": ca.label,
+                    **ca.axes,
+                    "episode": e,
+                    "seeds_a": int(np.isfinite(sa).sum()),
+                    "seeds_b": int(np.isfinite(sb).sum()),
+                    "success_a": float(np.nanmean(sa)) if np.isfinite(sa).any() else math.nan,
+                    "success_b": float(np.nanmean(sb)) if np.isfinite(sb).any() else math.nan,
+                    "diff": d,
+                    "diff_lo": lo,
+                    "diff_hi": hi,
+                }
+            )
+    return rows

@@ -1,0 +1,252 @@
+"""Statistics over seeds: interval calibration, probability of improvement, verdicts on the
+paper's claims, run comparison. Synthetic eval rows and fake run directories only: no
+training, no JAX compile."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxlc import evaluate, figures, report, stats
+from jaxlc.evaluate import OUTCOMES
+from jaxlc.sweep import PAPER_LABELS
+
+EPISODES = (100, 200)
+
+
+def _rows(success: dict[tuple[int, int], list[float]]) -> list[dict]:
+    """eval.json rows of a grid: ``success[(k, memory)]`` per seed at the last checkpoint
+    (the first checkpoint at half of it)."""
+    rows = [{"label": "scripted controller", "model": None, "seed": None, "episode": None}]
+    for cell, ((k, memory), seeds) in enumerate(success.items()):
+        for seed, sr in enumerate(seeds):
+            model = len({r["model"] for r in rows if r["model"] is not None})
+            for e in EPISODES:
+                value = sr if e == EPISODES[-1] else sr / 2
+                rows.append(
+                    {
+                        "label": f"{PAPER_LABELS[k, memory]} k={k} D={memory}",
+                        "model": model,
+                        "cell": cell,
+                        "seed": seed,
+                        "k": k,
+                        "memory": memory,
+                        "actor_lr": 1e-4,
+                        "critic_lr": 1e-3,
+                        "noise_sigma": 0.2,
+                        "episode": e,
+                        "success_rate": value,
+                        "avg_return": -200.0 + 100.0 * value,
+                    }
+                )
+    for r in rows:  # what the report's every-model table reads
+        r.update({o: 0 for o in OUTCOMES}, cases=100, performed=70, checkpoint=None)
+        r.update(dict.fromkeys(evaluate.MEASURES[2:], 0.0))
+        r.setdefault("success_rate", 1.0)
+        r.setdefault("avg_return", -140.0)
+    return rows
+
+
+def _grid(best: float, spread: float = 0.02, seeds: int = 8) -> dict:
+    """Nine cells; ④ at ``best``, the rest ordered by memory (larger better) and k (smaller
+    better), every cell within ``spread`` across its seeds."""
+    rng = np.random.default_rng(1)
+    out = {}
+    for k, memory in PAPER_LABELS:
+        mean = 0.5 + 0.1 * {2000: 0, 4000: 1, 8000: 2}[memory] - 0.05 * {1: 0, 2: 1, 4: 2}[k]
+        if (k, memory) == (1, 4000):
+            mean = best
+        out[k, memory] = list(np.clip(mean + spread * rng.uniform(-1, 1, seeds), 0, 1))
+    return out
+
+
+def _verdicts(success: dict) -> dict[str, str]:
+    return {c["claim"][:3]: c["verdict"] for c in stats.claims(stats.cells_of(_rows(success)))}
+
+
+def _run_dir(path: Path, rows: list[dict]) -> Path:
+    (path / "eval").mkdir(parents=True)
+    result = {
+        "config_hash": "x",
+        "cases": 100,
+        "seed": 0,
+        "max_steps": 1500,
+        "performed": 70,
+        "left": 35,
+        "right": 35,
+        "before_rl": {o: 0 for o in OUTCOMES},
+        "traced": [0],
+        "rows": rows,
+    }
+    (path / "eval" / "eval.json").write_text(json.dumps(result))
+    return path
+
+
+def test_interval_covers_the_true_mean_95_percent_at_8_seeds() -> None:
+    # Seeds' success rates: a Beta(4, 2) success probability each, seen through 70 cases;
+    # one batched bootstrap per repetition (scipy resamples each row on its own).
+    rng = np.random.default_rng(0)
+    truth = 4 / 6
+    seeds = rng.binomial(70, rng.beta(4.0, 2.0, (2000, 8))) / 70
+
+    def mean(x: np.ndarray, axis: int = -1) -> np.ndarray:
+        return np.mean(x, axis=axis)
+
+    lo, hi = stats.interval([seeds], mean, seed=1)
+    covered = (lo <= truth) & (truth <= hi)
+    assert 0.90 <= covered[:200].mean() <= 0.99, covered[:200].mean()
+    # 2000 repetitions tell the expanded interval (~94% here) from the plain percentile
+    # interval, which covers ~88.5% at 8 seeds.
+    assert 0.92 <= covered.mean() <= 0.975, covered.mean()
+    d = stats.describe(seeds[0])
+    assert d["mean_lo"] <= d["mean"] <= d["mean_hi"] and d["iqm_lo"] <= d["iqm"] <= d["iqm_hi"]
+
+
+def test_expanded_level_widens_small_samples_only() -> None:
+    assert math.isnan(stats.expanded_level(1))
+    levels = [stats.expanded_level(n) for n in (2, 4, 8, 32, 1000)]
+    assert levels == sorted(levels, reverse=True)
+    assert levels[-1] == pytest.approx(0.95, abs=2e-3)
+
+
+def test_iqm_is_the_mean_of_the_middle_half() -> None:
+    assert stats.iqm(np.asarray([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 100.0])) == pytest.approx(3.5)
+
+
+def test_a_dominating_cell_has_probability_of_improvement_one() -> None:
+    x, y = np.linspace(0.8, 0.9, 8), np.linspace(0.1, 0.7, 8)
+    assert stats.improvement([x], [y]) == (1.0, 1.0, 1.0)
+    assert stats.improvement([y], [x]) == (0.0, 0.0, 0.0)
+    assert stats.prob_improvement(np.ones(3), np.ones(4)) == 0.5  # ties count half
+    p, lo, hi = stats.improvement([x], [np.r_[y[:7], 0.95]])
+    assert p == pytest.approx(1 - 8 / 64) and lo < p <= hi  # one y above all eight x
+
+
+def test_performance_profile_falls_with_tau_inside_its_band() -> None:
+    share, lo, hi = stats.performance_profile([np.linspace(0.2, 0.9, 8), np.full(8, 0.5)])
+    assert share[0] == 1.0 and share[-1] == 0.0
+    assert np.all(np.diff(share) <= 0)
+    assert np.all((lo <= share + 1e-12) & (share <= hi + 1e-12))
+    assert share[stats.TAUS.searchsorted(0.5)] == pytest.approx(4 / 16)  # > tau, not >=
+
+
+def test_verdicts_follow_the_data() -> None:
+    grid = _grid(best=0.99)
+    grid[1, 4000] = [1.0] * 8  # every seed of ④ succeeds in every lane change
+    agree = _verdicts(grid)
+    assert agree == {"(a)": "supported", "(b)": "supported", "(c)": "supported", "(d)": "supported"}
+    # ④ worst, every cell below 100%, and the memory and k orders reversed.
+    contra = {key: [1.0 - v for v in vals] for key, vals in _grid(best=0.99, spread=0.02).items()}
+    against = _verdicts(contra)
+    assert against == dict.fromkeys(("(a)", "(b)", "(c)", "(d)"), "not supported")
+    # ④ tied with the next cells, seeds overlapping: no decision either way.
+    mixed = _grid(best=0.7, spread=0.3)
+    assert _verdicts(mixed)["(a)"].startswith("undecided at 8 seeds")
+
+
+def test_one_seed_per_cell_runs_and_says_intervals_need_two(tmp_path: Path) -> None:
+    cells = stats.cells_of(_rows(_grid(best=1.0, seeds=1)))
+    assert stats.fewest_seeds(cells) == 1
+    assert stats.SEEDS_NOTE in stats.seeds_note(cells)
+    for row in stats.cell_table(cells):
+        assert row["seeds"] == 1 and math.isfinite(row["success_mean"])
+        assert math.isnan(row["success_mean_lo"]) and math.isnan(row["return_iqm_hi"])
+    assert all(c["verdict"] == "undecided at 1 seed" for c in stats.claims(cells))
+    assert stats.performance_profile([cells[0].final_success])[0][0] == 1.0
+
+    run = _run_dir(tmp_path / "run", _rows(_grid(best=1.0, seeds=1)))
+    doc = evaluate.write_seed_stats(
+        run / "eval", json.loads((run / "eval" / "eval.json").read_text())["rows"]
+    )
+    assert stats.SEEDS_NOTE in doc["note"]
+    text = report.build_report(run)
+    assert "intervals need >= 2 seeds" in text and "undecided at 1 seed" in text
+
+
+def test_report_and_tables_give_the_verdicts(tmp_path: Path) -> None:
+    run = _run_dir(tmp_path / "run", _rows(_grid(best=0.2)))
+    rows = json.loads((run / "eval" / "eval.json").read_text())["rows"]
+    doc = evaluate.write_seed_stats(run / "eval", rows)
+    assert doc["note"] is None
+    lines = (run / "eval" / "cells.csv").read_text().strip().splitlines()
+    assert len(lines) == 1 + 9 * len(EPISODES)
+    assert len((run / "eval" / "improvement.csv").read_text().strip().splitlines()) == 1 + 9 * 8
+    text = report.build_report(run)
+    assert "| (a) ④ is the best model |" in text
+    claim_a = next(line for line in text.splitlines() if line.startswith("| (a)"))
+    assert "**not supported**" in claim_a
+
+
+def test_identical_runs_differ_by_zero(tmp_path: Path) -> None:
+    rows = _rows(_grid(best=0.9))
+    a, b = _run_dir(tmp_path / "a", rows), _run_dir(tmp_path / "b", rows)
+    assert evaluate.main(["--compare", str(a), str(b)]) == 0
+    out = b / "compare_a"
+    for name in ("compare.md", "compare.csv", "compare.png"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    table = stats.compare(stats.cells_of(rows), stats.cells_of(rows))
+    assert len(table) == 9 * len(EPISODES)
+    for r in table:  # the seeds are resampled on their own in each run: an interval around 0
+        assert r["diff"] == 0.0 and r["diff_lo"] < 0.0 < r["diff_hi"]
+
+
+def test_a_shift_between_runs_is_found() -> None:
+    a = _grid(best=0.5)
+    b = {key: [v + 0.2 for v in vals] for key, vals in a.items()}
+    table = stats.compare(stats.cells_of(_rows(a)), stats.cells_of(_rows(b)))
+    final = [r for r in table if r["episode"] == EPISODES[-1]]
+    assert all(r["diff"] == pytest.approx(0.2) and r["diff_lo"] > 0 for r in final)
+
+
+@pytest.mark.parametrize("change", ["cells", "episodes"])
+def test_mismatched_runs_are_refused_with_exit_2(tmp_path: Path, change: str) -> None:
+    rows = _rows(_grid(best=0.9, seeds=2))
+    if change == "cells":
+        other = [r for r in rows if r.get("memory") != 8000]
+    else:
+        other = [r for r in rows if r["episode"] != EPISODES[0]]
+    a, b = _run_dir(tmp_path / "a", rows), _run_dir(tmp_path / "b", other)
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxlc.evaluate", "--compare", str(a), str(b)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: the runs'"), proc.stderr
+    assert change.rstrip("s") in lines[0]
+    assert not (b / "compare_a").exists()
+
+
+def test_compare_needs_evaluated_runs(tmp_path: Path, capsys) -> None:
+    a = _run_dir(tmp_path / "a", _rows(_grid(best=0.9, seeds=2)))
+    assert evaluate.main(["--compare", str(a), str(tmp_path / "nothing")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "eval.json is missing" in err[0]
+
+
+def test_figures_draw_bands_over_several_seeds(tmp_path: Path) -> None:
+    grid = _grid(best=0.9, seeds=3)
+    rows = _rows(grid)
+    run = _run_dir(tmp_path / "run", rows)
+    models = [r for r in rows if r["model"] is not None and r["episode"] == EPISODES[-1]]
+    summary = {"models": [{k: r[k] for k in ("model", "cell", "label")} for r in models]}
+    (run / "summary.json").write_text(json.dumps(summary))
+    rng = np.random.default_rng(0)
+    (run / "metrics").mkdir()
+    np.savez(
+        run / "metrics" / "episodes.npz",
+        ret=rng.normal(-500, 100, (len(models), 400)),
+        episodes=np.full(len(models), 400),
+    )
+    for name in ("traces.npz", "cases.npz"):  # fig6 reads only eval.json from these files
+        np.savez(run / "eval" / name, x=np.zeros(1))
+    made = [figures.fig3_returns(run), figures.fig6_checkpoints(run), figures.profiles(run)]
+    assert all(p is not None and p.stat().st_size > 0 for p in made)
