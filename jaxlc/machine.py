@@ -40,7 +40,7 @@ def host_devices_for(models: int, product: int, cores: int | None = None) -> int
     (4 models, 16 x 32 x 32) 1.4x slower on 2."""
     if product < SMALL_PRODUCT:
         return 1
-    cores = cores or os.cpu_count() or 1
+    cores = cores or len(os.sched_getaffinity(0))  # the cores this process may run on
     return max(d for d in range(1, min(models, cores + 1) + 1) if models % d == 0)
 
 

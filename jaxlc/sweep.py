@@ -455,6 +455,16 @@ def run_sweep(
     return summary
 
 
+def host_devices(cfg: config.Config) -> int:
+    """``machine.host_devices_for`` the grid of ``cfg``, whose largest product is the DDPG
+    update's (a batch through the widest layers). Plain Python: call it before JAX starts."""
+    models = len(train.grid_cells(cfg)) * cfg.train.seeds
+    d = cfg.ddpg
+    return machine.host_devices_for(
+        models, machine.largest_product(d.batch_size, (OBS_DIM, *d.hidden, ACT_DIM))
+    )
+
+
 def _after_write_error(err: checkpoint.WriteError, out: Path | None) -> str:
     """What a user does after a failed write, once this process has exited: fix the disk,
     then resume from the last save (written atomically, so it is intact) or start again."""
@@ -527,11 +537,7 @@ def main(argv: list[str] | None = None) -> int:
             cfg = config.load(args.config, overrides)
             out = args.out or Path("runs") / f"{time.strftime('%Y%m%d-%H%M%S')}-{cfg.hash()}"
         if not args.distributed:  # a multi-host run uses the hosts' devices as they are
-            models = len(train.grid_cells(cfg)) * cfg.train.seeds
-            d = cfg.ddpg
-            product = machine.largest_product(d.batch_size, (OBS_DIM, *d.hidden, ACT_DIM))
-            auto = machine.host_devices_for(models, product)
-            machine.use_host_devices(auto if args.devices is None else args.devices)
+            machine.use_host_devices(host_devices(cfg) if args.devices is None else args.devices)
         summary = run_sweep(
             cfg,
             out,

@@ -1,4 +1,6 @@
-"""Shared fixtures: one smoke sweep for the whole session (compiling is the expensive part)."""
+"""Shared fixtures: one smoke sweep per test worker (compiling is the expensive part)."""
+
+import os
 
 import pytest
 
@@ -20,3 +22,8 @@ def smoke_run(tmp_path_factory, smoke_cfg):
     """``(run_dir, summary)`` of one uninterrupted smoke sweep."""
     out = tmp_path_factory.mktemp("smoke_run")
     return out, sweep.run_sweep(smoke_cfg, out, progress=False)
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto``: the cores this process may use (``taskset`` included), not the machine's."""
+    return len(os.sched_getaffinity(0))

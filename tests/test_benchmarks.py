@@ -59,3 +59,12 @@ def test_scripted_under_noise_tiny(tmp_path):
         ends = sum(int(r[c]) for c in ("success", "timeout", "out_of_bounds", "collision"))
         assert int(r["lane_changes"]) == ends > 0
     assert float(rows[0]["success_rate"]) == 1.0  # no noise: the controller never misses
+
+
+def test_time_to_solution_tiny(tmp_path):
+    _, rows = _bench("time_to_solution.py", ["--tiny"], tmp_path / "tts.csv")
+    (r,) = rows
+    assert r["reached"] == "True" and int(r["episode"]) >= 1 and r["model"]
+    per_chunk = 100 * 4 * int(r["models"])  # smoke: chunk_steps x envs_per_model x models
+    assert int(r["env_steps"]) % per_chunk == 0 and int(r["env_steps"]) > 0
+    assert float(r["matmul_peak_gflops"]) > 0 and float(r["wall_s"]) > 0
