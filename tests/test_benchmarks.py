@@ -68,3 +68,31 @@ def test_time_to_solution_tiny(tmp_path):
     per_chunk = 100 * 4 * int(r["models"])  # smoke: chunk_steps x envs_per_model x models
     assert int(r["env_steps"]) % per_chunk == 0 and int(r["env_steps"]) > 0
     assert float(r["matmul_peak_gflops"]) > 0 and float(r["wall_s"]) > 0
+
+
+def test_study_summary_reads_cells_and_one_seed_studies_from_eval_csv(tmp_path):
+    """Two cells x 3 seeds x checkpoints 100 and 200: cell (1, 4000) collapses from 100%
+    at episode 100 to 50% at 200; seed 2 alone has a model at 100% at the end."""
+    fields = ["label", "model", "seed", "k", "memory", "episode", "success_rate"]
+    fields += ["duration_s", "peak_lat_acc", "overshoot_m"]
+    rows = [["scripted controller", "", "", "", "", "", 1.0, 5.0, 0.5, 0.1]]
+    final = {(1, 4000): [0.5, 0.5, 0.5], (2, 4000): [0.2, 0.4, 1.0]}
+    for c, (k, mem) in enumerate(final):
+        for s in range(3):
+            for ep, rate in ((100, 1.0 if k == 1 else 0.0), (200, final[(k, mem)][s])):
+                rows.append(["m", 3 * c + s, s, k, mem, ep, rate, 6.0, 1.0, 0.2])
+    path = tmp_path / "eval.csv"
+    with path.open("w", newline="") as f:
+        csv.writer(f).writerows([fields, *rows])
+    done = subprocess.run(
+        [sys.executable, str(BENCH / "study_summary.py"), str(path)],
+        capture_output=True,
+        text=True,
+        timeout=HANG_GUARD_S,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    lines = {line.split("|")[1].strip(): line for line in done.stdout.splitlines() if "| " in line}
+    collapsed = [c.strip() for c in lines["④ k=1 D=4000"].split("|")]
+    assert collapsed[3].startswith("50.0%") and collapsed[4] == "100.0% (100)"
+    assert collapsed[5] == "50.0%"  # the drop from the best checkpoint to the last
+    assert "Read as 3 one-seed studies: 1 of 3 have a model at >= 99%" in done.stdout
