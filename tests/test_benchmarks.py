@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from jaxlc import checkpoint
+
 from .conftest import HANG_GUARD_S
 
 BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
@@ -96,3 +98,20 @@ def test_study_summary_reads_cells_and_one_seed_studies_from_eval_csv(tmp_path):
     assert collapsed[3].startswith("50.0%") and collapsed[4] == "100.0% (100)"
     assert collapsed[5] == "50.0%"  # the drop from the best checkpoint to the last
     assert "Read as 3 one-seed studies: 1 of 3 have a model at >= 99%" in done.stdout
+
+
+def test_kink_probe_branches_share_their_traffic(smoke_run, tmp_path):
+    """With every first action equal to the policy's own (spread 0), the branch rollouts
+    see the same traffic, so their returns tie: the peak is at the own action, gain 0."""
+    run_dir, _ = smoke_run
+    ck = max(checkpoint.list_checkpoints(run_dir))
+    args = ["--envs", "8", "--steps", "400", "--at", "0.5", "--horizon", "2"]
+    done = subprocess.run(
+        [sys.executable, str(BENCH / "kink_probe.py"), str(ck), *args, "--spread", "0"],
+        capture_output=True,
+        text=True,
+        timeout=HANG_GUARD_S,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "peaks at the policy's own first action" in done.stdout
+    assert "in 100% of them; median gain of the best a0 over mu(s*): 0.00" in done.stdout
