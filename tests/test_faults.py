@@ -52,9 +52,16 @@ def test_interrupt_then_resume_ends_bit_for_bit_like_an_uninterrupted_run(smoke_
     # The run holds after its first full-state save until a signal comes (sweep.HOLD_ENV),
     # so the interrupt lands mid-run whatever the machine's speed: no clock, no race.
     env = {**os.environ, sweep.HOLD_ENV: "1"}
-    proc = subprocess.Popen(
-        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env
-    )
+    # A job started in the background of a script (CI, `cmd &`) inherits SIGINT ignored, and
+    # Python then installs no KeyboardInterrupt handler: the run would never see Ctrl-C. A
+    # handler here (not an ignore) leaves the child SIGINT's default, as in a terminal.
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env
+        )
+    finally:
+        signal.signal(signal.SIGINT, old)
     seen = []
     for line in proc.stderr:  # blocks until the run holds, or ends
         seen.append(line)
