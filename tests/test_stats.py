@@ -148,6 +148,10 @@ def test_verdicts_follow_the_data() -> None:
     # ④ tied with the next cells, seeds overlapping: no decision either way.
     mixed = _grid(best=0.7, spread=0.3)
     assert _verdicts(mixed)["(a)"].startswith("undecided at 8 seeds")
+    # ④ at 100% on seven seeds and 90% on one: its interval reaches 100% but starts below
+    # 99%, so 100% success is neither shown nor ruled out.
+    grid[1, 4000] = [1.0] * 7 + [0.9]
+    assert _verdicts(grid)["(d)"].startswith("undecided at 8 seeds")
 
 
 def test_one_seed_per_cell_runs_and_says_intervals_need_two(tmp_path: Path) -> None:
