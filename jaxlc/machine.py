@@ -48,13 +48,22 @@ def use_host_devices(n: int) -> bool:
     """Ask XLA for ``n`` CPU host devices unless the user's ``XLA_FLAGS`` already sets the
     count or JAX has started (then the flag could not take effect). Returns whether it was
     set. Harmless on a GPU machine: the flag shapes only the CPU platform."""
-    from jax._src import xla_bridge  # the one place JAX says whether its backends started
-
     flags = os.environ.get("XLA_FLAGS", "")
-    if n < 1 or HOST_DEVICES_FLAG in flags or xla_bridge.backends_are_initialized():
+    if n < 1 or HOST_DEVICES_FLAG in flags or _backends_started():
         return False
     os.environ["XLA_FLAGS"] = f"{flags} {HOST_DEVICES_FLAG}={n}".strip()
     return True
+
+
+def _backends_started() -> bool:
+    """Whether JAX has started its backends (private API: a JAX that moved it reads as not
+    started, and the flag then at worst takes no effect)."""
+    try:
+        from jax._src import xla_bridge
+
+        return bool(xla_bridge.backends_are_initialized())
+    except (ImportError, AttributeError):
+        return False
 
 
 def matmul_peak_gflops(n: int = 2048, repeats: int = 5) -> float:
