@@ -45,7 +45,7 @@ def _f(
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """Road, traffic, IDM, episode, ego kinematics and reward (SPEC.md)."""
+    """Road, traffic, IDM, episode, ego kinematics and reward (README, "The simulator")."""
 
     road_length: float = _f(600.0, 50.0, open_lo=True, doc="m")
     lanes: int = _f(3, 2, 8, doc="lanes in the ego's direction; the ego starts on lanes // 2")
@@ -99,7 +99,7 @@ class EnvConfig:
 
 @dataclass(frozen=True)
 class DDPGConfig:
-    """Learner hyperparameters (SPEC.md, DDPG)."""
+    """Learner hyperparameters (the paper's DDPG; README, "Decisions beyond the paper")."""
 
     hidden: tuple[int, ...] = _f([300, 600], 1, 4096)
     actor_lr: float = _f(1e-4, 0.0, 1.0, open_lo=True)
@@ -115,6 +115,8 @@ class DDPGConfig:
     td3_target_noise: float = _f(0.2, 0.0, 2.0, doc="TD3 target smoothing sigma, tanh units")
     td3_target_clip: float = _f(0.5, 0.0, 2.0, doc="TD3 target smoothing noise clip")
     td3_policy_delay: int = _f(2, 1, 100, doc="TD3: critic updates per actor/target update")
+    mirror: bool = _f(True, doc="reflect half of each batch across the road's axis")
+    huber_delta: float = _f(10.0, 0.0, doc="critic loss Huber at this TD error; 0 = squared")
 
 
 @dataclass(frozen=True)

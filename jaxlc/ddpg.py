@@ -102,8 +102,10 @@ def update(
 ) -> tuple[Learner, dict[str, jax.Array]]:
     """One DDPG update from a batch (keys and shapes as ``replay.sample`` returns them).
 
-    Critic: minimise eq. (4), y = r + gamma (1 - terminated) Q'(s', mu'(s')); actor: ascend
-    eq. (5); targets: eqs. (6)/(7) after the Adam steps. Metrics: critic_loss, actor_loss
+    Critic: minimise eq. (4), y = r + gamma (1 - terminated) Q'(s', mu'(s')), with its
+    squared error replaced beyond ``cfg.huber_delta`` by the Huber loss's linear branch (the
+    default; 0 keeps the square: README, "Decisions"); actor: ascend eq. (5); targets: eqs.
+    (6)/(7) after the Adam steps. Metrics: critic_loss, actor_loss
     (= -mean Q(s, mu(s))), mean_q (= mean Q(s, a)), each ``()``.
 
     Both gradients use the params from before this step, as reference implementations do
@@ -135,7 +137,11 @@ def update(
 
     def critic_loss(params: Params) -> tuple[jax.Array, jax.Array]:
         q = q_all(params, obs, act)  # (batch,), or (2, batch) for TD3
-        return jnp.sum(jnp.mean(jnp.square(y - q), axis=-1)), q
+        if cfg.huber_delta > 0:  # an option: outlying TD errors pull with a bounded force
+            per = 2.0 * optax.losses.huber_loss(q, y, delta=cfg.huber_delta)  # = (y - q)^2 inside
+        else:
+            per = jnp.square(y - q)
+        return jnp.sum(jnp.mean(per, axis=-1)), q
 
     # The actor ascends Q (TD3: the first twin's).
     first_critic = jax.tree.map(lambda x: x[0], learner.critic) if cfg.td3 else learner.critic

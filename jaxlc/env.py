@@ -27,6 +27,9 @@ Observation (``OBS_DIM`` = 14, normalised), in this order:
   7 curvature*100  8 lead net gap/100  9 lead dv/10  10 lag net gap/100  11 lag dv/10
   12 leader net gap/100 in the lane that holds the ego's centre  13 its dv/10
 Gaps are clipped to [-10, 100] m; a missing vehicle reads gap 100 m, dv 0 (dv = v_other - v).
+
+``MIRROR_SIGNS`` reflects an observation across the road's axis (y -> -y): the lateral
+entries (2 psi, 3 omega, 4 offset, 5 held action) and the curvature change sign, the rest stays.
 """
 
 from __future__ import annotations
@@ -45,6 +48,10 @@ from jaxlc.idm import NO_LEADER_GAP, idm_with_params
 WAIT, CRUISE, GAP, RL = 0, 1, 2, 3
 PHASES = ("wait", "cruise", "gap", "rl")
 OBS_DIM = 14
+# The task is symmetric under y -> -y (lanes alike, left and right commands equally likely,
+# the reward even in omega, a_lat and offset), so a reflected transition (obs and next obs
+# times these signs, action negated) is one the env could have produced: ``ddpg.mirror``.
+MIRROR_SIGNS = (1.0, 1.0, -1.0, -1.0, -1.0, -1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
 ACT_DIM = 1
 KMH = 1.0 / 3.6
 _OBS_SCALE = (30.0, 3.0, 0.1, 0.1)  # v, a_long, psi, omega

@@ -2,7 +2,7 @@
 
 Every model's arrays have the grid's largest capacity ``cap_max`` (static); the capacity that a
 model actually uses is a traced int32 scalar, so models with memories of 2000, 4000 and 8000
-are one vmapped program (SPEC.md, "The grid under vmap"). Slots ``[capacity, cap_max)`` are
+are one vmapped program (README, "The sweep"). Slots ``[capacity, cap_max)`` are
 never written. A memory is a ring: ``ptr`` is the next slot to write, ``size`` the number of
 filled slots.
 """
@@ -77,18 +77,36 @@ def add(
     )
 
 
-def sample(replay: Replay, key: jax.Array, batch_size: int) -> dict[str, jax.Array]:
+def sample(
+    replay: Replay,
+    key: jax.Array,
+    batch_size: int,
+    mirror: tuple[float, ...] | None = None,
+) -> dict[str, jax.Array]:
     """``batch_size`` transitions drawn uniformly, with replacement, from the filled slots.
 
     Returns obs/next_obs ``(batch, obs_dim)``, action ``(batch, act_dim)``, reward/terminated
     ``(batch,)``. An empty memory yields slot 0 (zeros); callers start updating once a batch
-    is stored (SPEC.md).
+    is stored ([P]/[S]: README, "Decisions beyond the paper").
+
+    With ``mirror`` (per-entry signs of the observation's reflection, ``env.MIRROR_SIGNS``)
+    each drawn transition is reflected with probability 1/2: obs and next obs times the signs,
+    action negated; reward and end unchanged. The draw of the slots is the same either way.
     """
     idx = jax.random.randint(key, (batch_size,), 0, jnp.maximum(replay.size, 1))
-    return {
+    batch = {
         "obs": replay.obs[idx],
         "action": replay.action[idx],
         "reward": replay.reward[idx],
         "next_obs": replay.next_obs[idx],
         "terminated": replay.terminated[idx],
+    }
+    if mirror is None:
+        return batch
+    flip = jax.random.bernoulli(jax.random.fold_in(key, 1), 0.5, (batch_size, 1))
+    signs = jnp.where(flip, jnp.asarray(mirror, jnp.float32), 1.0)  # (batch, obs_dim)
+    return batch | {
+        "obs": batch["obs"] * signs,
+        "action": jnp.where(flip, -batch["action"], batch["action"]),
+        "next_obs": batch["next_obs"] * signs,
     }

@@ -31,7 +31,7 @@ from jax.sharding import PartitionSpec as P
 
 from jaxlc import ddpg, replay
 from jaxlc.config import Config, ConfigError, TrainConfig
-from jaxlc.env import ACT_DIM, OBS_DIM, EnvParams, EnvState, LaneChangeEnv
+from jaxlc.env import ACT_DIM, MIRROR_SIGNS, OBS_DIM, EnvParams, EnvState, LaneChangeEnv
 from jaxlc.networks import make_networks
 from jaxlc.reward import SUCCESS
 
@@ -227,7 +227,7 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
 
         # DDPG updates once the memory holds one batch [P]/[S].
         def one_update(learner: ddpg.Learner, k: Array):
-            batch = replay.sample(memory, k, d.batch_size)
+            batch = replay.sample(memory, k, d.batch_size, MIRROR_SIGNS if d.mirror else None)
             return ddpg.update(learner, batch, h, d, key=jax.random.fold_in(k, 1))
 
         new_learner, losses = jax.lax.scan(

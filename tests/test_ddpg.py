@@ -16,7 +16,10 @@ from jaxlc.networks import make_networks
 
 OBS_DIM = 5
 # a big final init and tau so that every term of the update moves the params visibly
-CFG = dataclasses.replace(DDPGConfig(), hidden=(4, 3), batch_size=8, final_init=0.5, tau=0.1)
+# huber_delta=0: the paper's squared error of eq. (4); the Huber option has its own test
+CFG = dataclasses.replace(
+    DDPGConfig(), hidden=(4, 3), batch_size=8, final_init=0.5, tau=0.1, huber_delta=0.0
+)
 HYPER = ddpg.Hyper(jnp.float32(3e-2), jnp.float32(5e-2), jnp.float32(0.2))
 
 
@@ -154,6 +157,29 @@ def test_update_moves_every_param(update_fn):
     ]:
         for u, v in zip(jax.tree.leaves(old), jax.tree.leaves(upd), strict=True):
             assert np.any(np.asarray(u) != np.asarray(v))
+
+
+def test_huber_critic_loss_is_squared_inside_delta_and_linear_beyond(update_fn):
+    """``ddpg.huber_delta``: TD errors within delta cost their square as in eq. (4); beyond
+    it the cost grows linearly (2*delta*|e| - delta^2), so an outlier pulls the critic with
+    the force of an error of delta. A delta above every error gives eq. (4)'s update."""
+    learner, batch = _learner(6), _batch(6)
+    batch["reward"] = batch["reward"] * np.float32(40.0)  # errors on both sides of delta
+    c, at, ct = learner.critic, learner.actor_target, learner.critic_target
+    y = batch["reward"] + CFG.gamma * (1 - batch["terminated"]) * _q(
+        ct, batch["next_obs"], _mu(at, batch["next_obs"])
+    )
+    e = np.abs(np.asarray(y - _q(c, batch["obs"], batch["action"])))
+    delta = float(np.median(e))
+    assert (e < delta).any() and (e > delta).any()
+    huber = jax.jit(lambda lrn, b, h, d: ddpg.update(lrn, b, h, d), static_argnums=3)
+    _, m = huber(learner, batch, HYPER, dataclasses.replace(CFG, huber_delta=delta))
+    want = np.mean(np.where(e <= delta, e**2, 2 * delta * e - delta**2))
+    assert math.isclose(float(m["critic_loss"]), want, rel_tol=1e-5)
+    wide, m_wide = huber(learner, batch, HYPER, dataclasses.replace(CFG, huber_delta=1e6))
+    squared, m_sq = update_fn(learner, batch, HYPER)
+    assert math.isclose(float(m_wide["critic_loss"]), float(m_sq["critic_loss"]), rel_tol=1e-6)
+    _close(wide.critic, squared.critic)
 
 
 def test_vmapped_update_equals_each_model_alone(update_fn):

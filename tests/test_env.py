@@ -456,3 +456,52 @@ def test_scripted_controller_completes_lane_changes(env_params, rollout, reset_b
     performed = ends[1:5].sum()
     assert performed >= 300, ends
     assert ends[reward.SUCCESS] / performed >= 0.95, dict(zip(reward.REASONS, ends, strict=True))
+
+
+def test_mirror_signs_reflect_the_observation_the_kinematics_and_keep_the_reward(
+    env_params, reset_batch
+):
+    """``MIRROR_SIGNS`` (``ddpg.mirror``) is the task's reflection y -> -y: the reflected
+    ego (lanes swapped, heading, yaw rate and held action negated, on a road curving the
+    other way) observes the reflected observation, its kinematics under the negated action
+    are the reflected kinematics, and the reward and the end are the same."""
+    env, p = env_params
+    p = p.replace(curvature=jnp.float32(0.002))
+    _, state = reset_batch(jax.random.split(jax.random.PRNGKey(21), 16), p)
+    rng = np.random.default_rng(21)
+    eg = state.ego.replace(
+        psi=jnp.asarray(rng.uniform(-0.1, 0.1, 16), jnp.float32),
+        omega=jnp.asarray(rng.uniform(-0.1, 0.1, 16), jnp.float32),
+        held=jnp.asarray(rng.uniform(-1, 1, 16), jnp.float32),
+        y=jnp.asarray(rng.uniform(0.5, 10.5, 16), jnp.float32),
+        target=jnp.asarray(rng.integers(0, 3, 16), state.ego.target.dtype),
+    )
+    width = p.lanes * p.lane_width
+    mirrored = eg.replace(
+        y=width - eg.y, psi=-eg.psi, omega=-eg.omega, held=-eg.held, target=p.lanes - 1 - eg.target
+    )
+    q = p.replace(curvature=-p.curvature)
+    obs = jax.vmap(E.observation, (0, None))(state.replace(ego=eg), p)
+    obs_m = jax.vmap(E.observation, (0, None))(state.replace(ego=mirrored), q)
+    np.testing.assert_allclose(obs_m, obs * np.asarray(E.MIRROR_SIGNS), rtol=1e-5, atol=1e-5)
+    assert np.any(obs[:, [2, 3, 4, 5, 7]] != 0, axis=0).all()  # every flipped entry is tested
+
+    a = jnp.asarray(rng.uniform(-0.5, 0.5, 16), jnp.float32)
+    step = kinematics.lateral_step(eg.x, eg.y, eg.psi, eg.omega, eg.v, a, p.curvature, p.dt)
+    step_m = kinematics.lateral_step(
+        eg.x, width - eg.y, -eg.psi, -eg.omega, eg.v, -a, q.curvature, p.dt
+    )
+    for got, want in zip(step_m, (step[0], width - step[1], -step[2], -step[3]), strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4)
+
+    offset = jnp.asarray(rng.uniform(-4.5, 4.5, 16), jnp.float32)
+    collided = jnp.asarray(rng.random(16) < 0.2)
+    steps = jnp.asarray(rng.integers(0, 120, 16), jnp.int32)
+    terms = reward.reward_terms(eg.omega, a, offset, collided, p)
+    terms_m = reward.reward_terms(-eg.omega, -a, -offset, collided, p)
+    for got, want in zip(terms_m, terms, strict=True):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(
+        reward.end_reason(-offset, -eg.psi, -eg.omega, steps, collided, p),
+        reward.end_reason(offset, eg.psi, eg.omega, steps, collided, p),
+    )

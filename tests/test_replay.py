@@ -80,3 +80,25 @@ def test_sampling_returns_only_written_rows(fns):
         np.testing.assert_array_equal(np.asarray(batch["next_obs"][m, :, 1]), 100.0 - got)
     assert batch["action"].shape == (len(CAPS), 512, 1)
     assert batch["terminated"].shape == (len(CAPS), 512)
+
+
+def test_mirrored_sampling_reflects_about_half_the_rows_and_draws_the_same_slots(fns):
+    """``ddpg.mirror``: each drawn transition is either as stored or reflected (obs and next
+    obs times the signs, action negated, reward and end kept), from the same slots."""
+    add, _, mem = fns
+    ids = np.arange(1, len(CAPS) * N + 1).reshape(len(CAPS), N)
+    mem = add(mem, *_rows(ids), jnp.ones((len(CAPS), N), bool))
+    one = jax.tree.map(lambda x: x[2], mem)  # model 2
+    signs = (-1.0, 1.0)  # OBS_DIM = 2: the first entry flips
+    key = jax.random.key(3)
+    plain = replay.sample(one, key, 256)
+    mirrored = replay.sample(one, key, 256, signs)
+    np.testing.assert_array_equal(np.asarray(mirrored["reward"]), np.asarray(plain["reward"]))
+    np.testing.assert_array_equal(mirrored["terminated"], plain["terminated"])
+    flipped = np.asarray(mirrored["action"][:, 0]) == -np.asarray(plain["action"][:, 0])
+    assert 0.3 < flipped.mean() < 0.7  # reflected with probability 1/2
+    want = np.where(flipped[:, None], np.asarray(signs), 1.0)
+    for name in ("obs", "next_obs"):
+        np.testing.assert_array_equal(np.asarray(mirrored[name]), np.asarray(plain[name]) * want)
+    kept = np.asarray(mirrored["action"][~flipped, 0]) == np.asarray(plain["action"][~flipped, 0])
+    assert kept.all()
