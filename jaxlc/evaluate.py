@@ -28,8 +28,8 @@ the statistics over seeds (``jaxlc.stats``: ``cells.json``, ``cells.csv``,
 compares two runs that are already evaluated (their ``eval/eval.json``; nothing is
 re-evaluated): per cell and checkpoint, B - A of the mean success rate with a bootstrap
 interval, into ``DIR`` (default ``RUN_B/compare_<name of RUN_A>/``): ``compare.md``,
-``compare.csv``, ``compare.png``. Runs whose cells or checkpoint episodes differ are
-refused (exit status 2).
+``compare.csv``, ``compare.png``, over the checkpoint episodes both runs evaluated. Runs
+whose cells differ, or that share no checkpoint episode, are refused (exit status 2).
 """
 
 from __future__ import annotations

@@ -445,9 +445,9 @@ def claims(cells: Sequence[Cell]) -> list[dict[str, str]]:
 
 
 def compare(a: Sequence[Cell], b: Sequence[Cell]) -> list[dict[str, Any]]:
-    """Per cell and checkpoint episode, the mean success rate of run B minus run A with its
-    interval (the runs' seeds resampled independently). Raises ``StatsError`` when the runs'
-    cells or checkpoint episodes differ."""
+    """Per cell and checkpoint episode that both runs evaluated, the mean success rate of run
+    B minus run A with its interval (the runs' seeds resampled independently). Raises
+    ``StatsError`` when the runs' cells differ or a cell has no checkpoint episode in both."""
     ka, kb = {c.key: c for c in a}, {c.key: c for c in b}
     if set(ka) != set(kb):
         only_a = [ka[k].label for k in ka if k not in kb]
@@ -456,16 +456,18 @@ def compare(a: Sequence[Cell], b: Sequence[Cell]) -> list[dict[str, Any]]:
             f"the runs' grid cells differ (only in A: {only_a or 'none'}; only in B: "
             f"{only_b or 'none'}); compare runs of the same grid"
         )
-    for key, ca in ka.items():
-        if ca.episodes != kb[key].episodes:
-            raise StatsError(
-                f"the runs' checkpoint episodes of {ca.label} differ (A: {list(ca.episodes)}; "
-                f"B: {list(kb[key].episodes)}); evaluate both with the same --episodes"
-            )
     rows = []
     for key, ca in ka.items():
         cb = kb[key]
-        for e, sa, sb in zip(ca.episodes, ca.success, cb.success, strict=True):
+        common = sorted(set(ca.episodes) & set(cb.episodes))
+        if not common:
+            raise StatsError(
+                f"the runs' checkpoint episodes of {ca.label} have none in common (A: "
+                f"{list(ca.episodes)}; B: {list(cb.episodes)}); evaluate both with the same "
+                "--episodes"
+            )
+        for e in common:
+            sa, sb = ca.success[ca.episodes.index(e)], cb.success[cb.episodes.index(e)]
             d, lo, hi = difference(sa, sb)
             rows.append(
                 {

@@ -17,6 +17,8 @@ from jaxlc import evaluate, figures, report, stats
 from jaxlc.evaluate import OUTCOMES
 from jaxlc.sweep import PAPER_LABELS
 
+from .conftest import HANG_GUARD_S
+
 EPISODES = (100, 200)
 
 
@@ -213,20 +215,30 @@ def test_mismatched_runs_are_refused_with_exit_2(tmp_path: Path, change: str) ->
     rows = _rows(_grid(best=0.9, seeds=2))
     if change == "cells":
         other = [r for r in rows if r.get("memory") != 8000]
-    else:
-        other = [r for r in rows if r["episode"] != EPISODES[0]]
+    else:  # no checkpoint episode in common
+        shift = lambda e: None if e is None else e + 1  # noqa: E731 (None: the scripted row)
+        other = [{**r, "episode": shift(r["episode"])} for r in rows]
     a, b = _run_dir(tmp_path / "a", rows), _run_dir(tmp_path / "b", other)
     proc = subprocess.run(
         [sys.executable, "-m", "jaxlc.evaluate", "--compare", str(a), str(b)],
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=HANG_GUARD_S,
     )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: the runs'"), proc.stderr
-    assert change.rstrip("s") in lines[0]
+    assert {"cells": "cells differ", "episodes": "none in common"}[change] in lines[0]
     assert not (b / "compare_a").exists()
+
+
+def test_compare_uses_the_checkpoint_episodes_both_runs_evaluated() -> None:
+    a = _grid(best=0.5)
+    b = {key: [v + 0.1 for v in vals] for key, vals in a.items()}
+    rows_b = [r for r in _rows(b) if r["episode"] == EPISODES[-1]]  # B: the last only
+    table = stats.compare(stats.cells_of(_rows(a)), stats.cells_of(rows_b))
+    assert {r["episode"] for r in table} == {EPISODES[-1]}
+    assert all(r["diff"] == pytest.approx(0.1) for r in table)
 
 
 def test_compare_needs_evaluated_runs(tmp_path: Path, capsys) -> None:
