@@ -280,7 +280,7 @@ def observation_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
             float(p.idm_a_max) / _OBS_SCALE[1],
             psi / _OBS_SCALE[2],
             omega / _OBS_SCALE[3],
-            offset / w,
+            offset / float(p.offset_obs_scale),
             1.0,
             n * dt / float(p.manoeuvre_time_limit),
             abs(kappa) * 100.0,

@@ -232,6 +232,12 @@ def test_observation_bounds_follow_the_params(params):
     assert G.observation_bounds(wider)[1][3] > high[3]  # omega can grow for longer
     curved = params.replace(curvature=0.002)
     assert np.isinf(G.observation_bounds(curved)[1][2])  # heading drifts before the RL phase
+    for scale in (1.0, 7.4):  # the offset's bound is in the env's units, whatever they are
+        scaled = params.replace(offset_obs_scale=scale)
+        env = G.LaneChangeGymEnv(params=scaled)
+        obs, _ = env.reset(seed=3)  # the first RL observation: |offset| = one lane width
+        assert abs(obs[4]) == pytest.approx(float(params.lane_width) / scale, rel=1e-5)
+        assert obs in env.observation_space, (obs, env.observation_space.high)
 
 
 def _load_bench(name: str):
