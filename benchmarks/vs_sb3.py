@@ -1,9 +1,11 @@
 """Stable-Baselines3 DDPG (PyTorch, CPU) against jaxlc's trainer, on the jaxlc lane-change task.
 
-Both sides use the paper's settings (SPEC.md): actor and critic MLPs 300-600 with ReLU (tanh
-actor output), actor lr 1e-4, critic lr 1e-3, batch 64, gamma 0.98, tau 0.001, Gaussian
-exploration noise sigma 0.2, replay memory 4000, action-update step k = 1, updates from the
-first full batch on.
+Both sides use the config's settings (the paper's; README, "Decisions beyond the paper"):
+actor and critic MLPs 300-600 with ReLU (tanh actor output), actor lr 1e-4, critic lr 1e-3,
+batch 64, gamma 0.98, the config's tau, Gaussian exploration noise sigma 0.2, replay memory
+4000, action-update step k = 1, updates from the first full batch on. jaxlc's Huber critic
+loss and mirrored batches have no SB3 counterpart: ``ddpg.huber_delta=0 ddpg.mirror=false``
+makes the two learners the same algorithm.
 
 SB3: ``DDPG`` on ``jaxlc.gym.LaneChangeGymEnv`` (one gym step = one RL decision; the wrapper
 runs the rest of the traffic simulation inside one jitted call), ``train_freq=1``,

@@ -89,7 +89,7 @@ def net_gap(x_front: Array, x_back: Array, length: Array, present: Array) -> Arr
 
 
 def beside_acceptable(nb: Neighbours, x_ego: Array, v_ego: Array, p) -> Array:
-    """The spec's acceptance test of the gap beside the ego (``p``: EnvParams)."""
+    """The acceptance test of the gap beside the ego (``p``: EnvParams)."""
     lead_gap = net_gap(nb.a1_x, x_ego, p.vehicle_length, nb.has_a1)
     lag_gap = net_gap(x_ego, nb.b1_x, p.vehicle_length, nb.has_b1)
     lead_ok = lead_gap >= p.idm_s0 + p.gap_time_headway * v_ego

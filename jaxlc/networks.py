@@ -29,7 +29,7 @@ class _Trunk(nn.Module):
     """Hidden ReLU layers then a linear head of width ``out`` with the small final init.
 
     Its params are ``{"Dense_0": {"kernel", "bias"}, ..., "Dense_L": ...}`` under the name
-    ``mlp``; ``ddpg`` reads that layout for its hand-written backward pass.
+    ``mlp``: plain nested dicts, so a grid of models stacks, vmaps and saves as one pytree.
     """
 
     hidden: Sequence[int]

@@ -29,7 +29,7 @@ FIGURES = (
     ("profiles.png", "Performance profiles: share of models above each success rate"),
     ("learning.gif", "Video: lane changes across checkpoints"),
 )
-HUMAN_DURATION = (3.0, 8.0)  # s, SPEC.md "Evaluation"
+HUMAN_DURATION = (3.0, 8.0)  # s, the human range the README's "Results" compares with
 
 
 def _defined(v: Any) -> bool:

@@ -1,8 +1,13 @@
 """The fused trainer: grid under vmap, checkpoints, the sweep CLI, a real learning signal."""
 
 import dataclasses
+import importlib
 import json
+import shutil
+import subprocess
+import sys
 import tomllib
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -12,6 +17,8 @@ import pytest
 from jaxlc import checkpoint, config, sweep, train
 from jaxlc.env import OBS_DIM
 from jaxlc.reward import NONE
+
+from .conftest import HANG_GUARD_S
 
 SMOKE = config.CONFIG_DIR / "smoke.toml"
 
@@ -182,3 +189,21 @@ def test_a_short_run_learns(smoke_cfg):
     ret = np.asarray(state.log.ret[0])
     first, last = ret[:100].mean(), ret[-100:].mean()
     assert last > first + 300.0, (first, last)
+
+
+def test_console_scripts_run_the_clis():
+    """``[project.scripts]``: each name the install puts on the PATH runs its module's CLI."""
+    scripts = tomllib.loads((config.CONFIG_DIR.parent / "pyproject.toml").read_text())["project"][
+        "scripts"
+    ]
+    assert {"jaxlc-sweep", "jaxlc-evaluate", "jaxlc-figures"} <= set(scripts)
+    for name, target in scripts.items():
+        module, func = target.split(":")
+        assert callable(getattr(importlib.import_module(module), func)), target
+        if name in ("jaxlc-sweep", "jaxlc-evaluate"):
+            exe = shutil.which(name, path=str(Path(sys.executable).parent))  # this venv's
+            assert exe, f"{name} is not installed: pip install -e ."
+            done = subprocess.run(
+                [exe, "--help"], capture_output=True, text=True, timeout=HANG_GUARD_S
+            )
+            assert done.returncode == 0 and "usage:" in done.stdout, done.stderr[-2000:]
