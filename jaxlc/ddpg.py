@@ -137,7 +137,7 @@ def update(
 
     def critic_loss(params: Params) -> tuple[jax.Array, jax.Array]:
         q = q_all(params, obs, act)  # (batch,), or (2, batch) for TD3
-        if cfg.huber_delta > 0:  # an option: outlying TD errors pull with a bounded force
+        if cfg.huber_delta > 0:  # outlying TD errors (the cliff of eq. (11)) pull boundedly
             per = 2.0 * optax.losses.huber_loss(q, y, delta=cfg.huber_delta)  # = (y - q)^2 inside
         else:
             per = jnp.square(y - q)
