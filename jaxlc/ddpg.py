@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from jaxlc import tree
 from jaxlc.config import DDPGConfig
 from jaxlc.networks import make_networks
 
@@ -159,12 +160,12 @@ def update(
     )
     if cfg.td3:
         delayed = learner.step % cfg.td3_policy_delay == 0
-        keep = lambda new, old: jax.tree.map(lambda n, o: jnp.where(delayed, n, o), new, old)  # noqa: E731
-        actor_p, actor_opt, actor_t = keep(
+        actor_p, actor_opt, actor_t = tree.where(
+            delayed,
             (actor_p, actor_opt, actor_t),
             (learner.actor, learner.actor_opt, learner.actor_target),
         )
-        critic_t = keep(critic_t, learner.critic_target)
+        critic_t = tree.where(delayed, critic_t, learner.critic_target)
     new = Learner(actor_p, critic_p, actor_t, critic_t, actor_opt, critic_opt, learner.step + 1)
     return new, {"critic_loss": c_loss, "actor_loss": a_loss, "mean_q": jnp.mean(q)}
 

@@ -53,7 +53,7 @@ from jax import Array
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-from jaxlc import checkpoint, config, machine, stats
+from jaxlc import checkpoint, config, machine, stats, tree
 from jaxlc.checkpoint import CheckpointError
 from jaxlc.controller import scripted_action
 from jaxlc.env import ACT_DIM, OBS_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
@@ -158,16 +158,6 @@ def default_episodes(every: int, final: int) -> list[int]:
     return sorted({every, *range(4 * every, final + 1, 4 * every), final})
 
 
-def _select_tree(mask: Array, new: Any, old: Any) -> Any:
-    """``where(mask, new, old)`` leafwise; ``mask`` broadcasts over the trailing axes."""
-
-    def pick(n: Array, o: Array) -> Array:
-        m = jnp.reshape(mask, mask.shape + (1,) * (n.ndim - mask.ndim))
-        return jnp.where(m, n, o)
-
-    return jax.tree.map(pick, new, old)
-
-
 @functools.lru_cache(maxsize=8)
 def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any, Any]:
     """Jitted ``start_cases(keys) -> Cases`` and ``rollout(policies, cases, traced) ->
@@ -264,7 +254,7 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
             ended = info["reason"] != 0
             done = done | (live & (ended | (new.time >= max_steps)))
             # Finished cases freeze, so their last frame is where the manoeuvre ended.
-            state = _select_tree(live, new, state)
+            state = tree.where(live, new, state)
             obs = jnp.where(live[..., None], new_obs, obs)
             trace = _record(trace, i + 1, state, traced, live[:, traced])
             return i + 1, state, obs, done, out, trace

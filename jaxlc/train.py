@@ -29,7 +29,7 @@ from jax import Array
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-from jaxlc import ddpg, replay
+from jaxlc import ddpg, replay, tree
 from jaxlc.config import Config, ConfigError, TrainConfig
 from jaxlc.env import ACT_DIM, MIRROR_SIGNS, OBS_DIM, EnvParams, EnvState, LaneChangeEnv
 from jaxlc.networks import make_networks
@@ -161,10 +161,6 @@ def _log_add(log: EpisodeLog, start: Array, ended: Array, rows: dict[str, Array]
     )
 
 
-def _select(pred: Array, new: Any, old: Any) -> Any:
-    return jax.tree.map(lambda n, o: jnp.where(pred, n, o), new, old)
-
-
 def anneal(h: ddpg.Hyper, episodes: Array, t: TrainConfig) -> ddpg.Hyper:
     """Per-model noise sigma and learning rates after ``episodes`` finished episodes: scaled
     linearly from 1 at ``t.anneal_from`` of ``t.episodes`` to ``t.noise_final`` /
@@ -234,7 +230,7 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
             one_update, ts.learner, jax.random.split(k_update, d.updates_per_step)
         )
         updating = learning & (memory.size >= d.batch_size)
-        learner = _select(updating, new_learner, ts.learner)
+        learner = tree.where(updating, new_learner, ts.learner)
 
         # Episode bookkeeping.
         terms = ts.terms + jnp.stack([info["r_s"], info["r_e"], info["r_d"]], -1)
@@ -279,7 +275,7 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
             step=ts.step + 1,
             episodes=episodes,
             log=log,
-            snap_actor=_select(passed, learner.actor, ts.snap_actor),
+            snap_actor=tree.where(passed, learner.actor, ts.snap_actor),
             snap_episode=jnp.where(
                 passed, jnp.minimum(episodes // every * every, t.episodes), ts.snap_episode
             ),

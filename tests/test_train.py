@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxlc import checkpoint, config, sweep, train
+from jaxlc import checkpoint, config, sweep, train, tree
 from jaxlc.env import OBS_DIM
 from jaxlc.reward import NONE
 
@@ -207,3 +207,16 @@ def test_console_scripts_run_the_clis():
                 [exe, "--help"], capture_output=True, text=True, timeout=HANG_GUARD_S
             )
             assert done.returncode == 0 and "usage:" in done.stdout, done.stderr[-2000:]
+
+
+def test_tree_where_picks_whole_trees_or_rows():
+    """``jaxlc.tree.where``: a () mask picks one whole tree; a mask of leading axes picks
+    row by row, broadcast over each leaf's trailing axes (leaves of different ranks)."""
+    new = {"a": jnp.ones((3, 2)), "b": jnp.ones((3,), jnp.int32)}
+    old = {"a": jnp.zeros((3, 2)), "b": jnp.zeros((3,), jnp.int32)}
+    assert all(np.all(x == 1) for x in jax.tree.leaves(tree.where(jnp.bool_(True), new, old)))
+    assert all(np.all(x == 0) for x in jax.tree.leaves(tree.where(jnp.bool_(False), new, old)))
+    rows = tree.where(jnp.array([True, False, True]), new, old)
+    np.testing.assert_array_equal(rows["a"], [[1, 1], [0, 0], [1, 1]])
+    np.testing.assert_array_equal(rows["b"], [1, 0, 1])
+    assert rows["b"].dtype == jnp.int32
