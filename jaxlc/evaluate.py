@@ -254,8 +254,7 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
             ended = info["reason"] != 0
             done = done | (live & (ended | (new.time >= max_steps)))
             # Finished cases freeze, so their last frame is where the manoeuvre ended.
-            state = tree.where(live, new, state)
-            obs = jnp.where(live[..., None], new_obs, obs)
+            state, obs = tree.where(live, (new, new_obs), (state, obs))
             trace = _record(trace, i + 1, state, traced, live[:, traced])
             return i + 1, state, obs, done, out, trace
 
