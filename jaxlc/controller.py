@@ -12,16 +12,16 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.env import _OBS_SCALE, EnvParams
+from jaxlc.env import EnvParams
+from jaxlc.observation import INDEX, scale
 
 DEFAULT_POLE = 1.2  # 1/s: a lane change of about 4-5 s, inside the 3-8 s of human drivers
 
 
 def scripted_action(obs: Array, params: EnvParams, pole: float = DEFAULT_POLE) -> Array:
     """``(..., OBS_DIM) -> (..., 1)`` action in [-1, 1] from the pole-placement law."""
-    v = jnp.maximum(obs[..., 0] * _OBS_SCALE[0], 1.0)
-    psi = obs[..., 2] * _OBS_SCALE[2]
-    omega = obs[..., 3] * _OBS_SCALE[3]
-    e = obs[..., 4] * params.offset_obs_scale
+    raw = {n: obs[..., INDEX[n]] * scale(n, params) for n in ("v", "psi", "omega", "offset")}
+    v = jnp.maximum(raw["v"], 1.0)
+    psi, omega, e = raw["psi"], raw["omega"], raw["offset"]
     a_lat = -(pole**3 * e + 3 * pole**2 * v * psi + 3 * pole * v * omega) / v
     return jnp.clip(a_lat / params.max_yaw_acc, -1.0, 1.0)[..., None]

@@ -21,20 +21,17 @@ When an episode ends the ego leaves the road and the env goes back to WAIT on th
 ``obs`` is the observation after the step: on the step an episode ends it is the terminal
 observation, which is what a learner bootstraps from.
 
-Observation (``OBS_DIM`` = 14, normalised), in this order:
-  0 v/30  1 a_long/3  2 psi/0.1  3 omega/0.1  4 offset/offset_obs_scale (default W = 3.7 m)
-  5 held action  6 manoeuvre time/limit (0 unless ``terminal_timeout``: see ``observation``)
-  7 curvature*100  8 lead net gap/100  9 lead dv/10  10 lag net gap/100  11 lag dv/10
-  12 leader net gap/100 in the lane that holds the ego's centre  13 its dv/10
-Gaps are clipped to [-10, 100] m; a missing vehicle reads gap 100 m, dv 0 (dv = v_other - v).
-
-``MIRROR_SIGNS`` reflects an observation across the road's axis (y -> -y): the lateral
-entries (2 psi, 3 omega, 4 offset, 5 held action) and the curvature change sign, the rest stays.
+Observation (``OBS_DIM`` = 14, normalised): the table ``jaxlc.observation.LAYOUT`` gives each
+entry's name, index, scale and meaning (speed, acceleration, heading, yaw rate, offset from the
+target lane, held action, manoeuvre time, curvature, then gap and dv to the target lane's
+leader and follower and to the leader in the ego's current lane); ``MIRROR_SIGNS`` reflects an
+observation across the road's axis.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import flax.struct
 import jax
@@ -42,20 +39,15 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxlc import gap, kinematics, reward
+from jaxlc import observation as obs_layout
 from jaxlc.config import Config, EnvConfig
 from jaxlc.idm import NO_LEADER_GAP, idm_with_params
+from jaxlc.observation import GAP_CLIP, MIRROR_SIGNS, OBS_DIM  # noqa: F401 (re-exported)
 
 WAIT, CRUISE, GAP, RL = 0, 1, 2, 3
 PHASES = ("wait", "cruise", "gap", "rl")
-OBS_DIM = 14
-# The task is symmetric under y -> -y (lanes alike, left and right commands equally likely,
-# the reward even in omega, a_lat and offset), so a reflected transition (obs and next obs
-# times these signs, action negated) is one the env could have produced: ``ddpg.mirror``.
-MIRROR_SIGNS = (1.0, 1.0, -1.0, -1.0, -1.0, -1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
 ACT_DIM = 1
 KMH = 1.0 / 3.6
-_OBS_SCALE = (30.0, 3.0, 0.1, 0.1)  # v, a_long, psi, omega
-_GAP_CLIP = (-10.0, 100.0)
 
 
 @flax.struct.dataclass
@@ -225,37 +217,37 @@ def lateral_offset(eg: Ego, p: EnvParams) -> Array:
 
 
 def observation(state: EnvState, p: EnvParams) -> Array:
-    """``(OBS_DIM,)`` normalised observation of ``state`` (order in the module docstring)."""
+    """``(OBS_DIM,)`` normalised observation of ``state``: the entries of
+    ``jaxlc.observation.LAYOUT``, each raw value divided by its scale."""
     eg, nb = state.ego, state.nb
     L = p.vehicle_length
 
-    def gap_obs(g: Array, present: Array) -> Array:
-        return jnp.where(present, jnp.clip(g, *_GAP_CLIP), _GAP_CLIP[1]) / 100.0
+    def gap_m(g: Array, present: Array) -> Array:
+        return jnp.where(present, jnp.clip(g, *GAP_CLIP), GAP_CLIP[1])
 
-    def dv_obs(v_other: Array, present: Array) -> Array:
-        return jnp.where(present, v_other - eg.v, 0.0) / 10.0
+    def dv(v_other: Array, present: Array) -> Array:
+        return jnp.where(present, v_other - eg.v, 0.0)
 
     has_leader = state.leader_gap < NO_LEADER_GAP
-    obs = jnp.stack(
-        [
-            eg.v / _OBS_SCALE[0],
-            eg.accel / _OBS_SCALE[1],
-            eg.psi / _OBS_SCALE[2],
-            eg.omega / _OBS_SCALE[3],
-            lateral_offset(eg, p) / p.offset_obs_scale,
-            eg.held,
-            # A truncated timeout is bootstrapped, so the time must not be observed: values
-            # at time = limit are never learned as current states (Pardo et al., 2018).
-            jnp.where(p.terminal_timeout, eg.steps * p.dt / p.manoeuvre_time_limit, 0.0),
-            p.curvature * 100.0 * jnp.ones_like(eg.v),
-            gap_obs(nb.a1_x - L - eg.x, nb.has_a1),
-            dv_obs(nb.a1_v, nb.has_a1),
-            gap_obs(eg.x - L - nb.b1_x, nb.has_b1),
-            dv_obs(nb.b1_v, nb.has_b1),
-            gap_obs(state.leader_gap, has_leader),
-            dv_obs(state.leader_v, has_leader),
-        ]
-    )
+    raw = {
+        "v": eg.v,
+        "accel": eg.accel,
+        "psi": eg.psi,
+        "omega": eg.omega,
+        "offset": lateral_offset(eg, p),
+        "held": eg.held,
+        # A truncated timeout is bootstrapped, so the time must not be observed: values at
+        # time = limit are never learned as current states (Pardo et al., 2018).
+        "time": jnp.where(p.terminal_timeout, eg.steps * p.dt, 0.0),
+        "curvature": p.curvature * jnp.ones_like(eg.v),
+        "lead_gap": gap_m(nb.a1_x - L - eg.x, nb.has_a1),
+        "lead_dv": dv(nb.a1_v, nb.has_a1),
+        "lag_gap": gap_m(eg.x - L - nb.b1_x, nb.has_b1),
+        "lag_dv": dv(nb.b1_v, nb.has_b1),
+        "own_gap": gap_m(state.leader_gap, has_leader),
+        "own_dv": dv(state.leader_v, has_leader),
+    }
+    obs = jnp.stack([raw[e.name] / obs_layout.scale(e.name, p) for e in obs_layout.LAYOUT])
     return obs.astype(jnp.float32)
 
 
@@ -265,49 +257,91 @@ def _clean_action(action: Array) -> Array:
     return jnp.clip(jnp.nan_to_num(a, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
 
 
-def _advance(
-    key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool
-) -> tuple[EnvState, Array, dict[str, Array]]:
-    """One dt of traffic and ego; returns ``(state, reward, info)`` (no observation)."""
+# --- the highway step, phase by phase ------------------------------------------------------
+# ``_advance`` calls these in order; each is pure and reads only what its arguments hold.
+
+
+class Draws(NamedTuple):
+    """The step's uniform random numbers, one draw per use."""
+
+    headway: Array  # (lanes,) time to the entry after the next one, via -log(1-u)/inflow
+    entry_v: Array  # (lanes,) entry speed of the next entrant
+    entry_v0: Array  # (lanes,) desired speed of the next entrant
+    inflow: Array  # (lanes,) inflow of the episode a spawned ego starts
+    side: Array  # () left (< 0.5) or right command
+    yields: Array  # () whether the lag yields (< p_yield) once the gap is accepted
+
+    @classmethod
+    def draw(cls, key: Array, lanes: int) -> Draws:
+        u = jax.random.uniform(key, (4 * lanes + 2,))
+        headway, entry_v, entry_v0, inflow = jnp.split(u[: 4 * lanes], 4)
+        return cls(headway, entry_v, entry_v0, inflow, u[4 * lanes], u[4 * lanes + 1])
+
+
+class Motion(NamedTuple):
+    """Every vehicle one dt later, before inflow and phase changes."""
+
+    x: Array  # (lanes, slots) traffic front bumpers, m
+    v: Array  # (lanes, slots) traffic speeds, m/s
+    active: Array  # (lanes, slots) still on the road
+    ego_x: Array  # ()
+    ego_y: Array  # ()
+    ego_v: Array  # ()
+    ego_psi: Array  # ()
+    ego_omega: Array  # ()
+
+
+def held_action(ego: Ego, action: Array, p: EnvParams) -> Array:
+    """``()`` action executed this step: refreshed every k-th RL step, held in between [P],
+    0 outside the RL phase."""
+    in_rl = ego.phase == RL
+    refresh = in_rl & (ego.steps % p.k == 0)
+    return jnp.where(refresh, _clean_action(action), jnp.where(in_rl, ego.held, 0.0))
+
+
+def ego_lanes(ego: Ego, p: EnvParams) -> Array:
+    """``(lanes,)`` bool, lanes the ego's body overlaps (none while no ego is on the road)."""
+    _, hy = kinematics.half_extents(ego.psi, p.vehicle_length, p.vehicle_width)
+    return kinematics.lanes_overlapped(ego.y, hy, p.lanes, p.lane_width) & (ego.phase >= CRUISE)
+
+
+def traffic_accel(state: EnvState, p: EnvParams) -> Array:
+    """``(lanes, slots)`` IDM acceleration of every vehicle (0 for empty slots).
+
+    A vehicle's leader is its ring predecessor, or the ego when the ego is ahead and its body
+    overlaps the vehicle's lane (or, for a yielding lag, from the moment the gap is chosen)."""
     tr, eg, nb = state.traffic, state.ego, state.nb
-    L, W, dt = p.vehicle_length, p.vehicle_width, p.dt
-    lanes, slots, origin = p.lanes, p.slots_per_lane, p.lanes // 2
-    lane_ids = jnp.arange(lanes)
-    u = jax.random.uniform(key, (4 * lanes + 2,))
-    u_head, u_v, u_v0, u_flow = jnp.split(u[: 4 * lanes], 4)
-    u_dir, u_yield = u[4 * lanes], u[4 * lanes + 1]
-
-    on = eg.phase >= CRUISE
-    in_rl = eg.phase == RL
-
-    # Action: refreshed every k-th RL step, held in between [P].
-    refresh = in_rl & (eg.steps % p.k == 0)
-    held = jnp.where(refresh, _clean_action(action), jnp.where(in_rl, eg.held, 0.0))
-    a_lat = p.max_yaw_acc * held
-
-    # Leaders of the other vehicles: ring predecessor, or the ego when it is ahead and its
-    # body overlaps their lane (or, for a yielding lag, from the moment the gap is chosen).
+    on, in_rl = eg.phase >= CRUISE, eg.phase == RL
     gap_r, lead_v = _ring_leaders(tr, p)
-    hx, hy = kinematics.half_extents(eg.psi, L, W)
-    occupied = kinematics.lanes_overlapped(eg.y, hy, lanes, p.lane_width) & on  # (lanes,)
-    yields = (in_rl & eg.yielding) & (lane_ids == eg.target)[:, None] & nb.b1_mask[None, :]
+    hx, _ = kinematics.half_extents(eg.psi, p.vehicle_length, p.vehicle_width)
+    target = jnp.arange(p.lanes) == eg.target
+    yields = (in_rl & eg.yielding) & target[:, None] & nb.b1_mask[None, :]
     ego_gap = eg.x - 2.0 * hx - tr.x  # (lanes, slots)
-    use_ego = on & (eg.x > tr.x) & (occupied[:, None] | yields) & (ego_gap < gap_r)
+    use_ego = on & (eg.x > tr.x) & (ego_lanes(eg, p)[:, None] | yields) & (ego_gap < gap_r)
     gap_r = jnp.where(use_ego, ego_gap, gap_r)
     lead_v = jnp.where(use_ego, eg.v, lead_v)
-    acc = jnp.where(tr.active, idm_with_params(tr.v, tr.v0, gap_r, lead_v, p), 0.0)
+    return jnp.where(tr.active, idm_with_params(tr.v, tr.v0, gap_r, lead_v, p), 0.0)
 
-    # Ego longitudinal: IDM to its own-lane leader, "with adaptation" to the chosen gap.
-    a_ego = idm_with_params(eg.v, eg.v0, state.leader_gap, state.leader_v, p)
+
+def ego_accel(state: EnvState, p: EnvParams) -> Array:
+    """``()`` IDM acceleration of the ego toward its own-lane leader, "with adaptation" to the
+    chosen gap once it looks for one: the lower of the two."""
+    eg, nb = state.ego, state.nb
+    in_rl = eg.phase == RL
+    a_own = idm_with_params(eg.v, eg.v0, state.leader_gap, state.leader_v, p)
     seek_gap, seek_v = gap.target_leader(nb, eg.x, eg.v, p)
-    lead_gap = gap.net_gap(nb.a1_x, eg.x, L, nb.has_a1)
+    lead_gap = gap.net_gap(nb.a1_x, eg.x, p.vehicle_length, nb.has_a1)
     adapt_gap = jnp.where(in_rl, lead_gap, seek_gap)
     # With no vehicle to adapt to (gap NO_LEADER_GAP), any finite speed gives a ~ free road.
     adapt_v = jnp.where(adapt_gap >= NO_LEADER_GAP, eg.v, jnp.where(in_rl, nb.a1_v, seek_v))
     a_adapt = idm_with_params(eg.v, eg.v0, adapt_gap, adapt_v, p)
-    a_ego = jnp.where(eg.phase >= GAP, jnp.minimum(a_ego, a_adapt), a_ego)
+    return jnp.where(eg.phase >= GAP, jnp.minimum(a_own, a_adapt), a_own)
 
-    # Integrate: trapezoidal position update, speeds never negative.
+
+def move(tr: Traffic, eg: Ego, acc: Array, a_ego: Array, a_lat: Array, p: EnvParams) -> Motion:
+    """Integrate one dt: trapezoidal positions, speeds never negative; the ego's lateral state
+    by ``kinematics.lateral_step``. Vehicles past the road's end leave it."""
+    dt = p.dt
     v_new = jnp.maximum(tr.v + acc * dt, 0.0)
     x_new = tr.x + 0.5 * (tr.v + v_new) * dt
     ev = jnp.maximum(eg.v + a_ego * dt, 0.0)
@@ -315,90 +349,141 @@ def _advance(
         eg.x, eg.y, eg.psi, eg.omega, 0.5 * (eg.v + ev), a_lat, p.curvature, dt
     )
     active = tr.active & (x_new <= p.road_length)
+    return Motion(x_new, v_new, active, ex, ey, ev, epsi, eomega)
 
-    # Inflow: a lane admits its next vehicle when its timer has run out and the last entered
-    # vehicle (or the ego, if it is in that lane and further back) is far enough ahead.
-    slot_ids = jnp.arange(slots)
+
+def inflow(
+    tr: Traffic, m: Motion, occupied: Array, can_spawn: Array, u: Draws, p: EnvParams
+) -> tuple[Traffic, Array]:
+    """New vehicles at x = 0. Returns ``(traffic, spawned)``, ``spawned`` () bool.
+
+    A lane admits its next vehicle when its timer has run out and the last entered vehicle
+    (or the ego, if it is in that lane and further back) is far enough ahead. When
+    ``can_spawn`` (no ego, spawning on), the middle lane's entrant becomes the ego instead of
+    a slot, and the episode it starts draws the lanes' inflow anew."""
+    lanes, slots, origin = p.lanes, p.slots_per_lane, p.lanes // 2
+    lane_ids, slot_ids = jnp.arange(lanes), jnp.arange(slots)
     at_tail = slot_ids[None, :] == tr.tail[:, None]
     at_last = slot_ids[None, :] == ((tr.tail - 1) % slots)[:, None]
-    last_on = jnp.any(at_last & active, axis=-1)
-    front = jnp.where(last_on, jnp.sum(jnp.where(at_last, x_new, 0.0), axis=-1), gap.FAR)
-    front = jnp.where(occupied, jnp.minimum(front, ex), front)
-    timer = tr.timer - dt
-    due = (timer <= 0.0) & (front >= p.idm_s0 + tr.next_v * p.idm_time_headway + L)
-    spawned_lane = due & (lane_ids == origin) & (eg.phase == WAIT) & spawn
-    enter = due & ~spawned_lane & ~jnp.any(at_tail & active, axis=-1)
+    last_on = jnp.any(at_last & m.active, axis=-1)
+    front = jnp.where(last_on, jnp.sum(jnp.where(at_last, m.x, 0.0), axis=-1), gap.FAR)
+    front = jnp.where(occupied, jnp.minimum(front, m.ego_x), front)
+    timer = tr.timer - p.dt
+    due = (timer <= 0.0) & (front >= p.idm_s0 + tr.next_v * p.idm_time_headway + p.vehicle_length)
+    spawned_lane = due & (lane_ids == origin) & can_spawn
+    enter = due & ~spawned_lane & ~jnp.any(at_tail & m.active, axis=-1)
     entered = enter | spawned_lane
     write = at_tail & enter[:, None]
-    traffic = Traffic(
-        x=jnp.where(write, 0.0, x_new),
-        v=jnp.where(write, tr.next_v[:, None], v_new),
-        v0=jnp.where(write, tr.next_v0[:, None], tr.v0),
-        active=active | write,
-        tail=(tr.tail + enter) % slots,
-        timer=jnp.where(entered, -jnp.log1p(-u_head) / tr.inflow, timer),
-        next_v=jnp.where(entered, _between(u_v, p.entry_speed_min, p.entry_speed_max), tr.next_v),
-        next_v0=jnp.where(
-            entered, _between(u_v0, p.desired_speed_min, p.desired_speed_max), tr.next_v0
-        ),
-        inflow=tr.inflow,
-    )
-
-    # Ego phases.
     spawned = spawned_lane[origin]
-    traffic = traffic.replace(
-        inflow=jnp.where(spawned, _between(u_flow, p.inflow_min, p.inflow_max), tr.inflow)
+    traffic = Traffic(
+        x=jnp.where(write, 0.0, m.x),
+        v=jnp.where(write, tr.next_v[:, None], m.v),
+        v0=jnp.where(write, tr.next_v0[:, None], tr.v0),
+        active=m.active | write,
+        tail=(tr.tail + enter) % slots,
+        timer=jnp.where(entered, -jnp.log1p(-u.headway) / tr.inflow, timer),
+        next_v=jnp.where(
+            entered, _between(u.entry_v, p.entry_speed_min, p.entry_speed_max), tr.next_v
+        ),
+        next_v0=jnp.where(
+            entered, _between(u.entry_v0, p.desired_speed_min, p.desired_speed_max), tr.next_v0
+        ),
+        inflow=jnp.where(spawned, _between(u.inflow, p.inflow_min, p.inflow_max), tr.inflow),
     )
-    y_origin = (origin + 0.5) * p.lane_width
+    return traffic, spawned
+
+
+def ego_phase(
+    eg: Ego,
+    m: Motion,
+    a_ego: Array,
+    held: Array,
+    spawned: Array,
+    tr: Traffic,
+    u: Draws,
+    p: EnvParams,
+) -> Ego:
+    """The ego after the move: a spawned ego starts CRUISE at x = 0 in the middle lane with the
+    entrant's speeds (``tr``, the traffic before inflow); a cruising ego that has travelled
+    ``command_distance`` gets a left or right command (toward the road when the lane beside is
+    missing) and enters GAP. RL steps and gap-search time are counted here."""
+    origin = p.lanes // 2
+    in_rl = eg.phase == RL
     phase = jnp.where(spawned, CRUISE, eg.phase)
-    ex = jnp.where(spawned, 0.0, ex)
+    ex = jnp.where(spawned, 0.0, m.ego_x)
     command = (phase == CRUISE) & (ex >= p.command_distance)
-    side = jnp.where(u_dir < 0.5, 1, -1)
+    side = jnp.where(u.side < 0.5, 1, -1)
     target = origin + side
-    target = jnp.where((target < 0) | (target >= lanes), origin - side, target)
-    ego = Ego(
+    target = jnp.where((target < 0) | (target >= p.lanes), origin - side, target)
+    return Ego(
         phase=jnp.where(command, GAP, phase),
         x=ex,
-        y=jnp.where(spawned, y_origin, ey),
-        v=jnp.where(spawned, tr.next_v[origin], ev),
+        y=jnp.where(spawned, (origin + 0.5) * p.lane_width, m.ego_y),
+        v=jnp.where(spawned, tr.next_v[origin], m.ego_v),
         v0=jnp.where(spawned, tr.next_v0[origin], eg.v0),
         accel=jnp.where(spawned, 0.0, a_ego),
-        psi=jnp.where(spawned, 0.0, epsi),
-        omega=jnp.where(spawned, 0.0, eomega),
+        psi=jnp.where(spawned, 0.0, m.ego_psi),
+        omega=jnp.where(spawned, 0.0, m.ego_omega),
         held=held,
         target=jnp.where(command, target, eg.target).astype(jnp.int32),
         steps=eg.steps + in_rl,
-        gap_time=jnp.where(command, 0.0, eg.gap_time + dt * (eg.phase == GAP)),
+        gap_time=jnp.where(command, 0.0, eg.gap_time + p.dt * (eg.phase == GAP)),
         yielding=eg.yielding,
         ep_return=eg.ep_return,
     )
-    nb_new, leader_gap, leader_v = _observe_lanes(traffic, ego, p)
 
-    # Collision: the ego's (heading-aligned) bounding box against every vehicle's box.
-    hx2, hy2 = kinematics.half_extents(ego.psi, L, W)
-    lane_y = ((lane_ids + 0.5) * p.lane_width)[:, None]
-    overlap = (jnp.abs(ego.x - hx2 - (traffic.x - 0.5 * L)) < hx2 + 0.5 * L) & (
-        jnp.abs(ego.y - lane_y) < hy2 + 0.5 * W
+
+def collided(traffic: Traffic, ego: Ego, spawned: Array, p: EnvParams) -> Array:
+    """``()`` bool: the ego's heading-aligned bounding box overlaps a vehicle's box (a just
+    spawned ego, at the road's start, is not checked)."""
+    L, W = p.vehicle_length, p.vehicle_width
+    hx, hy = kinematics.half_extents(ego.psi, L, W)
+    lane_y = ((jnp.arange(p.lanes) + 0.5) * p.lane_width)[:, None]
+    overlap = (jnp.abs(ego.x - hx - (traffic.x - 0.5 * L)) < hx + 0.5 * L) & (
+        jnp.abs(ego.y - lane_y) < hy + 0.5 * W
     )
-    collided = (ego.phase >= CRUISE) & ~spawned & jnp.any(traffic.active & overlap)
+    return (ego.phase >= CRUISE) & ~spawned & jnp.any(traffic.active & overlap)
 
-    # RL step: reward and end of the manoeuvre.
-    offset = lateral_offset(ego, p)
-    r_s, r_e, r_d = (
-        jnp.where(in_rl, r, 0.0) for r in reward.reward_terms(ego.omega, a_lat, offset, collided, p)
-    )
-    r = r_s + r_e + r_d
-    rl_reason = reward.end_reason(offset, ego.psi, ego.omega, ego.steps, collided, p)
 
-    # Gap phase: accept the gap beside, or give up after the time or distance limit.
+def gap_decision(ego: Ego, nb: gap.Neighbours, p: EnvParams) -> tuple[Array, Array]:
+    """``(accept, no_gap)``: in GAP, accept the gap beside the ego, or give up once the time or
+    distance limit is reached without one."""
     looking = ego.phase == GAP
-    accept = looking & gap.beside_acceptable(nb_new, ego.x, ego.v, p)
+    accept = looking & gap.beside_acceptable(nb, ego.x, ego.v, p)
     no_gap = looking & ~accept & ((ego.gap_time >= p.gap_time_limit) | (ego.x >= p.gap_x_limit))
-    reason = jnp.where(
-        in_rl,
-        rl_reason,
-        jnp.where(collided, reward.COLLISION, jnp.where(no_gap, reward.NO_GAP, reward.NONE)),
-    ).astype(jnp.int32)
+    return accept, no_gap
+
+
+def end_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
+    """``()`` int32 reason code of ``jaxlc.reward.REASONS``: the RL manoeuvre's own, else a
+    collision or no gap before it, else NONE."""
+    before_rl = jnp.where(crashed, reward.COLLISION, jnp.where(no_gap, reward.NO_GAP, reward.NONE))
+    return jnp.where(in_rl, rl_reason, before_rl).astype(jnp.int32)
+
+
+def _advance(
+    key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool
+) -> tuple[EnvState, Array, dict[str, Array]]:
+    """One dt of traffic and ego; returns ``(state, reward, info)`` (no observation)."""
+    tr, eg = state.traffic, state.ego
+    u = Draws.draw(key, p.lanes)
+    in_rl = eg.phase == RL
+    held = held_action(eg, action, p)
+    a_lat = p.max_yaw_acc * held
+    a_ego = ego_accel(state, p)
+    m = move(tr, eg, traffic_accel(state, p), a_ego, a_lat, p)
+    traffic, spawned = inflow(tr, m, ego_lanes(eg, p), (eg.phase == WAIT) & spawn, u, p)
+    ego = ego_phase(eg, m, a_ego, held, spawned, tr, u, p)
+    nb, leader_gap, leader_v = _observe_lanes(traffic, ego, p)
+    crashed = collided(traffic, ego, spawned, p)
+
+    offset = lateral_offset(ego, p)
+    terms = reward.reward_terms(ego.omega, a_lat, offset, crashed, p)
+    r_s, r_e, r_d = (jnp.where(in_rl, r, 0.0) for r in terms)
+    r = r_s + r_e + r_d
+    rl_reason = reward.end_reason(offset, ego.psi, ego.omega, ego.steps, crashed, p)
+    accept, no_gap = gap_decision(ego, nb, p)
+    reason = end_reason(in_rl, rl_reason, crashed, no_gap)
     ended = reason != reward.NONE
 
     ep_return = jnp.where(in_rl, eg.ep_return + r, 0.0)
@@ -407,17 +492,10 @@ def _advance(
         psi=jnp.where(accept, 0.0, ego.psi),
         omega=jnp.where(accept, 0.0, ego.omega),
         steps=jnp.where(accept, 0, ego.steps).astype(jnp.int32),
-        yielding=jnp.where(accept, u_yield < p.p_yield, ego.yielding),
+        yielding=jnp.where(accept, u.yields < p.p_yield, ego.yielding),
         ep_return=ep_return,
     )
-    state = EnvState(
-        traffic=traffic,
-        ego=ego,
-        nb=nb_new,
-        leader_gap=leader_gap,
-        leader_v=leader_v,
-        time=state.time + 1,
-    )
+    state = EnvState(traffic, ego, nb, leader_gap, leader_v, state.time + 1)
     info = {
         "rl_step": in_rl,
         "phase": ego.phase,

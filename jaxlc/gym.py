@@ -10,15 +10,10 @@
 
     envs = gym.make_vec("jaxlc/LaneChange-v0", num_envs=64)  # LaneChangeVectorEnv, one jit call
 
-The functional env (``jaxlc.env``) advances the whole highway every dt while the ego goes
-through WAIT/CRUISE/GAP before the RL phase; only RL-phase steps are decisions. These wrappers
-hide the rest: after a reset, and after the step that ends a manoeuvre, one jitted
-``lax.while_loop`` (``fast_forward``) runs the simulator with no action through WAIT, CRUISE
-and GAP, and through whole episodes that end before any RL step (no gap found, or a collision
-before the gap was accepted), until the next gap is accepted or ``max_skip_steps`` steps ran.
-So a gym episode is exactly one lane change, each ``step`` is one RL decision, and
-``terminated``/``truncated`` mean what they mean in the functional env (success, out of bounds
-and collision terminate; the 10 s timeout truncates, so a learner bootstraps from it).
+Each ``step`` is one RL decision and an episode exactly one lane change: the traffic before a
+manoeuvre runs inside (``jaxlc.decision``, shared with the gymnax env). ``terminated`` /
+``truncated`` mean what they mean in the functional env (success, out of bounds and collision
+terminate; the 10 s timeout truncates, so a learner bootstraps from it).
 
 Randomness: one JAX key per env. ``reset(seed=s)`` starts from ``PRNGKey(s)``; ``reset_core``
 and ``step_core`` split it once per simulator step, always in the same order, so a wrapper
@@ -28,17 +23,8 @@ next ego (its first observation was computed by the step that ended the episode)
 of an episode it starts a fresh road (new warm-up) drawn from the key stream. A ``reset()``
 with no seed before any seeded one draws the key from ``self.np_random``.
 
-Observation bounds (``observation_bounds``): the 14 entries of ``jaxlc.env.observation``,
-bounded from the normalisation there and the facts the simulator guarantees while the ego is
-under RL control (the only states these wrappers return): speeds never exceed
-``max(entry_speed_max, desired_speed_max)`` (IDM never accelerates past v0); IDM acceleration
-lies in [-idm_b_max, idm_a_max]; psi and omega are zeroed when the gap is accepted and then
-grow by at most ``max_yaw_acc*dt`` per step for at most ``n = round(manoeuvre_time_limit/dt)``
-steps; the offset starts at +-lane_width and moves at most ``v_max*dt`` a step, and a manoeuvre
-ends once it passes ``border``; gaps are clipped to [-10, 100] m. Each bound is widened by
-0.1 % (at least 1e-3) for float32 rounding. With the default curvature 0 these are finite and
-hold for every observation; with a curvature the ego's heading drifts during CRUISE/GAP (psi
-integrates -curvature*v with omega = 0), so psi and offset are then left unbounded.
+The observation space's bounds are ``jaxlc.observation.bounds`` (why each holds is written
+there): finite for the default curvature 0; with a curvature, psi and offset are unbounded.
 """
 
 from __future__ import annotations
@@ -56,115 +42,13 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from jax import Array
 
+from jaxlc import observation as obs_layout
 from jaxlc.config import Config, EnvConfig
-from jaxlc.env import (
-    _GAP_CLIP,
-    _OBS_SCALE,
-    ACT_DIM,
-    OBS_DIM,
-    RL,
-    EnvParams,
-    EnvState,
-    LaneChangeEnv,
-    make,
-    observation,
-)
-from jaxlc.reward import NONE, REASONS
+from jaxlc.decision import DEFAULT_MAX_SKIP_STEPS, reset_core, step_core
+from jaxlc.env import ACT_DIM, OBS_DIM, EnvParams, EnvState, make
+from jaxlc.reward import REASONS
 
 ENV_ID = "jaxlc/LaneChange-v0"
-# Env-steps the fast-forward may run before giving up: ~33 simulated minutes, far beyond the
-# ~30 s one episode takes (an ego needs ~15-25 s to reach the command point, then at most 5 s
-# of gap search), so only a config in which no gap is ever acceptable reaches it.
-DEFAULT_MAX_SKIP_STEPS = 20_000
-_ENV = LaneChangeEnv()
-_NO_ACTION = jnp.zeros(ACT_DIM, jnp.float32)
-
-
-# --- pure core ------------------------------------------------------------------------------
-
-
-def fast_forward(
-    key: Array, state: EnvState, params: EnvParams, max_steps: Array | int
-) -> tuple[Array, EnvState, Array, Array]:
-    """Step with no action until the ego is under RL control, at most ``max_steps`` steps.
-
-    Returns ``(key, state, steps_run, episodes_ended)``; the last counts episodes that ended
-    without an RL step (no gap, or a collision before the gap was accepted). A state already
-    in the RL phase is returned as it is, key included.
-    """
-
-    def cond(carry: tuple[Array, EnvState, Array, Array]) -> Array:
-        _, s, n, _ = carry
-        return (s.ego.phase != RL) & (n < max_steps)
-
-    def body(carry: tuple[Array, EnvState, Array, Array]) -> tuple[Array, EnvState, Array, Array]:
-        key, s, n, ended = carry
-        key, k = jax.random.split(key)
-        _, s, _, _, _, info = _ENV.step(k, s, _NO_ACTION, params)
-        return key, s, n + 1, ended + (info["reason"] != NONE)
-
-    zero = jnp.int32(0)
-    return jax.lax.while_loop(cond, body, (key, state, zero, zero))
-
-
-def reset_core(
-    key: Array, params: EnvParams, max_steps: Array | int
-) -> tuple[Array, EnvState, dict[str, Array]]:
-    """A fresh road (``env.reset``), then ``fast_forward`` to the first RL decision.
-
-    Returns ``(key, state, out)`` with ``out``: ``obs``, ``ready`` (the ego is under RL
-    control; False only if ``max_steps`` ran out), ``skipped_steps``, ``skipped_episodes``,
-    ``target_lane``.
-    """
-    key, k_reset = jax.random.split(key)
-    _, state = _ENV.reset(k_reset, params)
-    key, state, n, ended = fast_forward(key, state, params, max_steps)
-    out = {
-        "obs": observation(state, params),
-        "ready": state.ego.phase == RL,
-        "skipped_steps": n,
-        "skipped_episodes": ended,
-        "target_lane": state.ego.target,
-    }
-    return key, state, out
-
-
-def step_core(
-    key: Array, state: EnvState, action: Array, params: EnvParams, max_steps: Array | int
-) -> tuple[Array, EnvState, EnvState, dict[str, Array]]:
-    """One RL decision of an env whose ego is under RL control.
-
-    One ``env.step``; if it ended the manoeuvre, ``fast_forward`` to the next one. Returns
-    ``(key, state_after_step, next_state, out)``: ``state_after_step`` is the state the
-    step produced (terminal when the manoeuvre ended), ``next_state`` the one to act in next
-    (the same state when the manoeuvre goes on). ``out`` holds the step's ``obs``, ``reward``,
-    ``terminated``, ``truncated``, info terms, and ``next_obs``/``ready``/``skipped_*``/
-    ``target_lane`` of ``next_state``.
-    """
-    key, k = jax.random.split(key)
-    obs, after, reward, terminated, truncated, info = _ENV.step(k, state, action, params)
-    key, nxt, n, ended = fast_forward(key, after, params, max_steps)
-    out = {
-        "obs": obs,
-        "reward": reward,
-        "terminated": terminated,
-        "truncated": truncated,
-        "rl_step": info["rl_step"],
-        "reason_code": info["reason"],
-        "r_s": info["r_s"],
-        "r_e": info["r_e"],
-        "r_d": info["r_d"],
-        "episode_return": info["episode_return"],
-        "episode_steps": info["episode_steps"],
-        "offset": info["offset"],
-        "action": info["action"],
-        "next_obs": observation(nxt, params),
-        "ready": nxt.ego.phase == RL,
-        "skipped_steps": n,
-        "skipped_episodes": ended,
-        "target_lane": nxt.ego.target,
-    }
-    return key, after, nxt, out
 
 
 # Everything the host reads after a call travels as ONE float32 vector: fetching ~18 separate
@@ -257,62 +141,6 @@ def _programs(params: EnvParams, max_steps: int, keep_terminal: bool) -> _Progra
         vreset=jax.jit(jax.vmap(reset)),
         vstep=jax.jit(jax.vmap(vstep)),
     )
-
-
-def observation_bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
-    """``(low, high)`` float32 bounds of every observation the wrappers return (see the
-    module docstring for why each holds)."""
-    p = params
-    v_max = max(float(p.entry_speed_max), float(p.desired_speed_max))
-    n = round(float(p.manoeuvre_time_limit) / float(p.dt))
-    dt, w = float(p.dt), float(p.lane_width)
-    kappa = float(p.curvature)
-    omega = float(p.max_yaw_acc) * dt * n
-    psi = float(p.max_yaw_acc) * dt * dt * n * (n + 1) / 2
-    offset = max(w, float(p.border)) + v_max * dt
-    if kappa != 0.0:
-        psi = offset = np.inf
-    g_lo, g_hi = _GAP_CLIP[0] / 100.0, _GAP_CLIP[1] / 100.0
-    dv = v_max / 10.0
-    high = np.array(
-        [
-            v_max / _OBS_SCALE[0],
-            float(p.idm_a_max) / _OBS_SCALE[1],
-            psi / _OBS_SCALE[2],
-            omega / _OBS_SCALE[3],
-            offset / float(p.offset_obs_scale),
-            1.0,
-            n * dt / float(p.manoeuvre_time_limit),
-            abs(kappa) * 100.0,
-            g_hi,
-            dv,
-            g_hi,
-            dv,
-            g_hi,
-            dv,
-        ]
-    )
-    low = np.array(
-        [
-            0.0,
-            -float(p.idm_b_max) / _OBS_SCALE[1],
-            -high[2],
-            -high[3],
-            -high[4],
-            -1.0,
-            0.0,
-            -abs(kappa) * 100.0,
-            g_lo,
-            -dv,
-            g_lo,
-            -dv,
-            g_lo,
-            -dv,
-        ]
-    )
-    assert low.shape == (OBS_DIM,)
-    pad = 1e-3 * np.maximum(1.0, np.abs(np.where(np.isfinite(high), high, 0.0)))
-    return (low - pad).astype(np.float32), (high + pad).astype(np.float32)
 
 
 def render_frame(
@@ -411,7 +239,7 @@ def _configure(
     env.params = params if params is not None else make(config, k=k)[1]
     env.render_mode = render_mode
     env.max_skip_steps = int(max_skip_steps)
-    low, high = observation_bounds(env.params)
+    low, high = obs_layout.bounds(env.params)
     obs_space = spaces.Box(low, high, (OBS_DIM,), np.float32)
     return obs_space, spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
 

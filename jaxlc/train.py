@@ -31,8 +31,9 @@ from jax.sharding import PartitionSpec as P
 
 from jaxlc import ddpg, replay, tree
 from jaxlc.config import Config, ConfigError, TrainConfig
-from jaxlc.env import ACT_DIM, MIRROR_SIGNS, OBS_DIM, EnvParams, EnvState, LaneChangeEnv
+from jaxlc.env import ACT_DIM, EnvParams, EnvState, LaneChangeEnv
 from jaxlc.networks import make_networks
+from jaxlc.observation import MIRROR_SIGNS, OBS_DIM
 from jaxlc.reward import SUCCESS
 
 # Fewest env-steps one episode can take: the ego must drive command_distance (80 m) from the

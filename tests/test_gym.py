@@ -19,6 +19,7 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
 import jaxlc
 import jaxlc.gym as G
+import jaxlc.observation as O
 from jaxlc.controller import scripted_action
 from jaxlc.env import RL, LaneChangeEnv
 from jaxlc.reward import REASONS
@@ -226,12 +227,12 @@ def test_render_draws_the_scene(params):
 
 
 def test_observation_bounds_follow_the_params(params):
-    low, high = G.observation_bounds(params)
+    low, high = O.bounds(params)
     assert low.shape == high.shape == (14,) and np.all(low < high)
     wider = params.replace(manoeuvre_time_limit=20.0)
-    assert G.observation_bounds(wider)[1][3] > high[3]  # omega can grow for longer
+    assert O.bounds(wider)[1][3] > high[3]  # omega can grow for longer
     curved = params.replace(curvature=0.002)
-    assert np.isinf(G.observation_bounds(curved)[1][2])  # heading drifts before the RL phase
+    assert np.isinf(O.bounds(curved)[1][2])  # heading drifts before the RL phase
     for scale in (1.0, 7.4):  # the offset's bound is in the env's units, whatever they are
         scaled = params.replace(offset_obs_scale=scale)
         env = G.LaneChangeGymEnv(params=scaled)

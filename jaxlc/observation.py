@@ -1,0 +1,106 @@
+"""The observation's layout: one table of what each entry is, how it is scaled and how it
+reflects, read by the simulator (``env.observation``), the scripted controller, the gym bounds
+and the mirror augmentation alike.
+
+Entry ``i`` of the ``(OBS_DIM,)`` observation is ``raw_i / scale_i``; a scale named by a string
+is that ``EnvParams`` field (it can differ between models). Gaps are net (bumper to bumper),
+clipped to ``GAP_CLIP`` m; a missing vehicle reads gap 100 m and dv 0, dv = v_other - v.
+``mirror`` is the entry's sign under the reflection y -> -y (lateral quantities flip).
+
+    from jaxlc.observation import INDEX, scale
+    offset_m = obs[..., INDEX["offset"]] * scale("offset", params)
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from jaxlc.env import EnvParams
+
+
+class Entry(NamedTuple):
+    name: str
+    scale: float | str  # divisor; a str names the EnvParams field that holds it
+    mirror: float  # sign under y -> -y
+    meaning: str
+
+
+GAP_CLIP = (-10.0, 100.0)  # m, net gaps are clipped to this before scaling
+
+LAYOUT: tuple[Entry, ...] = (
+    Entry("v", 30.0, 1.0, "ego speed, m/s"),
+    Entry("accel", 3.0, 1.0, "ego longitudinal acceleration, m/s^2"),
+    Entry("psi", 0.1, -1.0, "heading relative to the road, rad"),
+    Entry("omega", 0.1, -1.0, "yaw rate, rad/s"),
+    Entry("offset", "offset_obs_scale", -1.0, "signed offset from the target lane's centre, m"),
+    Entry("held", 1.0, -1.0, "action being executed (held for k steps), in [-1, 1]"),
+    # 0 unless terminal_timeout: a bootstrapped timeout must not be observable (env.observation).
+    Entry("time", "manoeuvre_time_limit", 1.0, "manoeuvre time, s"),
+    Entry("curvature", 0.01, -1.0, "road curvature, 1/m"),
+    Entry("lead_gap", 100.0, 1.0, "net gap to the target lane's leader, m"),
+    Entry("lead_dv", 10.0, 1.0, "target lane's leader speed minus ego speed, m/s"),
+    Entry("lag_gap", 100.0, 1.0, "net gap to the target lane's follower, m"),
+    Entry("lag_dv", 10.0, 1.0, "target lane's follower speed minus ego speed, m/s"),
+    Entry("own_gap", 100.0, 1.0, "net gap to the leader in the lane holding the ego's centre, m"),
+    Entry("own_dv", 10.0, 1.0, "that leader's speed minus ego speed, m/s"),
+)
+OBS_DIM = len(LAYOUT)
+INDEX = {e.name: i for i, e in enumerate(LAYOUT)}
+# The task is symmetric under y -> -y (lanes alike, left and right commands equally likely,
+# the reward even in omega, a_lat and offset), so a reflected transition (obs and next obs
+# times these signs, action negated) is one the env could have produced: ``ddpg.mirror``.
+MIRROR_SIGNS = tuple(e.mirror for e in LAYOUT)
+
+
+def scale(name: str, params: EnvParams):
+    """The divisor of entry ``name`` under ``params`` (a float, or a traced param)."""
+    s = LAYOUT[INDEX[name]].scale
+    return getattr(params, s) if isinstance(s, str) else s
+
+
+def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` float32 bounds of every observation taken while the ego is under RL
+    control (the only ones the decision-step wrappers return).
+
+    Each follows from the simulator: speeds never exceed ``max(entry_speed_max,
+    desired_speed_max)`` (IDM never accelerates past v0); IDM acceleration lies in
+    [-idm_b_max, idm_a_max]; psi and omega are zeroed when the gap is accepted and then grow by
+    at most ``max_yaw_acc*dt`` per step for at most ``n = round(manoeuvre_time_limit/dt)``
+    steps; the offset starts at +-lane_width and moves at most ``v_max*dt`` a step, and a
+    manoeuvre ends once it passes ``border``; gaps are clipped to ``GAP_CLIP``. Each bound is
+    widened by 0.1 % (at least 1e-3) for float32 rounding. With a curvature the heading drifts
+    before the RL phase (psi integrates -curvature*v with omega = 0), so psi and offset are
+    then unbounded.
+    """
+    p = params
+    v_max = max(float(p.entry_speed_max), float(p.desired_speed_max))
+    dt = float(p.dt)
+    n = round(float(p.manoeuvre_time_limit) / dt)
+    kappa = abs(float(p.curvature))
+    omega = float(p.max_yaw_acc) * dt * n
+    psi = float(p.max_yaw_acc) * dt * dt * n * (n + 1) / 2
+    offset = max(float(p.lane_width), float(p.border)) + v_max * dt
+    if kappa != 0.0:
+        psi = offset = np.inf
+    raw = {  # name -> (low, high) before scaling
+        "v": (0.0, v_max),
+        "accel": (-float(p.idm_b_max), float(p.idm_a_max)),
+        "psi": (-psi, psi),
+        "omega": (-omega, omega),
+        "offset": (-offset, offset),
+        "held": (-1.0, 1.0),
+        "time": (0.0, n * dt),
+        "curvature": (-kappa, kappa),
+    }
+    for side in ("lead", "lag", "own"):
+        raw[f"{side}_gap"] = GAP_CLIP
+        raw[f"{side}_dv"] = (-v_max, v_max)
+    assert raw.keys() == INDEX.keys()
+    div = np.array([float(scale(e.name, p)) for e in LAYOUT])
+    low = np.array([raw[e.name][0] for e in LAYOUT]) / div
+    high = np.array([raw[e.name][1] for e in LAYOUT]) / div
+    pad = 1e-3 * np.maximum(1.0, np.abs(np.where(np.isfinite(high), high, 0.0)))
+    return (low - pad).astype(np.float32), (high + pad).astype(np.float32)
