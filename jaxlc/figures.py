@@ -36,7 +36,7 @@ from matplotlib.patches import Rectangle  # noqa: E402
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 
 from jaxlc import config, stats  # noqa: E402
-from jaxlc.evaluate import OUTCOMES, rank_models  # noqa: E402
+from jaxlc.results import OUTCOMES, rank_models  # noqa: E402
 
 # The paper's groups for Fig. 3 (one hyperparameter varies in each).
 GROUPS = (

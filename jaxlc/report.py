@@ -17,7 +17,7 @@ from typing import Any
 
 from jaxlc import stats
 from jaxlc.checkpoint import write_text_atomic
-from jaxlc.evaluate import OUTCOMES, EvalError, rank_models
+from jaxlc.results import OUTCOMES, EvalError, rank_models
 from jaxlc.stats import final_rows
 
 FIGURES = (

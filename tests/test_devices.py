@@ -31,10 +31,10 @@ SCRIPT = textwrap.dedent("""
         for a, b in zip(jax.tree.leaves(results[1]), jax.tree.leaves(results[n]), strict=True):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-5)
     # Evaluation lays its policies over the devices the same way (5 policies: padded to 6).
-    from jaxlc import evaluate
+    from jaxlc import cases
     actors = [jax.tree.map(lambda a, i=i: a[i], results[1].learner.actor) for i in range(4)]
     evals = {
-        n: evaluate.evaluate_policies(cfg, [None, *actors], [1, 1, 1, 2, 2], cases=6,
+        n: cases.evaluate_policies(cfg, [None, *actors], [1, 1, 1, 2, 2], cases=6,
                                       max_steps=600, traced=1, devices=n)[0]
         for n in (1, 3)
     }

@@ -15,9 +15,9 @@ import jax
 import numpy as np
 import pytest
 
-from jaxlc import checkpoint, config, evaluate, sweep
-from jaxlc.evaluate import OUTCOMES
+from jaxlc import cases, checkpoint, config, evaluate, results, sweep
 from jaxlc.report import FIGURES
+from jaxlc.results import OUTCOMES
 from jaxlc.train import policy
 
 from .conftest import HANG_GUARD_S
@@ -36,8 +36,8 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, config.Config, 
 
 
 def _evaluate(cfg: config.Config, actors: list, ks: list[int]) -> list[dict]:
-    out, _, _ = evaluate.evaluate_policies(cfg, actors, ks, cases=CASES, chunk=CHUNK)
-    return evaluate.summarise(out, cfg.env.dt), out
+    out, _, _ = cases.evaluate_policies(cfg, actors, ks, cases=CASES, chunk=CHUNK)
+    return results.summarise(out, cfg.env.dt), out
 
 
 def test_default_episodes_are_the_papers() -> None:
@@ -57,9 +57,9 @@ def test_outcome_counts_add_up_to_the_cases(run) -> None:
         assert sum(r[o] for o in OUTCOMES) == CASES
         assert r["performed"] == result["performed"]  # the same cases for every policy
         assert r["success"] + r["out_of_bounds"] + r["timeout"] <= r["performed"]
-    cases = np.load(run_dir / "eval" / "cases.npz")
-    assert cases["reason"].shape == (len(rows), CASES)
-    assert set(np.unique(cases["reason"])) <= set(range(len(OUTCOMES)))
+    per_case = np.load(run_dir / "eval" / "cases.npz")
+    assert per_case["reason"].shape == (len(rows), CASES)
+    assert set(np.unique(per_case["reason"])) <= set(range(len(OUTCOMES)))
     csv_lines = (run_dir / "eval" / "eval.csv").read_text().strip().splitlines()
     assert len(csv_lines) == 1 + len(rows)
 
@@ -83,7 +83,7 @@ def test_evaluating_a_checkpoint_twice_is_identical(run) -> None:
 def test_checkpoint_file_gives_the_saved_params_actions(run, tmp_path: Path) -> None:
     _, cfg, _ = run
     # Non-trivial params (a fresh actor's small last layer would act ~0 everywhere).
-    fresh = evaluate.init_actor(cfg, jax.random.PRNGKey(7))
+    fresh = cases.init_actor(cfg, jax.random.PRNGKey(7))
     leaves, tree = jax.tree.flatten(fresh)
     keys = jax.random.split(jax.random.PRNGKey(8), len(leaves))
     params = jax.tree.unflatten(
@@ -104,7 +104,7 @@ def test_checkpoint_file_gives_the_saved_params_actions(run, tmp_path: Path) -> 
 
 def test_scripted_succeeds_where_a_random_actor_fails(run) -> None:
     _, cfg, _ = run
-    random_actor = evaluate.init_actor(cfg, jax.random.PRNGKey(1))
+    random_actor = cases.init_actor(cfg, jax.random.PRNGKey(1))
     rows, _ = _evaluate(cfg, [None, random_actor, None, random_actor], [1, 1, 1, 1])
     scripted, rand = rows[0], rows[1]
     assert scripted["performed"] >= 20  # enough lane changes for the rates to mean something
@@ -129,10 +129,10 @@ def test_every_figure_and_the_report_are_written(run) -> None:
 
 def test_manoeuvres_keep_their_final_state(run) -> None:
     run_dir, cfg, result = run
-    cases = np.load(run_dir / "eval" / "cases.npz")
-    reason = cases["reason"]  # (policies, cases); "performed" is the cases' (the same for all)
-    performed = np.broadcast_to(cases["performed"], reason.shape)
-    final = {n: cases[n] for n in ("final_offset", "final_psi", "final_omega")}
+    per_case = np.load(run_dir / "eval" / "cases.npz")
+    reason = per_case["reason"]  # (policies, cases); "performed" is the cases' (the same for all)
+    performed = np.broadcast_to(per_case["performed"], reason.shape)
+    final = {n: per_case[n] for n in ("final_offset", "final_psi", "final_omega")}
     for name, v in final.items():
         assert np.isfinite(v[performed]).all() and np.isnan(v[~performed]).all(), name
     # The last step decided the outcome: successes end inside the success box, timeouts

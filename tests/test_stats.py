@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxlc import evaluate, figures, report, stats
-from jaxlc.evaluate import OUTCOMES
+from jaxlc import evaluate, figures, report, results, stats
+from jaxlc.results import OUTCOMES
 from jaxlc.sweep import PAPER_LABELS
 
 from .conftest import HANG_GUARD_S
@@ -49,7 +49,7 @@ def _rows(success: dict[tuple[int, int], list[float]]) -> list[dict]:
                 )
     for r in rows:  # what the report's every-model table reads
         r.update({o: 0 for o in OUTCOMES}, cases=100, performed=70, checkpoint=None)
-        r.update(dict.fromkeys(evaluate.MEASURES[2:], 0.0))
+        r.update(dict.fromkeys(results.MEASURES[2:], 0.0))
         r.setdefault("success_rate", 1.0)
         r.setdefault("avg_return", -140.0)
     return rows
