@@ -31,7 +31,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from jaxlc import checkpoint, config, env, train  # noqa: E402
+from jaxlc import checkpoint, config, env  # noqa: E402
+from jaxlc.policy import actor_fn  # noqa: E402
 from jaxlc.reward import NONE  # noqa: E402
 
 
@@ -50,7 +51,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     cfg = config.load(args.checkpoint.parents[2] / "config.toml")
     k = int(meta["k"])
     lenv, p = env.make(cfg, k=k)
-    act = train.policy(params, cfg)
+    act = actor_fn(params, cfg.ddpg.hidden)
     at = round(args.at / p.dt)
 
     def drive(carry, key):  # the policy, no noise; capture each env's first stalled state

@@ -36,6 +36,7 @@ __all__ = [
 
 # A sweep's full training state (``RUN_DIR/state/``): not a checkpoint, read by --resume.
 TRAIN_STATE_FILE = "train_state.msgpack"
+CHECKPOINTS_DIR = "checkpoints"  # under a run directory
 
 
 class CheckpointError(Exception):
@@ -315,7 +316,7 @@ def list_checkpoints(run_dir: str | os.PathLike[str]) -> list[Path]:
 
     Sorted by the ``model``, ``seed`` and ``episode`` recorded in each JSON.
     """
-    root = Path(run_dir) / "checkpoints"
+    root = Path(run_dir) / CHECKPOINTS_DIR
     found = []
     for json_path in root.rglob("*.json"):
         msgpack_path = json_path.with_suffix(".msgpack")

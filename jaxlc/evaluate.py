@@ -44,6 +44,7 @@ from jaxlc.cases import evaluate_policies, init_actor
 from jaxlc.checkpoint import CheckpointError
 from jaxlc.env import ACT_DIM
 from jaxlc.observation import OBS_DIM
+from jaxlc.policy import widths
 from jaxlc.results import (
     EVAL_FIELDS,
     META_KEYS,
@@ -54,6 +55,7 @@ from jaxlc.results import (
     format_table,
     summarise,
 )
+from jaxlc.rundir import RunDir
 from jaxlc.stats import StatsError
 
 
@@ -64,13 +66,12 @@ def default_episodes(every: int, final: int) -> list[int]:
 
 
 def _run_config(run_dir: Path) -> config.Config:
-    path = run_dir / "config.toml"
-    if not path.is_file():
+    if not RunDir(run_dir).is_run():
         raise EvalError(
             f"{run_dir} has no config.toml, so it is not a run directory; "
             "pass the --out directory of python -m jaxlc.sweep"
         )
-    return config.load(path)
+    return RunDir(run_dir).load_config()
 
 
 def _sidecar(path: Path) -> dict[str, Any]:
@@ -96,7 +97,7 @@ def select_checkpoints(
             )
     if not found:
         raise EvalError(
-            f"no checkpoints in {run_dir / 'checkpoints'}; train first with "
+            f"no checkpoints in {RunDir(run_dir).checkpoints}; train first with "
             f"python -m jaxlc.sweep --out {run_dir}"
         )
     if model is not None:
@@ -141,7 +142,7 @@ def evaluate_run(
     """Evaluate a run's checkpoints and the scripted baseline (row 0); writes
     ``run_dir/eval/eval.json``, ``eval.csv``, ``cases.npz``, ``traces.npz``; returns the
     JSON's content."""
-    run_dir = Path(run_dir)
+    run_dir, rd = Path(run_dir), RunDir(run_dir)
     chosen = select_checkpoints(run_dir, episodes, model)
     cfg = _run_config(run_dir)
     shapes = checkpoint.shapes_of(init_actor(cfg))
@@ -152,18 +153,15 @@ def evaluate_run(
         cfg, [None, *actors], [1] + [m["k"] for m in metas[1:]], devices=devices, **kw
     )
     result = _result(cfg, out, info, metas, kw)
-    _write(run_dir / "eval", "eval", result)
-    write_seed_stats(run_dir / "eval", result["rows"])
+    _write(rd.eval, "eval", result)
+    write_seed_stats(rd.eval, result["rows"])
     ids = {
         "policy_model": np.asarray([-1 if m["model"] is None else m["model"] for m in metas]),
         "policy_episode": np.asarray([m["episode"] or 0 for m in metas]),
     }
-    _save_npz(run_dir / "eval" / "cases.npz", {**out, **ids, **info})
+    rd.save_npz(rd.cases, {**out, **ids, **info})
     traced_side = info["side"][info["traced"]]
-    _save_npz(
-        run_dir / "eval" / "traces.npz",
-        {**trace, **ids, "traced": info["traced"], "side": traced_side},
-    )
+    rd.save_npz(rd.traces, {**trace, **ids, "traced": info["traced"], "side": traced_side})
     return result
 
 
@@ -182,21 +180,20 @@ def evaluate_checkpoint(
     paper's env and the network widths it holds."""
     path = Path(path)
     up = path.resolve().parents
-    if run_dir is None and len(up) > 2 and (up[2] / "config.toml").is_file():
+    if run_dir is None and len(up) > 2 and RunDir(up[2]).is_run():
         run_dir = up[2]
     params, meta = checkpoint.load(path)
     if run_dir is not None:
         cfg = _run_config(Path(run_dir))
         checkpoint.load(path, expect_shapes=checkpoint.shapes_of(init_actor(cfg)))
     else:
-        mlp = params["params"]["mlp"]
-        hidden = [int(mlp[f"Dense_{i}"]["kernel"].shape[1]) for i in range(len(mlp) - 1)]
-        cfg = config.load(None, [f"ddpg.hidden={hidden}"])
+        cfg = config.load(None, [f"ddpg.hidden={list(widths(path, meta))}"])
     metas = [SCRIPTED, _row_meta(path.resolve(), meta, run_dir and Path(run_dir).resolve())]
     kw = dict(cases=cases, seed=seed, max_steps=max_steps, traced=0)
     out, _, info = evaluate_policies(cfg, [None, params], [1, int(meta.get("k", 1))], **kw)
     result = _result(cfg, out, info, metas, kw)
-    _write(Path(run_dir or path.parent) / "eval", f"{path.parent.name}_{path.stem}", result)
+    eval_dir = RunDir(run_dir).eval if run_dir else path.parent / "eval"
+    _write(eval_dir, f"{path.parent.name}_{path.stem}", result)
     return result
 
 
@@ -281,10 +278,10 @@ def write_seed_stats(out_dir: Path, rows: list[dict[str, Any]]) -> dict[str, Any
 
 
 def _eval_rows(run_dir: Path) -> list[dict[str, Any]]:
-    path = run_dir / "eval" / "eval.json"
+    path = RunDir(run_dir).eval_json
     if not path.is_file():
         raise EvalError(f"{path} is missing; run python -m jaxlc.evaluate {run_dir} first")
-    return json.loads(path.read_text(encoding="utf-8"))["rows"]
+    return RunDir.read_json(path)["rows"]
 
 
 def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
@@ -304,12 +301,6 @@ def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
     return out
 
 
-def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    checkpoint.write_bytes_atomic(path, buf.getvalue())
-
-
 def _episodes_arg(text: str) -> list[int]:
     try:
         values = [int(v) for v in text.split(",") if v.strip()]
@@ -324,8 +315,8 @@ def _episodes_arg(text: str) -> list[int]:
 
 def _host_devices(args: argparse.Namespace) -> int:
     """``machine.host_devices_for`` a chunk of policies, each an actor over every case."""
-    run_cfg = args.run_dir / "config.toml" if args.run_dir else None
-    cfg = config.load(run_cfg) if run_cfg and run_cfg.exists() else config.Config()
+    run = RunDir(args.run_dir) if args.run_dir else None
+    cfg = run.load_config() if run and run.is_run() else config.Config()
     widths = (OBS_DIM, *cfg.ddpg.hidden, ACT_DIM)
     return machine.host_devices_for(args.chunk, machine.largest_product(args.cases, widths))
 
@@ -400,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
     except (EvalError, StatsError, CheckpointError, config.ConfigError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    print(f"Wrote {args.run_dir / 'eval'}, {len(made)} figures, {path}")
+    print(f"Wrote {RunDir(args.run_dir).eval}, {len(made)} figures, {path}")
     return 0
 
 

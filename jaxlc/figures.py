@@ -35,8 +35,9 @@ from matplotlib.animation import PillowWriter  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 
-from jaxlc import config, stats  # noqa: E402
+from jaxlc import stats  # noqa: E402
 from jaxlc.results import OUTCOMES, rank_models  # noqa: E402
+from jaxlc.rundir import RunDir  # noqa: E402
 
 # The paper's groups for Fig. 3 (one hyperparameter varies in each).
 GROUPS = (
@@ -66,7 +67,7 @@ BAND_POINTS = 300  # bootstrap a training curve's band at this many points, not 
 
 def _cells(run_dir: Path) -> list[dict[str, Any]] | None:
     """Grid cells of the run with their model indices (one per seed) and paper tag."""
-    path = run_dir / "summary.json"
+    path = RunDir(run_dir).summary_json
     if not path.is_file():
         return None
     cells: dict[int, dict[str, Any]] = {}
@@ -82,16 +83,12 @@ def _colour(label: str, i: int) -> str:
     return TAG_COLOURS.get(label[:1], f"C{i % 10}")
 
 
-def _npz(path: Path) -> dict[str, np.ndarray] | None:
-    if not path.is_file():
-        return None
-    with np.load(path) as f:
-        return {k: f[k] for k in f.files}
+_npz = RunDir.load_npz
 
 
 def _eval(run_dir: Path) -> tuple[dict[str, Any], dict, dict] | None:
-    path = run_dir / "eval" / "eval.json"
-    traces, cases = _npz(run_dir / "eval" / "traces.npz"), _npz(run_dir / "eval" / "cases.npz")
+    path = RunDir(run_dir).eval_json
+    traces, cases = _npz(RunDir(run_dir).traces), _npz(RunDir(run_dir).cases)
     if not path.is_file() or traces is None or cases is None:
         return None
     return json.loads(path.read_text()), traces, cases
@@ -153,7 +150,7 @@ def _save(fig: Any, path: Path) -> Path:
 
 def fig3_returns(run_dir: Path) -> Path | None:
     """Total reward per training episode, smoothed, by the paper's model groups."""
-    cells, eps = _cells(run_dir), _npz(run_dir / "metrics" / "episodes.npz")
+    cells, eps = _cells(run_dir), _npz(RunDir(run_dir).episodes)
     if cells is None or eps is None:
         return None
     by_tag = {c["tag"]: c for c in cells if c["tag"]}
@@ -175,7 +172,7 @@ def fig3_returns(run_dir: Path) -> Path | None:
         "Fig. 3  Total reward per training episode (moving average; band: 95% interval of "
         "the mean over seeds)"
     )
-    return _save(fig, run_dir / "figures" / "fig3_returns.png")
+    return _save(fig, RunDir(run_dir).figure("fig3_returns.png"))
 
 
 def _pair(cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -187,8 +184,8 @@ def _pair(cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def fig4_steps_loss(run_dir: Path) -> Path | None:
     """(a) manoeuvre steps per training episode, (b) critic loss per training step."""
     cells = _cells(run_dir)
-    eps = _npz(run_dir / "metrics" / "episodes.npz")
-    steps = _npz(run_dir / "metrics" / "steps.npz")
+    eps = _npz(RunDir(run_dir).episodes)
+    steps = _npz(RunDir(run_dir).steps)
     if cells is None or eps is None or steps is None:
         return None
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained")
@@ -204,7 +201,7 @@ def fig4_steps_loss(run_dir: Path) -> Path | None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle("Fig. 4  Training curves (moving average; band: 95% interval over seeds)")
-    return _save(fig, run_dir / "figures" / "fig4_steps_loss.png")
+    return _save(fig, RunDir(run_dir).figure("fig4_steps_loss.png"))
 
 
 # --------------------------------------------------------------------------- evaluation
@@ -245,13 +242,13 @@ def fig6_checkpoints(run_dir: Path) -> Path | None:
         f"Fig. 6  {result['cases']} cases per checkpoint, {result['performed']} with a lane "
         "change (averages over those; band: 95% interval of the mean over seeds)"
     )
-    return _save(fig, run_dir / "figures" / "fig6_checkpoints.png")
+    return _save(fig, RunDir(run_dir).figure("fig6_checkpoints.png"))
 
 
 def profiles(run_dir: Path) -> Path | None:
     """Performance profiles, one panel per k: for each cell the share of its models whose
     success rate at their last checkpoint is above each level, with its 95% interval."""
-    path = run_dir / "eval" / "eval.json"
+    path = RunDir(run_dir).eval_json
     if not path.is_file():
         return None
     cells = stats.cells_of(json.loads(path.read_text())["rows"])
@@ -283,7 +280,7 @@ def profiles(run_dir: Path) -> Path | None:
         f"Performance profiles at each model's last checkpoint ({n} seed{'s' * (n != 1)} per "
         "cell at least; band: 95% bootstrap interval)"
     )
-    return _save(fig, run_dir / "figures" / "profiles.png")
+    return _save(fig, RunDir(run_dir).figure("profiles.png"))
 
 
 def fig_compare(table: list[dict[str, Any]], name_a: str, name_b: str, path: Path) -> Path:
@@ -351,7 +348,7 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
     if data is None or _best(data[0]) is None:
         return None
     result, tr, _ = data
-    p = config.load(run_dir / "config.toml").env
+    p = RunDir(run_dir).load_config().env
     _, prows = _best(result)
     final = prows[-1]
     fig, (a, b) = plt.subplots(2, 1, figsize=(9, 6.5), layout="constrained")
@@ -405,7 +402,7 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
     )
     b.legend(fontsize=7, ncols=4, loc="center right")
     fig.suptitle("Fig. 7  Lane-change trajectories")
-    return _save(fig, run_dir / "figures" / "fig7_trajectories.png")
+    return _save(fig, RunDir(run_dir).figure("fig7_trajectories.png"))
 
 
 def draw_scene(ax: Any, tr: dict[str, np.ndarray], pi: int, j: int, f: int, p: Any) -> None:
@@ -462,7 +459,7 @@ def fig5_scenes(run_dir: Path, panels: int = 6) -> Path | None:
     if data is None or _best(data[0]) is None:
         return None
     result, tr, cases = data
-    p = config.load(run_dir / "config.toml").env
+    p = RunDir(run_dir).load_config().env
     _, prows = _best(result)
     picks = _checkpoint_picks(prows, panels)
     j = 0
@@ -484,7 +481,7 @@ def fig5_scenes(run_dir: Path, panels: int = 6) -> Path | None:
         f"Fig. 5  Case {tr['traced'][j]} at chosen checkpoints of "
         f"{result['rows'][prows[-1]]['label']} (red: ego, green: gap, blue: others)"
     )
-    return _save(fig, run_dir / "figures" / "fig5_scenes.png")
+    return _save(fig, RunDir(run_dir).figure("fig5_scenes.png"))
 
 
 def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | None:
@@ -494,7 +491,7 @@ def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | 
     if data is None or _best(data[0]) is None:
         return None
     result, tr, cases = data
-    p = config.load(run_dir / "config.toml").env
+    p = RunDir(run_dir).load_config().env
     _, prows = _best(result)
     picks = _checkpoint_picks(prows, checkpoints)
     left = np.nonzero(tr["side"] > 0)[0]
@@ -526,7 +523,7 @@ def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | 
             fontsize=10,
         )
 
-    path = run_dir / "figures" / "learning.gif"
+    path = RunDir(run_dir).figure("learning.gif")
     path.parent.mkdir(parents=True, exist_ok=True)
     writer = PillowWriter(fps=10)
     with writer.saving(fig, path, dpi=90):

@@ -18,6 +18,7 @@ from typing import Any
 from jaxlc import stats
 from jaxlc.checkpoint import write_text_atomic
 from jaxlc.results import OUTCOMES, EvalError, rank_models
+from jaxlc.rundir import RunDir
 from jaxlc.stats import final_rows
 
 FIGURES = (
@@ -295,7 +296,7 @@ def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
 
 def build_report(run_dir: Path) -> str:
     """The report's Markdown for ``run_dir`` (needs ``eval/eval.json``)."""
-    path = run_dir / "eval" / "eval.json"
+    path = RunDir(run_dir).eval_json
     if not path.is_file():
         raise EvalError(f"{path} is missing; run python -m jaxlc.evaluate {run_dir} first")
     result = json.loads(path.read_text())
@@ -332,7 +333,7 @@ def build_report(run_dir: Path) -> str:
         *_table(rows),
         "",
     ]
-    made = [(f, t) for f, t in FIGURES if (run_dir / "figures" / f).is_file()]
+    made = [(f, t) for f, t in FIGURES if RunDir(run_dir).figure(f).is_file()]
     if made:
         text += ["## Figures", ""] + [f"- [{t}](figures/{f})" for f, t in made] + [""]
     return "\n".join(text)
@@ -341,7 +342,7 @@ def build_report(run_dir: Path) -> str:
 def write_report(run_dir: Path) -> Path:
     """Write ``run_dir/report.md`` atomically; returns its path."""
     run_dir = Path(run_dir)
-    return write_text_atomic(run_dir / "report.md", build_report(run_dir))
+    return write_text_atomic(RunDir(run_dir).report, build_report(run_dir))
 
 
 def main(argv: list[str] | None = None) -> int:

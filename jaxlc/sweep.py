@@ -27,12 +27,12 @@ file system that every host sees.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import os
 import signal
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +44,7 @@ from jax.experimental import multihost_utils
 from jaxlc import checkpoint, config, machine, train
 from jaxlc.env import ACT_DIM, OBS_DIM
 from jaxlc.reward import REASONS, SUCCESS
+from jaxlc.rundir import RunDir
 
 # The paper's Table 1 numbers the models by (k, memory size).
 PAPER_LABELS = {
@@ -80,6 +81,7 @@ def model_meta(cfg: config.Config, grid: train.Grid, i: int) -> dict[str, Any]:
         "seed": grid.seeds[i],
         "label": model_label(cell),
         **cell,
+        "hidden": list(cfg.ddpg.hidden),  # network widths: jaxlc.policy.load_policy
         "config_hash": cfg.hash(),
     }
 
@@ -126,17 +128,6 @@ def distributed_init() -> None:
             f"--distributed: cannot start JAX's distributed runtime ({err}); set "
             "JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES and JAX_PROCESS_ID, or run under Slurm"
         ) from None
-
-
-def checkpoint_path(run_dir: Path, i: int, seed: int, episode: int) -> Path:
-    return run_dir / "checkpoints" / f"m{i:02d}_s{seed}" / f"ep{episode:05d}.msgpack"
-
-
-def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    checkpoint.write_bytes_atomic(path, buf.getvalue())
 
 
 def summarise(
@@ -188,12 +179,15 @@ def summary_markdown(summary: dict[str, Any], last: int = 100) -> str:
     return "\n".join(lines) + "\n"
 
 
+# --- the run directory ----------------------------------------------------------------------
+
+
 def prepare_run_dir(out: Path, cfg: config.Config, force: bool) -> None:
     """Create ``out`` for ``cfg``; refuse a directory that already holds another run."""
-    existing = out / "config.toml"
-    if existing.exists():
+    rd = RunDir(out)
+    if rd.config.exists():
         try:
-            old = config.load(existing)
+            old = rd.load_config()
         except config.ConfigError:
             old = None
         if old is None or old.hash() != cfg.hash():
@@ -202,13 +196,12 @@ def prepare_run_dir(out: Path, cfg: config.Config, force: bool) -> None:
                     f"run directory '{out}' already holds a run of another config; "
                     "choose another --out, or pass --force to overwrite it"
                 )
-        elif not force and (out / "summary.json").exists():
+        elif not force and rd.summary_json.exists():
             raise config.ConfigError(
                 f"run directory '{out}' already holds a finished run of this config; "
                 "choose another --out, or pass --force to train again"
             )
-    out.mkdir(parents=True, exist_ok=True)
-    checkpoint.write_text_atomic(existing, config.to_toml(cfg))
+    rd.write_config(cfg)
 
 
 def _prepare_everywhere(out: Path, cfg: config.Config, force: bool) -> None:
@@ -227,12 +220,40 @@ def _prepare_everywhere(out: Path, cfg: config.Config, force: bool) -> None:
         raise config.ConfigError(problem)
 
 
+@dataclass
+class Bookkeeping:
+    """What the host keeps between chunks; saved with the training state, so a resumed run
+    continues its counts, its step metrics and its wall time."""
+
+    saved: np.ndarray  # (models,) int64, episode of each model's last checkpoint written
+    env_steps: int
+    wall_before: float  # s of training before this process took the run over
+    chunks: list[dict[str, np.ndarray]]  # step metrics, (scan steps, models) per chunk
+    t0: float  # this process's clock at the start
+
+    @classmethod
+    def load(cls, host: dict[str, Any] | None, n_models: int, t0: float) -> Bookkeeping:
+        if host is None:
+            return cls(np.zeros(n_models, np.int64), 0, 0.0, [], t0)
+        metrics = host["metrics"]
+        chunks = [metrics] if metrics else []
+        saved = np.array(host.get("saved", np.zeros(n_models)), np.int64)  # a writable copy
+        return cls(saved, int(host["env_steps"]), float(host["wall_s"]), chunks, t0)
+
+    def dump(self) -> dict[str, Any]:
+        out = {"saved": self.saved, "env_steps": self.env_steps}
+        if not self.chunks:  # nothing trained by this process: the saved record stands
+            return {**out, "wall_s": self.wall_before, "metrics": {}}
+        metrics = {k: np.concatenate([m[k] for m in self.chunks]) for k in self.chunks[0]}
+        return {
+            **out,
+            "wall_s": self.wall_before + time.perf_counter() - self.t0,
+            "metrics": metrics,
+        }
+
+
 class NumericalFault(RuntimeError):
     """A model produced a non-finite loss, reward or observation; the run stopped."""
-
-
-def state_path(run_dir: Path) -> Path:
-    return run_dir / "state" / checkpoint.TRAIN_STATE_FILE
 
 
 # Test hook: with this variable set, a run stops after its first full-state save and waits
@@ -247,46 +268,110 @@ def _hold_for_a_signal() -> None:
         signal.pause()
 
 
-def _save_state(out: Path, state: train.TrainState, host: dict[str, Any]) -> None:
+def _save_state(rd: RunDir, state: train.TrainState, book: Bookkeeping) -> None:
     """The whole run, device state and host bookkeeping, in one atomic file: a resume always
     sees a state and the bookkeeping that goes with it."""
-    blob = flax.serialization.to_bytes({"state": to_host(state), "host": host})
+    blob = flax.serialization.to_bytes({"state": to_host(state), "host": book.dump()})
     if jax.process_index() != 0:
         return
-    out_path = state_path(out)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    checkpoint.write_bytes_atomic(out_path, blob)
+    rd.state.parent.mkdir(parents=True, exist_ok=True)
+    checkpoint.write_bytes_atomic(rd.state, blob)
 
 
-def _load_state(out: Path, target: train.TrainState, grid: train.Grid) -> tuple[Any, dict]:
-    path = state_path(out)
-    if not path.exists():
+def _load_state(rd: RunDir, target: train.TrainState) -> tuple[Any, dict]:
+    if not rd.state.exists():
         raise config.ConfigError(
-            f"no saved training state in '{out}'; start a new run there "
+            f"no saved training state in '{rd.root}'; start a new run there "
             "with --out (and --force) instead of --resume"
         )
-    empty_host = {
-        "saved": np.zeros(grid.size, np.int64),
-        "env_steps": 0,
-        "wall_s": 0.0,
-        "metrics": {},
-    }
+    empty_host = {"env_steps": 0, "wall_s": 0.0, "metrics": {}}
     try:
-        raw = flax.serialization.msgpack_restore(path.read_bytes())
+        raw = flax.serialization.msgpack_restore(rd.state.read_bytes())
         state = flax.serialization.from_state_dict(target, raw["state"])
     except Exception as err:  # noqa: BLE001 - any decoding failure means the same to a user
         raise checkpoint.CheckpointError(
-            f"saved training state {path} is truncated or corrupt ({type(err).__name__}); "
+            f"saved training state {rd.state} is truncated or corrupt ({type(err).__name__}); "
             "start the run again with --force"
         ) from None
-    host = {**empty_host, **raw["host"]}
-    return state, host
+    return state, {**empty_host, **raw["host"]}
 
 
-def _first_fault(finite: np.ndarray, step0: int) -> tuple[int, int] | None:
-    """``(scan step, model)`` of the first False in ``finite (steps, models)``."""
-    bad = np.argwhere(~finite)
-    return None if not len(bad) else (step0 + int(bad[0][0]), int(bad[0][1]))
+# --- the training loop -----------------------------------------------------------------------
+
+
+def _check_finite(metrics: dict[str, np.ndarray], step0: int, grid: train.Grid, rd: RunDir):
+    """Raise ``NumericalFault`` naming the first model and scan step that went non-finite."""
+    bad = np.argwhere(~np.asarray(metrics["finite"]))  # (steps, models) -> first False
+    if not len(bad):
+        return
+    step, i = step0 + int(bad[0][0]), int(bad[0][1])
+    cell = grid.cells[grid.cell_of[i]]
+    kept = f"the last good save is {rd.state}" if rd.state.exists() else "no save was made yet"
+    raise NumericalFault(
+        f"model {i} (k={cell['k']}, memory={cell['memory']}, seed {grid.seeds[i]}) produced "
+        f"a non-finite loss, reward or observation at scan step {step}; stopped without "
+        f"saving it ({kept})"
+    )
+
+
+def _save_checkpoints(
+    rd: RunDir,
+    cfg: config.Config,
+    grid: train.Grid,
+    state: train.TrainState,
+    snap_ep: np.ndarray,
+    book: Bookkeeping,
+    mine: np.ndarray,
+) -> None:
+    """Write the actor of every model (of this process) that passed a checkpoint episode
+    since the last chunk: the snapshot slot holds it as it was at that episode."""
+    new = np.nonzero(snap_ep > book.saved)[0]
+    if not len(new):
+        return
+    actors = to_host(state.snap_actor)
+    for i in new[mine[new]]:
+        params = jax.tree.map(lambda a, i=i: a[i], actors)
+        meta = {**model_meta(cfg, grid, int(i)), "episode": int(snap_ep[i])}
+        checkpoint.save(rd.checkpoint(int(i), grid.seeds[i], int(snap_ep[i])), params, meta)
+    book.saved[new] = snap_ep[new]
+
+
+class Progress:
+    """The progress bar over every model's episodes (the models' episode range, the success
+    rate of the last chunk, env-steps/s) and, on process 0, one ETA line once the pace past
+    compilation is known."""
+
+    def __init__(self, total: int, done: int, label: str, bar: bool, eta: bool) -> None:
+        from tqdm import tqdm
+
+        self.tqdm, self.total, self.done, self.eta = tqdm, total, done, eta
+        self.bar = tqdm(total=total, unit="ep", disable=not bar, desc=label, dynamic_ncols=True)
+        self.bar.update(done)
+        self.pace: tuple[float, int] | None = None  # (clock, episodes) after the first chunk
+
+    def update(self, per_model: np.ndarray, metrics: dict[str, np.ndarray], rate: float) -> None:
+        now = int(per_model.sum())
+        recent = metrics["successes"].sum() / max(1, metrics["episodes_ended"].sum())
+        self.bar.set_postfix(
+            per_model=f"{per_model.min()}-{per_model.max()}",
+            success=f"{recent:.0%}",
+            env_steps_s=f"{rate:,.0f}",
+        )
+        self.bar.update(now - self.done)
+        self.done = now
+        if self.pace is None:
+            self.pace = (time.perf_counter(), now)
+        elif self.eta and now - self.pace[1] >= 0.02 * (self.total - self.pace[1]):
+            eta = (time.perf_counter() - self.pace[0]) / (now - self.pace[1]) * (self.total - now)
+            self.tqdm.write(
+                f"jaxlc: {rate:,.0f} env-steps/s; ETA {eta / 60:.1f} min at the pace so "
+                "far (early episodes are the shortest)",
+                file=sys.stderr,
+            )
+            self.eta = False
+
+    def close(self) -> None:
+        self.bar.close()
 
 
 def run_sweep(
@@ -302,141 +387,89 @@ def run_sweep(
     The full training state is saved atomically every ``train.save_every_s`` seconds (at
     chunk boundaries), on Ctrl-C and at the end; ``resume=True`` continues from it and ends
     with the same params, bit for bit, as a run never interrupted."""
-    from tqdm import tqdm
-
     n_dev = len(jax.devices()) if devices is None else devices
     lead = jax.process_index() == 0  # writes the files of the whole run
     train.check_devices(n_dev)
     if jax.process_count() > 1 and n_dev != len(jax.devices()):
         raise config.ConfigError("--devices: a multi-host run uses every device of every host")
+    rd = RunDir(out)
     if not resume:
         _prepare_everywhere(out, cfg, force)
-    grid = train.make_grid(cfg)
+    grid, t = train.make_grid(cfg), cfg.train
     init, run = train.make_grid_fns(cfg, grid, jax.devices()[:n_dev])
     mine = owned_models(grid.size, jax.devices()[:n_dev])
-    t = cfg.train
     t0 = time.perf_counter()
-    state = init(train.model_keys(cfg, grid))
-    host = {"saved": np.zeros(grid.size, np.int64), "env_steps": 0, "wall_s": 0.0, "metrics": {}}
+    state, host = init(train.model_keys(cfg, grid)), None
     if resume:
-        state, host = _load_state(out, state, grid)
-    saved = np.array(host["saved"], np.int64)  # a writable copy: last checkpoint episode per model
-    step_metrics = [host["metrics"]] if host["metrics"] else []
-    env_steps = int(host["env_steps"])
-    total_eps = grid.size * t.episodes
-    bar = tqdm(
-        total=total_eps,
-        unit="ep",
-        disable=not (progress and lead),
-        desc=f"{grid.size} models",
-        dynamic_ncols=True,
-    )
+        state, host = _load_state(rd, state)
+    book = Bookkeeping.load(host, grid.size, t0)
     counters = to_host({"step": state.step, "episodes": state.episodes})
-    done_eps = int(np.minimum(counters["episodes"], t.episodes).sum())
-    bar.update(done_eps)
-    last_save = time.perf_counter()
-    hold = bool(os.environ.get(HOLD_ENV))
-    pace: tuple[float, int] | None = None  # (clock, episodes) once the first chunk compiled
-    eta_said = False
-
-    def snapshot_host() -> dict[str, Any]:
-        metrics = {k: np.concatenate([m[k] for m in step_metrics]) for k in step_metrics[0]}
-        return {
-            "saved": saved,
-            "env_steps": env_steps,
-            "metrics": metrics,
-            "wall_s": host["wall_s"] + time.perf_counter() - t0,
-        }
-
+    done = int(np.minimum(counters["episodes"], t.episodes).sum())
+    bar = Progress(grid.size * t.episodes, done, f"{grid.size} models", progress and lead, lead)
+    last_save, hold = time.perf_counter(), bool(os.environ.get(HOLD_ENV))
+    chunk_env_steps = t.chunk_steps * t.envs_per_model * grid.size
     try:
-        while True:
-            step0 = int(counters["step"][0])
-            if (counters["episodes"] >= t.episodes).all() or (t.max_steps and step0 >= t.max_steps):
-                break
+        while not _finished(counters, t):
             t_chunk = time.perf_counter()
             new_state, metrics = run(state, t.chunk_steps)
             metrics = to_host(metrics)
-            fault = _first_fault(np.asarray(metrics["finite"]), step0)
-            if fault is not None:
-                step, i = fault
-                cell = grid.cells[grid.cell_of[i]]
-                kept = (
-                    f"the last good save is {state_path(out)}"
-                    if state_path(out).exists()
-                    else "no save was made yet"
-                )
-                raise NumericalFault(
-                    f"model {i} (k={cell['k']}, memory={cell['memory']}, seed "
-                    f"{grid.seeds[i]}) produced a non-finite loss, reward or observation at "
-                    f"scan step {step}; stopped without saving it ({kept})"
-                )
+            _check_finite(metrics, int(counters["step"][0]), grid, rd)
             state = new_state
             counters = to_host(
                 {"step": state.step, "episodes": state.episodes, "snap": state.snap_episode}
             )
-            step_metrics.append(metrics)
-            env_steps += t.chunk_steps * t.envs_per_model * grid.size
-
-            # The snapshot slot holds each actor at the last checkpoint episode it passed.
-            snap_ep = counters["snap"]
-            new = np.nonzero(snap_ep > saved)[0]
-            if len(new):
-                actors = to_host(state.snap_actor)
-                for i in new[mine[new]]:
-                    params = jax.tree.map(lambda a, i=i: a[i], actors)
-                    meta = {**model_meta(cfg, grid, int(i)), "episode": int(snap_ep[i])}
-                    checkpoint.save(
-                        checkpoint_path(out, int(i), grid.seeds[i], int(snap_ep[i])), params, meta
-                    )
-                saved[new] = snap_ep[new]
-
-            # Every process takes the same decision (process 0's clock) and joins the gather.
-            due = time.perf_counter() - last_save >= t.save_every_s
-            if jax.process_count() > 1:
-                due = bool(multihost_utils.broadcast_one_to_all(np.asarray(due)))
-            if due:
-                _save_state(out, state, snapshot_host())
+            book.chunks.append(metrics)
+            book.env_steps += chunk_env_steps
+            _save_checkpoints(rd, cfg, grid, state, counters["snap"], book, mine)
+            if _save_due(last_save, t.save_every_s):
+                _save_state(rd, state, book)
                 last_save = time.perf_counter()
                 if hold:
                     _hold_for_a_signal()
-            now = int(np.minimum(counters["episodes"], t.episodes).sum())
-            recent = metrics["successes"].sum() / max(1, metrics["episodes_ended"].sum())
-            rate = t.chunk_steps * t.envs_per_model * grid.size / (time.perf_counter() - t_chunk)
-            per_model = np.minimum(counters["episodes"], t.episodes)
-            bar.set_postfix(
-                per_model=f"{per_model.min()}-{per_model.max()}",
-                success=f"{recent:.0%}",
-                env_steps_s=f"{rate:,.0f}",
-            )
-            bar.update(now - done_eps)
-            done_eps = now
-            if pace is None:
-                pace = (time.perf_counter(), now)
-            elif lead and not eta_said and now - pace[1] >= 0.02 * (total_eps - pace[1]):
-                eta = (time.perf_counter() - pace[0]) / (now - pace[1]) * (total_eps - now)
-                tqdm.write(
-                    f"jaxlc: {rate:,.0f} env-steps/s; ETA {eta / 60:.1f} min at the pace so "
-                    "far (early episodes are the shortest)",
-                    file=sys.stderr,
-                )
-                eta_said = True
+            rate = chunk_env_steps / (time.perf_counter() - t_chunk)
+            bar.update(np.minimum(counters["episodes"], t.episodes), metrics, rate)
     except KeyboardInterrupt:
         bar.close()
-        if step_metrics:
-            _save_state(out, state, snapshot_host())
+        if book.chunks:
+            _save_state(rd, state, book)
         raise
     bar.close()
-    host_now = snapshot_host() if step_metrics else {**host, "metrics": {}}
-    _save_state(out, state, host_now)
-    wall = float(host_now["wall_s"])
+    return _finish(rd, cfg, grid, state, counters["episodes"], book, n_dev)
 
+
+def _finished(counters: dict[str, np.ndarray], t: config.TrainConfig) -> bool:
+    step0 = int(counters["step"][0])
+    return bool((counters["episodes"] >= t.episodes).all()) or bool(
+        t.max_steps and step0 >= t.max_steps
+    )
+
+
+def _save_due(last_save: float, every_s: float) -> bool:
+    """Every process takes the same decision (process 0's clock) and joins the gather."""
+    due = time.perf_counter() - last_save >= every_s
+    if jax.process_count() > 1:
+        due = bool(multihost_utils.broadcast_one_to_all(np.asarray(due)))
+    return due
+
+
+def _finish(
+    rd: RunDir,
+    cfg: config.Config,
+    grid: train.Grid,
+    state: train.TrainState,
+    episodes: np.ndarray,
+    book: Bookkeeping,
+    n_dev: int,
+) -> dict[str, Any]:
+    """Save the final state; write metrics and summary (process 0); return the summary."""
+    _save_state(rd, state, book)
+    host = book.dump()
     log = {k: np.asarray(v) for k, v in to_host(state.log).__dict__.items()}
-    episodes = counters["episodes"]
-    rows = summarise(cfg, grid, log, episodes)
+    lead = jax.process_index() == 0
     summary = {
-        "wall_s": wall,
-        "env_steps": env_steps,
-        "models": rows,
+        "wall_s": float(host["wall_s"]),
+        "env_steps": book.env_steps,
+        "models": summarise(cfg, grid, log, episodes),
         "config_hash": cfg.hash(),
         "device": jax.devices()[0].device_kind,
         "devices": n_dev,
@@ -446,13 +479,15 @@ def run_sweep(
     }
     if jax.process_count() > 1:  # every checkpoint is on disk before the run is declared done
         multihost_utils.sync_global_devices("jaxlc.sweep: checkpoints written")
-    if not lead:
-        return summary
-    _save_npz(out / "metrics" / "episodes.npz", {**log, "episodes": episodes})
-    _save_npz(out / "metrics" / "steps.npz", host_now["metrics"])
-    checkpoint.write_text_atomic(out / "summary.md", summary_markdown(summary))
-    checkpoint.write_text_atomic(out / "summary.json", json.dumps(summary, indent=1))
+    if lead:
+        rd.save_npz(rd.episodes, {**log, "episodes": episodes})
+        rd.save_npz(rd.steps, host["metrics"])
+        rd.write_text(rd.summary_md, summary_markdown(summary))
+        rd.write_text(rd.summary_json, json.dumps(summary, indent=1))
     return summary
+
+
+# --- the command line -----------------------------------------------------------------------
 
 
 def host_devices(cfg: config.Config) -> int:
@@ -469,7 +504,7 @@ def _after_write_error(err: checkpoint.WriteError, out: Path | None) -> str:
     """What a user does after a failed write, once this process has exited: fix the disk,
     then resume from the last save (written atomically, so it is intact) or start again."""
     head = f"cannot write {err.path}: {err.reason}; {err.remedy}"
-    if out is not None and state_path(out).exists():
+    if out is not None and RunDir(out).state.exists():
         return (
             f"{head}, then continue with python -m jaxlc.sweep --resume {out} "
             "(the last saved state is intact)"
@@ -477,7 +512,7 @@ def _after_write_error(err: checkpoint.WriteError, out: Path | None) -> str:
     return f"{head}, then run the same command again (no training state was saved yet)"
 
 
-def main(argv: list[str] | None = None) -> int:
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(
         prog="python -m jaxlc.sweep",
         description=__doc__,
@@ -509,33 +544,59 @@ def main(argv: list[str] | None = None) -> int:
         help="multi-host: start jax.distributed from the environment (README); needs --out "
         "or --resume on a shared file system",
     )
-    args = ap.parse_intermixed_args(argv)
+    return ap.parse_intermixed_args(argv)
+
+
+def resolve_run(args: argparse.Namespace) -> tuple[config.Config, Path]:
+    """The config and run directory the arguments ask for: a resumed run's own, or a new one
+    (``--config`` with overrides and ``--seeds``; ``--out`` or a fresh ``runs/...``)."""
+    if args.distributed and args.out is None and args.resume is None:
+        raise config.ConfigError(
+            "--distributed: pass --out DIR (the same on every host), or --resume DIR"
+        )
+    if args.resume is not None:
+        if args.overrides or args.config or args.seeds is not None or args.out:
+            raise config.ConfigError(
+                "--resume takes the run's own config.toml; drop --config, --out, --seeds "
+                "and overrides"
+            )
+        rd = RunDir(args.resume)
+        if not rd.is_run():
+            raise config.ConfigError(
+                f"'{rd.root}' holds no run (no config.toml); start one with --out"
+            )
+        return rd.load_config(), rd.root
+    overrides = list(args.overrides)
+    if args.seeds is not None:
+        overrides.append(f"train.seeds={args.seeds}")
+    cfg = config.load(args.config, overrides)
+    return cfg, args.out or Path("runs") / f"{time.strftime('%Y%m%d-%H%M%S')}-{cfg.hash()}"
+
+
+def _print_done(summary: dict[str, Any], cfg: config.Config, out: Path) -> None:
+    rd = RunDir(out)
+    print(summary_markdown(summary))
+    print(
+        f"Run directory: {out}\n  config:      {rd.config}\n"
+        f"  checkpoints: {rd.checkpoints}\n  metrics:     {rd.episodes.parent}\n"
+        f"  summary:     {rd.summary_md}"
+    )
+    if checkpoint.list_checkpoints(out):
+        print(f"Evaluate with: python -m jaxlc.evaluate {out}")
+    else:
+        print(
+            f"No checkpoint was saved (the first comes at episode {cfg.train.checkpoint_every}"
+            " of a model); train longer before evaluating"
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
     out = None
     try:
-        if args.distributed:
-            if args.out is None and args.resume is None:
-                raise config.ConfigError(
-                    "--distributed: pass --out DIR (the same on every host), or --resume DIR"
-                )
+        if args.distributed and (args.out is not None or args.resume is not None):
             distributed_init()
-        if args.resume is not None:
-            if args.overrides or args.config or args.seeds is not None or args.out:
-                raise config.ConfigError(
-                    "--resume takes the run's own config.toml; drop --config, --out, --seeds "
-                    "and overrides"
-                )
-            out = args.resume
-            if not (out / "config.toml").exists():
-                raise config.ConfigError(
-                    f"'{out}' holds no run (no config.toml); start one with --out"
-                )
-            cfg = config.load(out / "config.toml")
-        else:
-            overrides = list(args.overrides)
-            if args.seeds is not None:
-                overrides.append(f"train.seeds={args.seeds}")
-            cfg = config.load(args.config, overrides)
-            out = args.out or Path("runs") / f"{time.strftime('%Y%m%d-%H%M%S')}-{cfg.hash()}"
+        cfg, out = resolve_run(args)
         if not args.distributed:  # a multi-host run uses the hosts' devices as they are
             machine.use_host_devices(host_devices(cfg) if args.devices is None else args.devices)
         summary = run_sweep(
@@ -561,21 +622,8 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 130
-    if jax.process_index() != 0:
-        return 0
-    print(summary_markdown(summary))
-    print(
-        f"Run directory: {out}\n  config:      {out / 'config.toml'}\n"
-        f"  checkpoints: {out / 'checkpoints'}\n  metrics:     {out / 'metrics'}\n"
-        f"  summary:     {out / 'summary.md'}"
-    )
-    if checkpoint.list_checkpoints(out):
-        print(f"Evaluate with: python -m jaxlc.evaluate {out}")
-    else:
-        print(
-            f"No checkpoint was saved (the first comes at episode {cfg.train.checkpoint_every}"
-            " of a model); train longer before evaluating"
-        )
+    if jax.process_index() == 0:
+        _print_done(summary, cfg, out)
     return 0
 
 

@@ -30,7 +30,7 @@ from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
 from jaxlc import ddpg, replay, tree
-from jaxlc.config import Config, ConfigError, TrainConfig
+from jaxlc.config import Config, ConfigError, DDPGConfig, TrainConfig
 from jaxlc.env import ACT_DIM, EnvParams, EnvState, LaneChangeEnv
 from jaxlc.networks import make_networks
 from jaxlc.observation import MIRROR_SIGNS, OBS_DIM
@@ -177,36 +177,83 @@ def anneal(h: ddpg.Hyper, episodes: Array, t: TrainConfig) -> ddpg.Hyper:
     )
 
 
+def init_model(key: Array, hyper: ModelHyper, cfg: Config) -> TrainState:
+    """ONE model's fresh state: ``train.envs_per_model`` roads after warm-up, a new learner,
+    an empty memory of ``hyper.capacity`` transitions."""
+    d, t = cfg.ddpg, cfg.train
+    base = EnvParams.from_config(cfg.env, gamma=d.gamma)
+    k_learn, k_env, k_run = jax.random.split(key, 3)
+    keys = jax.random.split(k_env, t.envs_per_model)
+    obs, env_state = jax.vmap(LaneChangeEnv().reset, (0, None))(keys, base)
+    learner = ddpg.init_learner(k_learn, OBS_DIM, d, ACT_DIM)
+    return TrainState(
+        learner=learner,
+        memory=replay.init(max(cfg.grid.memory), OBS_DIM, ACT_DIM, hyper.capacity),
+        env=env_state,
+        obs=obs,
+        terms=jnp.zeros((t.envs_per_model, 3), jnp.float32),
+        key=k_run,
+        step=jnp.int32(0),
+        episodes=jnp.int32(0),
+        log=_empty_log(t.episodes),
+        snap_actor=learner.actor,
+        snap_episode=jnp.int32(0),
+    )
+
+
+def _learn(
+    learner: ddpg.Learner,
+    memory: replay.Replay,
+    key: Array,
+    h: ddpg.Hyper,
+    d: DDPGConfig,
+    updating: Array,
+) -> tuple[ddpg.Learner, dict[str, Array]]:
+    """``d.updates_per_step`` DDPG updates on batches from ``memory``, kept only when
+    ``updating``; returns the learner and the losses of each update ``(updates,)``."""
+
+    def one_update(learner: ddpg.Learner, k: Array):
+        batch = replay.sample(memory, k, d.batch_size, MIRROR_SIGNS if d.mirror else None)
+        return ddpg.update(learner, batch, h, d, key=jax.random.fold_in(k, 1))
+
+    new, losses = jax.lax.scan(one_update, learner, jax.random.split(key, d.updates_per_step))
+    return tree.where(updating, new, learner), losses
+
+
+def _step_metrics(
+    updating: Array,
+    losses: dict[str, Array],
+    rl: Array,
+    ended: Array,
+    info: dict[str, Array],
+    obs: Array,
+    reward: Array,
+) -> dict[str, Array]:
+    """One scan step's metrics of one model (scalars); losses are NaN while not updating."""
+    return {
+        "critic_loss": jnp.where(updating, losses["critic_loss"][-1], jnp.nan),
+        "actor_loss": jnp.where(updating, losses["actor_loss"][-1], jnp.nan),
+        "mean_q": jnp.where(updating, losses["mean_q"][-1], jnp.nan),
+        "transitions": rl.sum(dtype=jnp.int32),
+        "episodes_ended": ended.sum(dtype=jnp.int32),
+        "successes": (ended & (info["reason"] == SUCCESS)).sum(dtype=jnp.int32),
+        # False from the first step that produced a non-finite loss, reward or observation.
+        "finite": (~updating | jnp.all(jnp.stack([jnp.isfinite(v[-1]) for v in losses.values()])))
+        & jnp.all(jnp.isfinite(obs))
+        & jnp.all(jnp.isfinite(reward)),
+    }
+
+
 def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
     """``init(key, hyper) -> TrainState`` and ``step(state, hyper) -> (state, metrics)`` for
     ONE model; the grid vmaps them."""
     env = LaneChangeEnv()
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     d, t = cfg.ddpg, cfg.train
-    n_envs, cap_max = t.envs_per_model, max(cfg.grid.memory)
+    n_envs, every = t.envs_per_model, t.checkpoint_every
     actor_net, _ = make_networks(d, ACT_DIM)
-    every = t.checkpoint_every
-
-    def init(key: Array, hyper: ModelHyper) -> TrainState:
-        k_learn, k_env, k_run = jax.random.split(key, 3)
-        obs, env_state = jax.vmap(env.reset, (0, None))(jax.random.split(k_env, n_envs), base)
-        learner = ddpg.init_learner(k_learn, OBS_DIM, d, ACT_DIM)
-        return TrainState(
-            learner=learner,
-            memory=replay.init(cap_max, OBS_DIM, ACT_DIM, hyper.capacity),
-            env=env_state,
-            obs=obs,
-            terms=jnp.zeros((n_envs, 3), jnp.float32),
-            key=k_run,
-            step=jnp.int32(0),
-            episodes=jnp.int32(0),
-            log=_empty_log(t.episodes),
-            snap_actor=learner.actor,
-            snap_episode=jnp.int32(0),
-        )
 
     def step(ts: TrainState, hyper: ModelHyper) -> tuple[TrainState, dict[str, Array]]:
-        params = base.replace(k=hyper.k)
         key, k_noise, k_env, k_update = jax.random.split(ts.key, 4)
         learning = ts.episodes < t.episodes
         h = anneal(hyper.ddpg, ts.episodes, t)
@@ -215,7 +262,7 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
         mu = actor_net.apply(ts.learner.actor, ts.obs)  # (envs, 1)
         action = ddpg.explore(k_noise, mu, h.noise_sigma, d.noise_clip)
         obs, env_state, reward, term, trunc, info = jax.vmap(env.step, (0, 0, 0, None))(
-            jax.random.split(k_env, n_envs), ts.env, action, params
+            jax.random.split(k_env, n_envs), ts.env, action, base.replace(k=hyper.k)
         )
         rl = info["rl_step"]  # (envs,)
         memory = replay.add(
@@ -223,49 +270,17 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
         )
 
         # DDPG updates once the memory holds one batch [P]/[S].
-        def one_update(learner: ddpg.Learner, k: Array):
-            batch = replay.sample(memory, k, d.batch_size, MIRROR_SIGNS if d.mirror else None)
-            return ddpg.update(learner, batch, h, d, key=jax.random.fold_in(k, 1))
-
-        new_learner, losses = jax.lax.scan(
-            one_update, ts.learner, jax.random.split(k_update, d.updates_per_step)
-        )
         updating = learning & (memory.size >= d.batch_size)
-        learner = tree.where(updating, new_learner, ts.learner)
+        learner, losses = _learn(ts.learner, memory, k_update, h, d, updating)
 
-        # Episode bookkeeping.
-        terms = ts.terms + jnp.stack([info["r_s"], info["r_e"], info["r_d"]], -1)
+        # Episode bookkeeping; the snapshot slot keeps the actor of the last checkpoint passed.
+        terms = ts.terms + jnp.stack([info["r_s"], info["r_e"], info["r_d"]], -1)  # (envs, 3)
         ended = rl & (term | trunc) & learning
-        log = _log_add(
-            ts.log,
-            ts.episodes,
-            ended,
-            {
-                "ret": info["episode_return"],
-                "steps": info["episode_steps"],
-                "reason": info["reason"],
-                "r_s": terms[:, 0],
-                "r_e": terms[:, 1],
-                "r_d": terms[:, 2],
-                "at_step": jnp.full((n_envs,), ts.step),
-            },
-        )
+        rows = {"ret": info["episode_return"], "steps": info["episode_steps"]}
+        rows |= {"reason": info["reason"], "r_s": terms[:, 0], "r_e": terms[:, 1]}
+        rows |= {"r_d": terms[:, 2], "at_step": jnp.full((n_envs,), ts.step)}
         episodes = ts.episodes + ended.sum(dtype=jnp.int32)
         passed = (episodes // every) > (ts.episodes // every)
-        metrics = {
-            "critic_loss": jnp.where(updating, losses["critic_loss"][-1], jnp.nan),
-            "actor_loss": jnp.where(updating, losses["actor_loss"][-1], jnp.nan),
-            "mean_q": jnp.where(updating, losses["mean_q"][-1], jnp.nan),
-            "transitions": rl.sum(dtype=jnp.int32),
-            "episodes_ended": ended.sum(dtype=jnp.int32),
-            "successes": (ended & (info["reason"] == SUCCESS)).sum(dtype=jnp.int32),
-            # False from the first step that produced a non-finite loss, reward or observation.
-            "finite": (
-                ~updating | jnp.all(jnp.stack([jnp.isfinite(v[-1]) for v in losses.values()]))
-            )
-            & jnp.all(jnp.isfinite(obs))
-            & jnp.all(jnp.isfinite(reward)),
-        }
         ts = TrainState(
             learner=learner,
             memory=memory,
@@ -275,13 +290,16 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
             key=key,
             step=ts.step + 1,
             episodes=episodes,
-            log=log,
+            log=_log_add(ts.log, ts.episodes, ended, rows),
             snap_actor=tree.where(passed, learner.actor, ts.snap_actor),
             snap_episode=jnp.where(
                 passed, jnp.minimum(episodes // every * every, t.episodes), ts.snap_episode
             ),
         )
-        return ts, metrics
+        return ts, _step_metrics(updating, losses, rl, ended, info, obs, reward)
+
+    def init(key: Array, hyper: ModelHyper) -> TrainState:
+        return init_model(key, hyper, cfg)
 
     return init, step
 
@@ -354,21 +372,3 @@ def make_train(cfg: Config) -> Callable[[Array, int], tuple[TrainState, dict[str
         return jax.lax.scan(lambda s, _: jax.vmap(step)(s, grid.hyper), state, None, length=steps)
 
     return train
-
-
-def policy(actor_params: Any, cfg: Config | None = None) -> Callable[[Array], Array]:
-    """Actor params -> ``obs (..., OBS_DIM) -> action (..., 1)`` in [-1, 1], no noise."""
-    if cfg is None:
-        hidden = tuple(int(v.shape[-1]) for v in _kernels(actor_params))[:-1]
-        from jaxlc.config import DDPGConfig
-
-        d = DDPGConfig(hidden=hidden)
-    else:
-        d = cfg.ddpg
-    actor_net, _ = make_networks(d, ACT_DIM)
-    return lambda obs: actor_net.apply(actor_params, obs)
-
-
-def _kernels(params: Any) -> list[Array]:
-    mlp = params["params"]["mlp"]
-    return [mlp[f"Dense_{i}"]["kernel"] for i in range(len(mlp))]

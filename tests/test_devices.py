@@ -10,7 +10,8 @@ import flax.serialization
 import jax
 import numpy as np
 
-from jaxlc import checkpoint, sweep
+from jaxlc import checkpoint
+from jaxlc.rundir import RunDir
 
 from .conftest import HANG_GUARD_S, SMOKE
 
@@ -110,7 +111,7 @@ def test_two_processes_with_jax_distributed_match_one_process(tmp_path):
     assert "Run directory" in outputs[0][0] and "Run directory" not in outputs[1][0]
 
     def state(run_dir):
-        raw = flax.serialization.msgpack_restore(sweep.state_path(run_dir).read_bytes())
+        raw = flax.serialization.msgpack_restore(RunDir(run_dir).state.read_bytes())
         return raw["state"]
 
     ref, got = state(ref_dir), state(out)

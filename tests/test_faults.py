@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from jaxlc import checkpoint, sweep
+from jaxlc.rundir import RunDir
 
 from .conftest import HANG_GUARD_S, SMOKE
 
@@ -29,7 +30,7 @@ def _tree_of_files(root):
 
 
 def _leaves(run_dir):
-    raw = flax.serialization.msgpack_restore(sweep.state_path(run_dir).read_bytes())
+    raw = flax.serialization.msgpack_restore(RunDir(run_dir).state.read_bytes())
     return jax.tree.leaves(raw["state"])
 
 
@@ -69,7 +70,7 @@ def test_interrupt_then_resume_ends_bit_for_bit_like_an_uninterrupted_run(smoke_
             break
     else:
         pytest.fail(f"the run ended without holding: {''.join(seen)[-2000:]}")
-    assert sweep.state_path(out).exists(), "the run held before saving its state"
+    assert RunDir(out).state.exists(), "the run held before saving its state"
     os.kill(proc.pid, sig)
     _, err = proc.communicate(timeout=HANG_GUARD_S)
     if sig == signal.SIGINT:  # Ctrl-C: saves, says how to go on, exits 130
@@ -185,13 +186,13 @@ def test_non_finite_values_stop_the_run_naming_the_model(tmp_path, capsys):
     assert len(err) == 1 and "model 0 (k=2, memory=512, seed 0)" in err[0], err
     assert "non-finite" in err[0] and "scan step" in err[0]
     assert not (out / "summary.json").exists()
-    assert not sweep.state_path(out).exists(), "a faulty state must not be saved"
+    assert not RunDir(out).state.exists(), "a faulty state must not be saved"
 
 
 def test_loading_the_training_state_as_a_checkpoint_points_to_resume(smoke_run):
     run_dir, _ = smoke_run
     with pytest.raises(checkpoint.CheckpointError) as info:
-        checkpoint.load(sweep.state_path(run_dir))
+        checkpoint.load(RunDir(run_dir).state)
     msg = str(info.value)
     assert "training state, not a checkpoint" in msg and f"--resume {run_dir}" in msg
     assert "interrupted" not in msg
@@ -205,7 +206,7 @@ def test_full_disk_mid_run_says_free_space_then_resume(tmp_path, capsys, monkeyp
     first_state = {}
 
     def replace(src, dst):
-        if str(dst) == str(sweep.state_path(out)):
+        if str(dst) == str(RunDir(out).state):
             if first_state:
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
             first_state["bytes"] = open(src, "rb").read()
@@ -217,5 +218,5 @@ def test_full_disk_mid_run_says_free_space_then_resume(tmp_path, capsys, monkeyp
     assert rc == 2 and len(err) == 1, err
     assert os.strerror(errno.ENOSPC) in err[0] and "free some disk space" in err[0]
     assert f"--resume {out}" in err[0] and "save again" not in err[0]
-    assert sweep.state_path(out).read_bytes() == first_state["bytes"]
+    assert RunDir(out).state.read_bytes() == first_state["bytes"]
     assert not (out / "summary.json").exists()

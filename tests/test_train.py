@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 
 from jaxlc import checkpoint, config, sweep, train, tree
+from jaxlc.config import DDPGConfig
 from jaxlc.env import OBS_DIM
+from jaxlc.policy import actor_fn, load_policy
 from jaxlc.reward import NONE
 
 from .conftest import HANG_GUARD_S
@@ -93,8 +95,10 @@ def test_checkpoint_loads_into_identical_params_and_actions(smoke_run, smoke_cfg
     grid = train.make_grid(smoke_cfg)
     assert meta["episode"] == smoke_cfg.train.episodes
     obs = jax.random.normal(jax.random.PRNGKey(0), (7, OBS_DIM))
-    act_loaded = train.policy(params)(obs)
-    act_cfg = train.policy(params, smoke_cfg)(obs)
+    # The checkpoint records its widths; load_policy builds the actor from them alone.
+    assert tuple(meta["hidden"]) == tuple(smoke_cfg.ddpg.hidden) != DDPGConfig().hidden
+    act_loaded = load_policy(path)[0](obs)
+    act_cfg = actor_fn(params, smoke_cfg.ddpg.hidden)(obs)
     np.testing.assert_array_equal(np.asarray(act_loaded), np.asarray(act_cfg))
     assert act_loaded.shape == (7, 1) and bool(jnp.all(jnp.abs(act_loaded) <= 1))
     # Saving the loaded params again gives the same bytes back.

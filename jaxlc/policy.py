@@ -1,0 +1,47 @@
+"""A trained actor as a plain function, from its params or straight from a checkpoint file.
+
+    act, meta = load_policy("runs/…/checkpoints/m01_s0/ep05000.msgpack")
+    action = act(obs)  # obs (..., OBS_DIM) -> action (..., 1) in [-1, 1], no noise
+
+The network's widths come from the checkpoint's metadata (``hidden``, written by the sweep);
+a checkpoint from before that field takes them from its run's ``config.toml``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from jax import Array
+
+from jaxlc import checkpoint, config
+from jaxlc.env import ACT_DIM
+from jaxlc.networks import make_networks
+from jaxlc.rundir import RunDir
+
+
+def actor_fn(actor_params: Any, hidden: Sequence[int]) -> Callable[[Array], Array]:
+    """Actor params of widths ``hidden`` -> ``obs (..., OBS_DIM) -> action (..., 1)``."""
+    actor_net, _ = make_networks(config.DDPGConfig(hidden=tuple(hidden)), ACT_DIM)
+    return lambda obs: actor_net.apply(actor_params, obs)
+
+
+def widths(path: str | os.PathLike[str], meta: dict[str, Any]) -> tuple[int, ...]:
+    """The hidden widths of the checkpoint at ``path`` (metadata ``meta``)."""
+    if "hidden" in meta:
+        return tuple(int(h) for h in meta["hidden"])
+    run = RunDir(Path(path).resolve().parents[2])  # RUN_DIR/checkpoints/mXX_sY/file
+    if run.is_run():
+        return tuple(run.load_config().ddpg.hidden)
+    raise checkpoint.CheckpointError(
+        f"checkpoint {path} records no network widths ('hidden') and has no run directory "
+        "two levels up; build the function with jaxlc.policy.actor_fn(params, hidden)"
+    )
+
+
+def load_policy(path: str | os.PathLike[str]) -> tuple[Callable[[Array], Array], dict[str, Any]]:
+    """``(act, meta)`` of a checkpoint: its actor as a function, and its metadata."""
+    params, meta = checkpoint.load(path)
+    return actor_fn(params, widths(path, meta)), meta

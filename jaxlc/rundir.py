@@ -1,0 +1,125 @@
+"""The run directory: one object that owns its layout, so no module spells a path.
+
+    RUN_DIR/config.toml                    resolved config (what ran)
+    RUN_DIR/checkpoints/mXX_sY/epNNNNN.*   actor params (msgpack) + metadata (json)
+    RUN_DIR/state/train_state.msgpack      the whole training state, for --resume
+    RUN_DIR/metrics/episodes.npz           per model: return, steps, reason, reward terms
+    RUN_DIR/metrics/steps.npz              per scan step and model: losses, transitions
+    RUN_DIR/summary.md, summary.json       last-100-episode success rate and return
+    RUN_DIR/eval/eval.json, eval.csv       evaluation rows (python -m jaxlc.evaluate)
+    RUN_DIR/eval/cases.npz, traces.npz     per policy and case; the drawn cases
+    RUN_DIR/figures/*.png, report.md       figures and report of the evaluated run
+
+Every write is atomic (``jaxlc.checkpoint.write_bytes_atomic``): a reader sees the old file or
+the new one, never half of one.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxlc import checkpoint, config
+
+
+@dataclass(frozen=True)
+class RunDir:
+    root: Path
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "root", Path(self.root))
+
+    # --- layout
+    @property
+    def config(self) -> Path:
+        return self.root / "config.toml"
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.root / checkpoint.CHECKPOINTS_DIR
+
+    def checkpoint(self, model: int, seed: int, episode: int) -> Path:
+        return self.checkpoints / f"m{model:02d}_s{seed}" / f"ep{episode:05d}.msgpack"
+
+    @property
+    def state(self) -> Path:
+        return self.root / "state" / checkpoint.TRAIN_STATE_FILE
+
+    @property
+    def episodes(self) -> Path:
+        return self.root / "metrics" / "episodes.npz"
+
+    @property
+    def steps(self) -> Path:
+        return self.root / "metrics" / "steps.npz"
+
+    @property
+    def summary_md(self) -> Path:
+        return self.root / "summary.md"
+
+    @property
+    def summary_json(self) -> Path:
+        return self.root / "summary.json"
+
+    @property
+    def eval(self) -> Path:
+        return self.root / "eval"
+
+    @property
+    def eval_json(self) -> Path:
+        return self.eval / "eval.json"
+
+    @property
+    def cases(self) -> Path:
+        return self.eval / "cases.npz"
+
+    @property
+    def traces(self) -> Path:
+        return self.eval / "traces.npz"
+
+    def figure(self, name: str) -> Path:
+        return self.root / "figures" / name
+
+    @property
+    def report(self) -> Path:
+        return self.root / "report.md"
+
+    # --- readers and writers
+    def is_run(self) -> bool:
+        return self.config.is_file()
+
+    def load_config(self) -> config.Config:
+        return config.load(self.config)
+
+    def write_config(self, cfg: config.Config) -> None:
+        self.root.mkdir(parents=True, exist_ok=True)
+        checkpoint.write_text_atomic(self.config, config.to_toml(cfg))
+
+    @staticmethod
+    def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **arrays)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        checkpoint.write_bytes_atomic(path, buf.getvalue())
+
+    @staticmethod
+    def load_npz(path: Path) -> dict[str, np.ndarray] | None:
+        """The arrays of ``path``, or None when it does not exist."""
+        if not path.is_file():
+            return None
+        with np.load(path) as f:
+            return {k: f[k] for k in f.files}
+
+    @staticmethod
+    def write_text(path: Path, text: str) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        checkpoint.write_text_atomic(path, text)
+
+    @staticmethod
+    def read_json(path: Path) -> Any:
+        return json.loads(path.read_text(encoding="utf-8"))
