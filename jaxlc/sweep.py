@@ -45,6 +45,7 @@ from jaxlc import checkpoint, config, machine, train
 from jaxlc.env import ACT_DIM, OBS_DIM
 from jaxlc.reward import REASONS, SUCCESS
 from jaxlc.rundir import RunDir
+from jaxlc.tracking import TensorBoard
 
 # The paper's Table 1 numbers the models by (k, memory size).
 PAPER_LABELS = {
@@ -381,12 +382,14 @@ def run_sweep(
     progress: bool = True,
     resume: bool = False,
     devices: int | None = None,
+    tensorboard: Path | None = None,
 ) -> dict[str, Any]:
     """Train every model of ``cfg``'s grid and write the run directory; returns the summary.
 
     The full training state is saved atomically every ``train.save_every_s`` seconds (at
     chunk boundaries), on Ctrl-C and at the end; ``resume=True`` continues from it and ends
-    with the same params, bit for bit, as a run never interrupted."""
+    with the same params, bit for bit, as a run never interrupted. ``tensorboard``: a
+    directory for live curves (``jaxlc.tracking``), written at every chunk boundary."""
     n_dev = len(jax.devices()) if devices is None else devices
     lead = jax.process_index() == 0  # writes the files of the whole run
     train.check_devices(n_dev)
@@ -406,6 +409,8 @@ def run_sweep(
     counters = to_host({"step": state.step, "episodes": state.episodes})
     done = int(np.minimum(counters["episodes"], t.episodes).sum())
     bar = Progress(grid.size * t.episodes, done, f"{grid.size} models", progress and lead, lead)
+    metas = [model_meta(cfg, grid, i) for i in range(grid.size)]
+    tracker = TensorBoard(tensorboard, metas) if tensorboard is not None and lead else None
     last_save, hold = time.perf_counter(), bool(os.environ.get(HOLD_ENV))
     chunk_env_steps = t.chunk_steps * t.envs_per_model * grid.size
     try:
@@ -428,11 +433,18 @@ def run_sweep(
                     _hold_for_a_signal()
             rate = chunk_env_steps / (time.perf_counter() - t_chunk)
             bar.update(np.minimum(counters["episodes"], t.episodes), metrics, rate)
+            if tracker is not None:
+                log = vars(to_host(state.log))
+                steps = book.env_steps // grid.size
+                tracker.chunk(steps, log, counters["episodes"], metrics, rate)
     except KeyboardInterrupt:
         bar.close()
         if book.chunks:
             _save_state(rd, state, book)
         raise
+    finally:
+        if tracker is not None:
+            tracker.close()  # flushes: the curves so far stay readable whatever stopped the run
     bar.close()
     return _finish(rd, cfg, grid, state, counters["episodes"], book, n_dev)
 
@@ -544,6 +556,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="multi-host: start jax.distributed from the environment (README); needs --out "
         "or --resume on a shared file system",
     )
+    ap.add_argument(
+        "--tensorboard",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write live curves per model to DIR (tensorboard --logdir DIR); needs tensorboardX",
+    )
     return ap.parse_intermixed_args(argv)
 
 
@@ -606,6 +625,7 @@ def main(argv: list[str] | None = None) -> int:
             progress=not args.no_progress,
             resume=args.resume is not None,
             devices=args.devices,
+            tensorboard=args.tensorboard,
         )
     except checkpoint.WriteError as err:
         print(f"error: {_after_write_error(err, out)}", file=sys.stderr)
