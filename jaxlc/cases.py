@@ -355,3 +355,24 @@ def evaluate_policies(
 def _concat(parts: list[Any]) -> dict[str, np.ndarray]:
     """Chunks of an ``Outcome``/``Trace`` -> one dict of arrays along the policy axis."""
     return {k: np.concatenate([vars(x)[k] for x in parts]) for k in vars(parts[0])}
+
+
+def evaluate_act(
+    cfg: config.Config,
+    act: Callable[[Array], Array],
+    *,
+    k: int = 1,
+    cases: int = 100,
+    seed: int = 0,
+    max_steps: int = 1500,
+) -> dict[str, np.ndarray]:
+    """Any learner's policy, given as a jittable ``act(obs (cases, OBS_DIM)) -> action (cases,
+    1)``, on the same fixed cases as every checkpoint: the outcome dict of
+    ``evaluate_policies`` with one row (``jaxlc.results.summarise`` turns it into a row)."""
+    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+    start = jax.jit(jax.vmap(make_start_case(base, max_steps)))
+    rollout = jax.jit(make_rollout(base, lambda _, obs: act(obs), max_steps))
+    cs = start(case_keys(seed, cases))
+    one = Policies(actor=jnp.zeros(1), k=jnp.asarray([k], jnp.int32), scripted=jnp.zeros(1, bool))
+    out, _ = jax.device_get(rollout(one, cs, jnp.zeros(1, jnp.int32)))
+    return {name: np.asarray(v) for name, v in vars(out).items()}

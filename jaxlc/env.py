@@ -40,7 +40,7 @@ from jax import Array
 
 from jaxlc import gap, kinematics, reward
 from jaxlc import observation as obs_layout
-from jaxlc.config import Config, EnvConfig
+from jaxlc.config import Config, DDPGConfig, EnvConfig
 from jaxlc.idm import NO_LEADER_GAP, idm_with_params
 from jaxlc.observation import GAP_CLIP, MIRROR_SIGNS, OBS_DIM  # noqa: F401 (re-exported)
 
@@ -50,67 +50,76 @@ ACT_DIM = 1
 KMH = 1.0 / 3.6
 
 
+# The paper's defaults are written once, in jaxlc/config.py (and configs/paper.toml, which a
+# test holds equal to them); EnvParams takes them over in SI units.
+_C = EnvConfig()
+_WARMUP_STEPS = int(round(_C.warmup_time / _C.dt))
+
+
 @flax.struct.dataclass
 class EnvParams:
-    """Simulator parameters in SI units (speeds m/s, inflow veh/s).
+    """Simulator parameters in SI units (speeds m/s, inflow veh/s); the defaults are
+    ``EnvConfig()``'s, converted.
 
     Static fields (``pytree_node=False``) fix array shapes and loop lengths; every other
     field is traced, so models with different values (e.g. the action-update step ``k``)
     can share one compiled program under ``vmap``.
     """
 
-    lanes: int = flax.struct.field(pytree_node=False, default=3)
-    slots_per_lane: int = flax.struct.field(pytree_node=False, default=16)
-    warmup_steps: int = flax.struct.field(pytree_node=False, default=400)
-    road_length: float = 600.0
-    lane_width: float = 3.7
-    curvature: float = 0.0
-    dt: float = 0.1
-    vehicle_length: float = 5.0
-    vehicle_width: float = 1.8
-    entry_speed_min: float = 0.0
-    entry_speed_max: float = 40.0 * KMH
-    desired_speed_min: float = 80.0 * KMH
-    desired_speed_max: float = 120.0 * KMH
-    inflow_min: float = 800.0 / 3600.0
-    inflow_max: float = 1600.0 / 3600.0
-    idm_a_max: float = 1.5
-    idm_b: float = 2.0
-    idm_time_headway: float = 1.5
-    idm_s0: float = 2.0
-    idm_delta: float = 4.0
-    idm_b_max: float = 9.0
-    p_yield: float = 0.5
-    command_distance: float = 80.0
-    gap_time_limit: float = 5.0
-    gap_x_limit: float = 450.0
-    gap_time_headway: float = 0.5
-    b_safe: float = 4.0
-    max_yaw_acc: float = 0.5
-    manoeuvre_time_limit: float = 10.0
-    terminal_timeout: bool = False
-    border: float = 3.7
-    success_offset: float = 0.2
-    success_heading: float = 0.02
-    success_yaw_rate: float = 0.02
-    w1: float = 10.0
-    w2: float = 5.0
-    w3: float = 0.075
-    w4: float = 1.0
-    reward_scale: float = 1.0
-    offset_obs_scale: float = 3.7
-    gamma: float = 0.98
+    lanes: int = flax.struct.field(pytree_node=False, default=_C.lanes)
+    slots_per_lane: int = flax.struct.field(pytree_node=False, default=_C.slots_per_lane)
+    warmup_steps: int = flax.struct.field(pytree_node=False, default=_WARMUP_STEPS)
+    road_length: float = _C.road_length
+    lane_width: float = _C.lane_width
+    curvature: float = _C.curvature
+    dt: float = _C.dt
+    vehicle_length: float = _C.vehicle_length
+    vehicle_width: float = _C.vehicle_width
+    entry_speed_min: float = _C.entry_speed_min * KMH
+    entry_speed_max: float = _C.entry_speed_max * KMH
+    desired_speed_min: float = _C.desired_speed_min * KMH
+    desired_speed_max: float = _C.desired_speed_max * KMH
+    inflow_min: float = _C.inflow_min / 3600.0
+    inflow_max: float = _C.inflow_max / 3600.0
+    idm_a_max: float = _C.idm_a_max
+    idm_b: float = _C.idm_b
+    idm_time_headway: float = _C.idm_time_headway
+    idm_s0: float = _C.idm_s0
+    idm_delta: float = _C.idm_delta
+    idm_b_max: float = _C.idm_b_max
+    p_yield: float = _C.p_yield
+    command_distance: float = _C.command_distance
+    gap_time_limit: float = _C.gap_time_limit
+    gap_x_limit: float = _C.gap_x_limit
+    gap_time_headway: float = _C.gap_time_headway
+    b_safe: float = _C.b_safe
+    max_yaw_acc: float = _C.max_yaw_acc
+    manoeuvre_time_limit: float = _C.manoeuvre_time_limit
+    terminal_timeout: bool = _C.terminal_timeout
+    border: float = _C.border
+    success_offset: float = _C.success_offset
+    success_heading: float = _C.success_heading
+    success_yaw_rate: float = _C.success_yaw_rate
+    w1: float = _C.w1
+    w2: float = _C.w2
+    w3: float = _C.w3
+    w4: float = _C.w4
+    reward_scale: float = _C.reward_scale
+    offset_obs_scale: float = _C.offset_obs_scale
+    gamma: float = DDPGConfig().gamma
     k: int = 1
 
     @classmethod
-    def from_config(cls, env: EnvConfig, gamma: float = 0.98, k: int = 1) -> EnvParams:
+    def from_config(
+        cls, env: EnvConfig, gamma: float = DDPGConfig().gamma, k: int = 1
+    ) -> EnvParams:
         """Convert a validated ``EnvConfig`` (km/h, veh/h) to SI params."""
         values = {f: getattr(env, f) for f in cls.__dataclass_fields__ if hasattr(env, f)}
         for f in ("entry_speed_min", "entry_speed_max", "desired_speed_min", "desired_speed_max"):
             values[f] = values[f] * KMH
         values["inflow_min"] = env.inflow_min / 3600.0
         values["inflow_max"] = env.inflow_max / 3600.0
-        values["warmup_steps"] = int(round(env.warmup_time / env.dt))
+        values["warmup_steps"] = int(round(env.warmup_time / env.dt))  # as _WARMUP_STEPS
         return cls(**values, gamma=gamma, k=k)
 
 
@@ -589,8 +598,10 @@ class LaneChangeEnv:
             | (reason == reward.OUT_OF_BOUNDS)
             | (reason == reward.COLLISION)
         )
-        terminated = terminated | (timeout & params.terminal_timeout)
-        truncated = timeout & ~params.terminal_timeout
+        # A Python bool here (params compiled in as constants) would make ~ give -1, an int.
+        terminal_timeout = jnp.asarray(params.terminal_timeout, bool)
+        terminated = terminated | (timeout & terminal_timeout)
+        truncated = timeout & ~terminal_timeout
         return observation(state, params), state, r, terminated, truncated, info
 
 

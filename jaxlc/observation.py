@@ -13,12 +13,12 @@ clipped to ``GAP_CLIP`` m; a missing vehicle reads gap 100 m and dv 0, dv = v_ot
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from jaxlc.env import EnvParams
+# Params are any object with EnvParams' fields (jaxlc.env imports this module, not back).
+EnvParams = Any
 
 
 class Entry(NamedTuple):

@@ -433,8 +433,8 @@ def run_sweep(
                     _hold_for_a_signal()
             rate = chunk_env_steps / (time.perf_counter() - t_chunk)
             bar.update(np.minimum(counters["episodes"], t.episodes), metrics, rate)
-            if tracker is not None:
-                log = vars(to_host(state.log))
+            if tracker is not None:  # only the two log fields the curves read cross over
+                log = to_host({"ret": state.log.ret, "reason": state.log.reason})
                 steps = book.env_steps // grid.size
                 tracker.chunk(steps, log, counters["episodes"], metrics, rate)
     except KeyboardInterrupt:

@@ -505,3 +505,29 @@ def test_mirror_signs_reflect_the_observation_the_kinematics_and_keep_the_reward
         reward.end_reason(-offset, -eg.psi, -eg.omega, steps, collided, p),
         reward.end_reason(offset, eg.psi, eg.omega, steps, collided, p),
     )
+
+
+def test_step_ends_are_booleans_whether_params_are_traced_or_constants():
+    """``terminated``/``truncated`` are bool arrays also when the params are compiled in as
+    Python values (as the trainer does): ``~False`` is -1 in Python, an int."""
+    env, p = jaxlc.make()
+    _, state = env.reset(jax.random.PRNGKey(0), p)
+    closed = jax.jit(lambda k, s, a: env.step(k, s, a, p))
+    traced = jax.jit(env.step)
+    for out in (closed(jax.random.PRNGKey(1), state, jnp.zeros(1)),
+                traced(jax.random.PRNGKey(1), state, jnp.zeros(1), p)):  # fmt: skip
+        assert out[3].dtype == jnp.bool_ and out[4].dtype == jnp.bool_
+
+
+def test_paper_defaults_are_written_once():
+    """``configs/paper.toml`` holds the config dataclasses' defaults, and ``EnvParams()`` is
+    those defaults in SI units: no third copy to drift."""
+    from jaxlc import config
+    from jaxlc.config import Config, DDPGConfig, EnvConfig
+
+    assert config.load(config.CONFIG_DIR / "paper.toml") == Config()
+    assert E.EnvParams() == E.EnvParams.from_config(EnvConfig(), gamma=DDPGConfig().gamma)
+    assert jaxlc.make()[1] == E.EnvParams()
+    # And a changed config default would move EnvParams with it (units converted).
+    faster = E.EnvParams.from_config(EnvConfig(desired_speed_max=150.0))
+    assert faster.desired_speed_max == pytest.approx(150.0 / 3.6)

@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 
 from jaxlc import cases, checkpoint, config, evaluate, results, sweep
+from jaxlc.controller import scripted_action
+from jaxlc.env import EnvParams
 from jaxlc.policy import actor_fn
 from jaxlc.report import FIGURES
 from jaxlc.results import OUTCOMES
@@ -114,6 +116,17 @@ def test_scripted_succeeds_where_a_random_actor_fails(run) -> None:
     # The baseline drives like a human: a lane change of a few seconds, little overshoot.
     assert 3.0 <= scripted["duration_s"] <= 8.0
     assert scripted["overshoot_m"] < 0.5
+
+
+def test_a_policy_given_as_a_function_meets_the_same_cases(run) -> None:
+    """``evaluate_act`` (any learner's policy as a function) sees the cases every checkpoint
+    sees: the scripted controller through it equals the scripted baseline row."""
+    _, cfg, _ = run
+    p = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+    got = cases.evaluate_act(cfg, lambda obs: scripted_action(obs, p), cases=CASES)
+    _, want = _evaluate(cfg, [None], [1])
+    for name in want:
+        np.testing.assert_array_equal(got[name][0], want[name][0], err_msg=name)
 
 
 def test_every_figure_and_the_report_are_written(run) -> None:
