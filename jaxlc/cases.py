@@ -369,8 +369,8 @@ def evaluate_act(
     """Any learner's policy, given as a jittable ``act(obs (cases, OBS_DIM)) -> action (cases,
     1)``, on the same fixed cases as every checkpoint: the outcome dict of
     ``evaluate_policies`` with one row (``jaxlc.results.summarise`` turns it into a row)."""
+    start, _ = programs(cfg, max_steps)  # the checkpoints' own (cached) case program
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    start = jax.jit(jax.vmap(make_start_case(base, max_steps)))
     rollout = jax.jit(make_rollout(base, lambda _, obs: act(obs), max_steps))
     cs = start(case_keys(seed, cases))
     one = Policies(actor=jnp.zeros(1), k=jnp.asarray([k], jnp.int32), scripted=jnp.zeros(1, bool))

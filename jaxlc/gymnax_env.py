@@ -63,12 +63,9 @@ class LaneChangeState(environment.EnvState):
 class LaneChangeGymnax(environment.Environment):
     """The lane-change task for gymnax-based learners; pure, jittable, vmaps over envs."""
 
-    def __init__(self) -> None:
-        self._default_params = params_for(make()[1])  # the paper's (configs/paper.toml)
-
     @property
     def default_params(self) -> LaneChangeParams:
-        return self._default_params
+        return params_for(EnvParams())  # the paper's: EnvParams' defaults are the config's
 
     def reset(
         self, key: Array, params: LaneChangeParams | None = None

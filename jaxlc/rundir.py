@@ -101,11 +101,15 @@ class RunDir:
         checkpoint.write_text_atomic(self.config, config.to_toml(cfg))
 
     @staticmethod
+    def write_bytes(path: Path, data: bytes) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        checkpoint.write_bytes_atomic(path, data)
+
+    @staticmethod
     def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
         buf = io.BytesIO()
         np.savez_compressed(buf, **arrays)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        checkpoint.write_bytes_atomic(path, buf.getvalue())
+        RunDir.write_bytes(path, buf.getvalue())
 
     @staticmethod
     def load_npz(path: Path) -> dict[str, np.ndarray] | None:

@@ -269,14 +269,12 @@ def _hold_for_a_signal() -> None:
         signal.pause()
 
 
-def _save_state(rd: RunDir, state: train.TrainState, book: Bookkeeping) -> None:
-    """The whole run, device state and host bookkeeping, in one atomic file: a resume always
-    sees a state and the bookkeeping that goes with it."""
-    blob = flax.serialization.to_bytes({"state": to_host(state), "host": book.dump()})
-    if jax.process_index() != 0:
-        return
-    rd.state.parent.mkdir(parents=True, exist_ok=True)
-    checkpoint.write_bytes_atomic(rd.state, blob)
+def _save_state(rd: RunDir, state: train.TrainState, host: dict[str, Any]) -> None:
+    """The whole run, device state and host bookkeeping (``Bookkeeping.dump``), in one atomic
+    file: a resume always sees a state and the bookkeeping that goes with it."""
+    blob = flax.serialization.to_bytes({"state": to_host(state), "host": host})
+    if jax.process_index() == 0:
+        rd.write_bytes(rd.state, blob)
 
 
 def _load_state(rd: RunDir, target: train.TrainState) -> tuple[Any, dict]:
@@ -427,7 +425,7 @@ def run_sweep(
             book.env_steps += chunk_env_steps
             _save_checkpoints(rd, cfg, grid, state, counters["snap"], book, mine)
             if _save_due(last_save, t.save_every_s):
-                _save_state(rd, state, book)
+                _save_state(rd, state, book.dump())
                 last_save = time.perf_counter()
                 if hold:
                     _hold_for_a_signal()
@@ -440,7 +438,7 @@ def run_sweep(
     except KeyboardInterrupt:
         bar.close()
         if book.chunks:
-            _save_state(rd, state, book)
+            _save_state(rd, state, book.dump())
         raise
     finally:
         if tracker is not None:
@@ -474,8 +472,8 @@ def _finish(
     n_dev: int,
 ) -> dict[str, Any]:
     """Save the final state; write metrics and summary (process 0); return the summary."""
-    _save_state(rd, state, book)
-    host = book.dump()
+    host = book.dump()  # once: the saved state and the summary share its wall time
+    _save_state(rd, state, host)
     log = {k: np.asarray(v) for k, v in to_host(state.log).__dict__.items()}
     lead = jax.process_index() == 0
     summary = {
@@ -613,9 +611,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     out = None
     try:
-        if args.distributed and (args.out is not None or args.resume is not None):
+        cfg, out = resolve_run(args)  # reads files only: JAX is not started yet
+        if args.distributed:
             distributed_init()
-        cfg, out = resolve_run(args)
         if not args.distributed:  # a multi-host run uses the hosts' devices as they are
             machine.use_host_devices(host_devices(cfg) if args.devices is None else args.devices)
         summary = run_sweep(

@@ -276,9 +276,15 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
         # Episode bookkeeping; the snapshot slot keeps the actor of the last checkpoint passed.
         terms = ts.terms + jnp.stack([info["r_s"], info["r_e"], info["r_d"]], -1)  # (envs, 3)
         ended = rl & (term | trunc) & learning
-        rows = {"ret": info["episode_return"], "steps": info["episode_steps"]}
-        rows |= {"reason": info["reason"], "r_s": terms[:, 0], "r_e": terms[:, 1]}
-        rows |= {"r_d": terms[:, 2], "at_step": jnp.full((n_envs,), ts.step)}
+        rows = {
+            "ret": info["episode_return"],
+            "steps": info["episode_steps"],
+            "reason": info["reason"],
+            "r_s": terms[:, 0],
+            "r_e": terms[:, 1],
+            "r_d": terms[:, 2],
+            "at_step": jnp.full((n_envs,), ts.step),
+        }
         episodes = ts.episodes + ended.sum(dtype=jnp.int32)
         passed = (episodes // every) > (ts.episodes // every)
         ts = TrainState(
