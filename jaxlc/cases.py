@@ -28,12 +28,13 @@ from jax import Array
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-from jaxlc import config, tree
+from jaxlc import config, safety, tree
 from jaxlc.controller import scripted_action
-from jaxlc.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
+from jaxlc.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation, overlaps
 from jaxlc.networks import make_networks
 from jaxlc.observation import OBS_DIM
 from jaxlc.results import EvalError
+from jaxlc.reward import COLLISION
 from jaxlc.train import check_devices
 
 
@@ -77,6 +78,13 @@ class Outcome:
     final_offset: Array  # signed offset to the target centre line toward the target side, m
     final_psi: Array  # heading, rad
     final_omega: Array  # yaw rate, rad/s
+    # Safety and comfort over the manoeuvre (jaxlc.safety), the start state included.
+    peak_lat_jerk: Array  # max |lateral jerk| over a 0.5 s moving average, m/s^3
+    min_ttc: Array  # (policies, cases, 3) min time-to-collision to lead, lag, own leader, s
+    min_thw: Array  # (policies, cases, 3) min time headway, s
+    # The collision, if any: the vehicle hit (index of safety.PARTNERS) and the ego's speed.
+    partner: Array  # int32
+    hit_speed: Array  # m/s (NaN without a collision)
 
 
 @flax.struct.dataclass
@@ -96,9 +104,43 @@ class Trace:
 
 
 def case_keys(seed: int, cases: int) -> Array:
-    """``(cases, 2)`` keys; case ``i`` is the same for any ``cases >= i + 1``."""
+    """``(cases, 2)`` keys of the paper-protocol cases; case ``i`` is the same for any
+    ``cases >= i + 1``."""
     root = jax.random.PRNGKey(seed)
     return jax.vmap(lambda i: jax.random.fold_in(root, i))(jnp.arange(cases))
+
+
+# Held-out cases fold this tag into their root first, so their keys are a stream of their own:
+# none is a protocol case's key (``fold_in(PRNGKey(seed), i)``) nor a training key (the sweep
+# splits ``PRNGKey(train.seed)``), whatever the seeds.
+HELDOUT_TAG = 0x48454C44  # "HELD"
+
+
+def heldout_keys(seed: int, cases: int) -> Array:
+    """``(cases, 2)`` keys of held-out cases (disjoint from ``case_keys``' stream)."""
+    root = jax.random.fold_in(jax.random.PRNGKey(seed), HELDOUT_TAG)
+    return jax.vmap(lambda i: jax.random.fold_in(root, i))(jnp.arange(cases))
+
+
+def keys_for_lane_changes(
+    cfg: config.Config, lane_changes: int, seed: int, max_steps: int = 1500, batch: int = 512
+) -> Array:
+    """The fewest held-out keys (``heldout_keys(seed, n)``) whose cases hold ``lane_changes``
+    lane changes: cases are started ``batch`` at a time until enough reach the RL phase."""
+    start, _ = programs(cfg, max_steps)
+    performed: list[np.ndarray] = []
+    while sum(int(p.sum()) for p in performed) < lane_changes:
+        lo = batch * len(performed)
+        keys = heldout_keys(seed, lo + batch)[lo:]
+        performed.append(np.asarray(start(keys).performed))
+        if len(performed) * batch > 100 * lane_changes:
+            raise EvalError(
+                f"fewer than 1 in 100 held-out cases performs a lane change "
+                f"({sum(int(p.sum()) for p in performed)} of {len(performed) * batch}); "
+                "check the config's traffic and gap settings"
+            )
+    n = int(np.searchsorted(np.cumsum(np.concatenate(performed)), lane_changes)) + 1
+    return heldout_keys(seed, n)
 
 
 @functools.lru_cache(maxsize=8)
@@ -150,9 +192,10 @@ def make_start_case(base: EnvParams, max_steps: int) -> Callable[[Array], Cases]
     return start_case
 
 
-def _empty_outcome(cs: Cases, n_pol: int) -> Outcome:
+def _empty_outcome(cs: Cases, n_pol: int, p: EnvParams) -> Outcome:
     pc = (n_pol, cs.reason.shape[0])
     f0, i0, nan = jnp.zeros(pc, jnp.float32), jnp.zeros(pc, jnp.int32), jnp.full(pc, jnp.nan)
+    ttc, thw = safety.conflicts(cs.state, p)  # (cases, 3): the manoeuvre's start state
     return Outcome(
         reason=jnp.broadcast_to(cs.reason, pc),
         performed=jnp.broadcast_to(cs.performed, pc),
@@ -167,13 +210,26 @@ def _empty_outcome(cs: Cases, n_pol: int) -> Outcome:
         final_offset=nan,
         final_psi=nan,
         final_omega=nan,
+        peak_lat_jerk=f0,
+        min_ttc=jnp.broadcast_to(ttc, pc + (3,)),
+        min_thw=jnp.broadcast_to(thw, pc + (3,)),
+        partner=i0,
+        hit_speed=nan,
     )
 
 
 def _accumulate(
-    out: Outcome, live: Array, new: EnvState, r: Array, info: dict[str, Array], side: Array
+    out: Outcome,
+    live: Array,
+    new: EnvState,
+    r: Array,
+    info: dict[str, Array],
+    side: Array,
+    jerk: Array,
+    p: EnvParams,
 ) -> Outcome:
-    """Fold one step into the outcome; only ``live`` ``(policies, cases)`` entries change."""
+    """Fold one step into the outcome; only ``live`` ``(policies, cases)`` entries change
+    (``jerk``: the step's windowed lateral jerk)."""
 
     def add(acc: Array, value: Array) -> Array:
         return acc + jnp.where(live, value, 0.0)
@@ -185,6 +241,9 @@ def _accumulate(
         return jnp.where(live, value, acc)
 
     toward = info["offset"] * side  # signed toward the target side
+    ttc, thw = safety.conflicts(new, p)
+    hit = live & (info["reason"] == COLLISION)
+    overlap = jax.vmap(jax.vmap(overlaps, (0, 0, None)), (0, 0, None))(new.traffic, new.ego, p)
     return out.replace(
         reason=jnp.where(live, info["reason"], out.reason),
         ret=add(out.ret, r),
@@ -198,6 +257,11 @@ def _accumulate(
         final_offset=last(out.final_offset, toward),
         final_psi=last(out.final_psi, new.ego.psi),
         final_omega=last(out.final_omega, new.ego.omega),
+        peak_lat_jerk=peak(out.peak_lat_jerk, jnp.abs(jerk)),
+        min_ttc=jnp.where(live[..., None], jnp.minimum(out.min_ttc, ttc), out.min_ttc),
+        min_thw=jnp.where(live[..., None], jnp.minimum(out.min_thw, thw), out.min_thw),
+        partner=jnp.where(hit, safety.partner(overlap, new.traffic.x, new.ego, p), out.partner),
+        hit_speed=jnp.where(hit, new.ego.v, out.hit_speed),
     )
 
 
@@ -218,25 +282,30 @@ def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Call
             return jax.vmap(env.step, (0, 0, 0, None))(keys, s, a, base.replace(k=k))
 
         def body(c: tuple) -> tuple:
-            i, state, obs, done, out, trace = c
+            i, state, obs, done, out, trace, hist = c
             mu = jax.vmap(actor_apply)(pol.actor, obs)  # (policies, cases, 1)
             action = jnp.where(pol.scripted[:, None, None], scripted_action(obs, base), mu)
             keys = jax.vmap(jax.vmap(jax.random.fold_in))(bcast(cs.key), state.time)
             new_obs, new, r, _, _, info = jax.vmap(step_policy)(pol.k, keys, state, action)
             live = ~done  # (policies, cases); only live cases are in the RL phase
-            out = _accumulate(out, live, new, r, info, side)
+            jerk, hist = safety.windowed_jerk(hist, safety.lateral_acc(new), base.dt)
+            out = _accumulate(out, live, new, r, info, side, jerk, base)
             done = done | (live & ((info["reason"] != 0) | (new.time >= max_steps)))
             # Finished cases freeze, so their last frame is where the manoeuvre ended.
             state, obs = tree.where(live, (new, new_obs), (state, obs))
             trace = _record(trace, i + 1, state, traced, live[:, traced])
-            return i + 1, state, obs, done, out, trace
+            return i + 1, state, obs, done, out, trace, hist
 
         def going(c: tuple) -> Array:
-            i, _, _, done, _, _ = c
+            i, _, _, done, *_ = c
             return (i <= limit) & jnp.any(~done)
 
-        init = (jnp.int32(0), state, obs, ~bcast(cs.performed), _empty_outcome(cs, n_pol), trace)
-        *_, out, trace = jax.lax.while_loop(going, body, init)
+        # The lateral accelerations of the last 0.5 s; the ego drove straight before.
+        a0 = safety.lateral_acc(state)
+        hist = jnp.broadcast_to(a0[..., None], a0.shape + (safety.jerk_window(base),))
+        out0 = _empty_outcome(cs, n_pol, base)
+        init = (jnp.int32(0), state, obs, ~bcast(cs.performed), out0, trace, hist)
+        *_, out, trace, _ = jax.lax.while_loop(going, body, init)
         # A case still running here hit the cap: its reason stays 0, "unfinished".
         return out.replace(overshoot=jnp.maximum(out.overshoot, 0.0)), trace
 
@@ -306,12 +375,14 @@ def evaluate_policies(
     *,
     cases: int = 100,
     seed: int = 0,
+    keys: Array | None = None,
     max_steps: int = 1500,
     chunk: int = 32,
     traced: int = 4,
     devices: int = 1,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Evaluate actors (``None``: the scripted controller) with action-update steps ``ks``.
+    """Evaluate actors (``None``: the scripted controller) with action-update steps ``ks`` on
+    the protocol cases ``case_keys(seed, cases)``, or on the cases of ``keys`` if given.
 
     Returns numpy dicts ``(outcome (policies, cases), trace (policies, traced, ...),
     case info (cases,))``. Policies run in chunks of ``chunk`` (the last padded to full size,
@@ -320,7 +391,7 @@ def evaluate_policies(
     """
     check_devices(devices, EvalError)
     start, rollout = programs(cfg, max_steps, devices)
-    cs = start(case_keys(seed, cases))
+    cs = start(case_keys(seed, cases) if keys is None else keys)
     idx = pick_traced(cs, traced)
     template = jax.tree.map(np.zeros_like, init_actor(cfg))
     rows = [
@@ -343,13 +414,26 @@ def evaluate_policies(
         n = min(size, len(rows) - lo)
         outs.append(jax.tree.map(lambda a, n=n: a[:n], out))
         traces.append(jax.tree.map(lambda a, n=n: a[:n], trace))
-    info = {
-        "case": np.arange(cases),
+    info = {"case": np.arange(cs.reason.shape[0]), "traced": idx, **case_info(cs, cfg)}
+    return _concat(outs), _concat(traces), info
+
+
+def case_info(cs: Cases, cfg: config.Config) -> dict[str, np.ndarray]:
+    """``(cases,)`` arrays of what each case was at the manoeuvre's start (the same for every
+    policy): performed, side, the ego's speed, the target lane's gaps and the lag's speed at
+    acceptance, whether the lag was drawn yielding."""
+    eg, nb, L = cs.state.ego, cs.state.nb, cfg.env.vehicle_length
+    lead = np.where(nb.has_a1, nb.a1_x - L - eg.x, np.nan)
+    lag = np.where(nb.has_b1, eg.x - L - nb.b1_x, np.nan)
+    return {
         "performed": np.asarray(cs.performed),
         "side": np.asarray(cs.side),
-        "traced": idx,
+        "accept_v": np.asarray(eg.v),
+        "accept_lead_gap": np.asarray(lead),
+        "accept_lag_gap": np.asarray(lag),
+        "accept_lag_v": np.asarray(np.where(nb.has_b1, nb.b1_v, np.nan)),
+        "yielding": np.asarray(eg.yielding),
     }
-    return _concat(outs), _concat(traces), info
 
 
 def _concat(parts: list[Any]) -> dict[str, np.ndarray]:
@@ -364,15 +448,16 @@ def evaluate_act(
     k: int = 1,
     cases: int = 100,
     seed: int = 0,
+    keys: Array | None = None,
     max_steps: int = 1500,
 ) -> dict[str, np.ndarray]:
     """Any learner's policy, given as a jittable ``act(obs (cases, OBS_DIM)) -> action (cases,
-    1)``, on the same fixed cases as every checkpoint: the outcome dict of
-    ``evaluate_policies`` with one row (``jaxlc.results.summarise`` turns it into a row)."""
+    1)``, on the same fixed cases as every checkpoint (or those of ``keys``): the outcome dict
+    of ``evaluate_policies`` with one row (``jaxlc.results.summarise`` turns it into a row)."""
     start, _ = programs(cfg, max_steps)  # the checkpoints' own (cached) case program
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     rollout = jax.jit(make_rollout(base, lambda _, obs: act(obs), max_steps))
-    cs = start(case_keys(seed, cases))
+    cs = start(case_keys(seed, cases) if keys is None else keys)
     one = Policies(actor=jnp.zeros(1), k=jnp.asarray([k], jnp.int32), scripted=jnp.zeros(1, bool))
     out, _ = jax.device_get(rollout(one, cs, jnp.zeros(1, jnp.int32)))
     return {name: np.asarray(v) for name, v in vars(out).items()}

@@ -1,8 +1,9 @@
 """Typed, frozen configuration loaded from TOML and validated once, at the edge.
 
 A config file has four tables, ``[env]``, ``[ddpg]``, ``[train]`` and ``[grid]``; every field
-below is a key of its table. ``configs/paper.toml`` holds the paper's values and is also the
-built-in default. Overrides are ``table.key=value`` strings (TOML syntax for the value).
+below is a key of its table. ``configs/default.toml`` holds the dataclasses' defaults, the
+built-in default of ``python -m jaxlc.sweep``; ``configs/paper.toml`` the paper's method as
+written. Overrides are ``table.key=value`` strings (TOML syntax for the value).
 
 Any problem (unknown table or key, wrong type, value out of range) raises ``ConfigError`` with
 one line naming the key and what is allowed; nothing is run with a bad config.
@@ -21,7 +22,8 @@ from pathlib import Path
 from typing import Any
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
-PAPER_CONFIG = CONFIG_DIR / "paper.toml"
+PAPER_CONFIG = CONFIG_DIR / "paper.toml"  # the paper's method as written
+DEFAULT_CONFIG = CONFIG_DIR / "default.toml"  # the built-in default: the dataclasses' values
 
 
 class ConfigError(ValueError):
@@ -76,6 +78,9 @@ class EnvConfig:
     gap_x_limit: float = _f(450.0, 0.0, open_lo=True, doc="m; no gap beyond this x")
     gap_time_headway: float = _f(0.5, 0.0, 5.0, doc="s in s0 + T*v of gap acceptance")
     b_safe: float = _f(4.0, 0.0, 20.0, open_lo=True, doc="m/s^2, lag deceleration bound")
+    gap_min_ttc: float = _f(
+        4.0, 0.0, 20.0, doc="s, least time-to-collision (margin s0) of the gap's lead and lag"
+    )
     # ego lateral
     max_yaw_acc: float = _f(0.5, 0.0, 10.0, open_lo=True, doc="A in a_lat = A*action, rad/s^2")
     manoeuvre_time_limit: float = _f(10.0, 0.0, 120.0, open_lo=True, doc="s")
@@ -111,6 +116,9 @@ class DDPGConfig:
     noise_sigma: float = _f(0.2, 0.0, 2.0)
     noise_clip: float = _f(2.0, 0.0, 10.0, open_lo=True, doc="truncation, in sigmas")
     updates_per_step: int = _f(1, 1, 64, doc="gradient updates per scan step per model")
+    updates_per_transition: int = _f(
+        0, 0, 8, doc="updates per RL transition (the paper: 1); 0 uses updates_per_step"
+    )
     td3: bool = _f(False, doc="TD3 instead of DDPG (an option, never the paper's default)")
     td3_target_noise: float = _f(0.2, 0.0, 2.0, doc="TD3 target smoothing sigma, tanh units")
     td3_target_clip: float = _f(0.5, 0.0, 2.0, doc="TD3 target smoothing noise clip")
@@ -302,10 +310,10 @@ def parse_override(text: str) -> tuple[str, str, Any]:
 
 
 def load(path: str | Path | None = None, overrides: typing.Sequence[str] = ()) -> Config:
-    """Load ``path`` (default ``configs/paper.toml``), apply overrides, validate."""
-    path = Path(path) if path is not None else PAPER_CONFIG
+    """Load ``path`` (default ``configs/default.toml``), apply overrides, validate."""
+    path = Path(path) if path is not None else DEFAULT_CONFIG
     data: dict[str, Any] = {}
-    if path.exists() or path != PAPER_CONFIG:
+    if path.exists() or path != DEFAULT_CONFIG:
         try:
             data = tomllib.loads(path.read_text())
         except FileNotFoundError:

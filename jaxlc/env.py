@@ -93,6 +93,7 @@ class EnvParams:
     gap_x_limit: float = _C.gap_x_limit
     gap_time_headway: float = _C.gap_time_headway
     b_safe: float = _C.b_safe
+    gap_min_ttc: float = _C.gap_min_ttc
     max_yaw_acc: float = _C.max_yaw_acc
     manoeuvre_time_limit: float = _C.manoeuvre_time_limit
     terminal_timeout: bool = _C.terminal_timeout
@@ -442,16 +443,22 @@ def ego_phase(
     )
 
 
-def collided(traffic: Traffic, ego: Ego, spawned: Array, p: EnvParams) -> Array:
-    """``()`` bool: the ego's heading-aligned bounding box overlaps a vehicle's box (a just
-    spawned ego, at the road's start, is not checked)."""
+def overlaps(traffic: Traffic, ego: Ego, p: EnvParams) -> Array:
+    """``(lanes, slots)`` bool: the vehicles whose box the ego's heading-aligned bounding box
+    overlaps (whatever the ego's phase)."""
     L, W = p.vehicle_length, p.vehicle_width
     hx, hy = kinematics.half_extents(ego.psi, L, W)
     lane_y = ((jnp.arange(p.lanes) + 0.5) * p.lane_width)[:, None]
     overlap = (jnp.abs(ego.x - hx - (traffic.x - 0.5 * L)) < hx + 0.5 * L) & (
         jnp.abs(ego.y - lane_y) < hy + 0.5 * W
     )
-    return (ego.phase >= CRUISE) & ~spawned & jnp.any(traffic.active & overlap)
+    return traffic.active & overlap
+
+
+def collided(traffic: Traffic, ego: Ego, spawned: Array, p: EnvParams) -> Array:
+    """``()`` bool: the ego's box overlaps a vehicle's box (a just spawned ego, at the road's
+    start, is not checked)."""
+    return (ego.phase >= CRUISE) & ~spawned & jnp.any(overlaps(traffic, ego, p))
 
 
 def gap_decision(ego: Ego, nb: gap.Neighbours, p: EnvParams) -> tuple[Array, Array]:

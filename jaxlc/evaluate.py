@@ -15,6 +15,13 @@ the statistics over seeds (``jaxlc.stats``: ``cells.json``, ``cells.csv``,
 ``improvement.csv``), then the figures and ``RUN_DIR/report.md`` (skip figures with
 ``--no-figures``).
 
+Beside the paper's 100 cases, each model's final checkpoint (and those of
+``--heldout-episodes``) drives ``--lane-changes`` held-out lane changes (1,000 by default; 0
+skips them), on cases of a key stream of their own (``--heldout-seed``): failure rates with
+binomial intervals, the safety and comfort norms, every collision attributed
+(``jaxlc.heldout``). Writes ``eval/heldout.json``, ``heldout.csv``, ``heldout_cells.csv``,
+``collisions.csv`` and ``heldout_cases.npz``.
+
     python -m jaxlc.evaluate --compare RUN_A RUN_B [--out DIR]
 
 compares two runs that are already evaluated (their ``eval/eval.json``; nothing is
@@ -39,8 +46,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxlc import checkpoint, config, machine, stats
-from jaxlc.cases import evaluate_policies, init_actor
+from jaxlc import checkpoint, config, convergence, heldout, machine, stats
+from jaxlc.cases import evaluate_policies, init_actor, keys_for_lane_changes
 from jaxlc.checkpoint import CheckpointError
 from jaxlc.env import ACT_DIM
 from jaxlc.observation import OBS_DIM
@@ -56,7 +63,8 @@ from jaxlc.results import (
     summarise,
 )
 from jaxlc.rundir import RunDir
-from jaxlc.stats import StatsError
+from jaxlc.safety import NORMS
+from jaxlc.stats import StatsError, final_rows
 
 
 def default_episodes(every: int, final: int) -> list[int]:
@@ -163,6 +171,100 @@ def evaluate_run(
     traced_side = info["side"][info["traced"]]
     rd.save_npz(rd.traces, {**trace, **ids, "traced": info["traced"], "side": traced_side})
     return result
+
+
+def final_checkpoints(
+    run_dir: Path, episodes: Sequence[int] | None = None
+) -> list[tuple[Path, dict[str, Any]]]:
+    """Each model's last checkpoint, and those of ``episodes`` too, by model then episode."""
+    select_checkpoints(run_dir)  # checks the metadata; its errors name the fix
+    found = [(p, _sidecar(p)) for p in checkpoint.list_checkpoints(run_dir)]
+    last: dict[int, int] = {}
+    for _, m in found:
+        last[m["model"]] = max(last.get(m["model"], 0), m["episode"])
+    want = set(episodes or ())
+    return [(p, m) for p, m in found if m["episode"] in want | {last[m["model"]]}]
+
+
+def evaluate_heldout(
+    run_dir: Path,
+    episodes: Sequence[int] | None = None,
+    *,
+    lane_changes: int = 1000,
+    seed: int = 0,
+    max_steps: int = 1500,
+    chunk: int = 32,
+    devices: int = 1,
+) -> dict[str, Any]:
+    """Every model's final checkpoint (and those of ``episodes``) and the scripted baseline
+    on ``lane_changes`` held-out lane changes (``jaxlc.heldout``); writes
+    ``eval/heldout.json``, ``heldout.csv``, ``heldout_cells.csv``, ``collisions.csv`` and
+    ``heldout_cases.npz``; returns the JSON's content."""
+    run_dir, rd = Path(run_dir), RunDir(run_dir)
+    chosen = final_checkpoints(run_dir, episodes)
+    cfg = _run_config(run_dir)
+    shapes = checkpoint.shapes_of(init_actor(cfg))
+    actors = [checkpoint.load(p, expect_shapes=shapes)[0] for p, _ in chosen]
+    metas = [SCRIPTED] + [_row_meta(p, m, run_dir) for p, m in chosen]
+    keys = keys_for_lane_changes(cfg, lane_changes, seed, max_steps)
+    out, _, info = evaluate_policies(
+        cfg,
+        [None, *actors],
+        [1] + [m["k"] for m in metas[1:]],
+        keys=keys,
+        max_steps=max_steps,
+        chunk=chunk,
+        traced=0,
+        devices=devices,
+    )
+    dt = cfg.env.dt
+    rows = [{**m, **heldout.model_row(out, info, p, dt)} for p, m in enumerate(metas)]
+    cells = heldout.cell_rows(final_rows(rows))
+    result = {
+        "config_hash": cfg.hash(),
+        "seed": seed,
+        "key_stream": f"jaxlc.cases.heldout_keys({seed}, {len(keys)})",
+        "cases": len(keys),
+        "lane_changes": int(info["performed"].sum()),
+        "norms": [
+            dict(zip(("measure", "bound", "below", "source"), n, strict=True)) for n in NORMS
+        ],
+        "rows": rows,
+        "cells": cells,
+        "claim_d": heldout.claim_d(cells),
+        "collisions": heldout.collisions(out, info, metas, dt),
+    }
+    rd.eval.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(_json_safe(result), indent=1) + "\n"
+    checkpoint.write_text_atomic(rd.heldout_json, text)
+    for name, table, fields in (
+        ("heldout", rows, heldout.HELDOUT_FIELDS),
+        ("heldout_cells", cells, list(cells[0]) if cells else []),
+        ("collisions", result["collisions"], heldout.COLLISION_FIELDS),
+    ):
+        checkpoint.write_text_atomic(rd.eval / f"{name}.csv", _csv(table, fields))
+    ids = {
+        "policy_model": np.asarray([-1 if m["model"] is None else m["model"] for m in metas]),
+        "policy_episode": np.asarray([m["episode"] or 0 for m in metas]),
+    }
+    rd.save_npz(rd.heldout_cases, {**out, **ids, **info})
+    return result
+
+
+def write_convergence(run_dir: Path) -> dict[str, Any] | None:
+    """``eval/convergence.json`` and ``convergence.csv``: the learning-speed measures of every
+    model from its training curves and the paper's comparisons on them
+    (``jaxlc.convergence``); None when the run has no episode metrics."""
+    rd = RunDir(run_dir)
+    episodes = rd.load_npz(rd.episodes)
+    if episodes is None or not rd.summary_json.is_file():
+        return None
+    doc = convergence.study(episodes, rd.read_json(rd.summary_json)["models"])
+    rd.eval.mkdir(parents=True, exist_ok=True)
+    checkpoint.write_text_atomic(rd.convergence, json.dumps(_json_safe(doc), indent=1) + "\n")
+    fields = list(doc["models"][0]) if doc["models"] else []
+    checkpoint.write_text_atomic(rd.eval / "convergence.csv", _csv(doc["models"], fields))
+    return doc
 
 
 def evaluate_checkpoint(
@@ -337,6 +439,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--chunk", type=int, default=32, help="policies per compiled batch")
     ap.add_argument("--no-figures", action="store_true", help="skip figures (report still)")
     ap.add_argument(
+        "--lane-changes",
+        type=int,
+        default=1000,
+        help="held-out lane changes per final checkpoint (default 1000; 0 skips them)",
+    )
+    ap.add_argument("--heldout-seed", type=int, default=0, help="seed of the held-out cases")
+    ap.add_argument(
+        "--heldout-episodes",
+        type=_episodes_arg,
+        default=None,
+        help="held-out evaluation of these checkpoints too, beside each model's last",
+    )
+    ap.add_argument(
         "--devices",
         type=int,
         default=None,
@@ -359,6 +474,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.cases < 1 or args.max_steps < 1 or args.chunk < 1:
             raise EvalError("--cases, --max-steps and --chunk must be at least 1")
+        if args.lane_changes < 0:
+            raise EvalError("--lane-changes must be 0 (none) or more")
         auto = args.devices is None
         machine.use_host_devices(_host_devices(args) if auto else args.devices)
         if args.checkpoint is not None:
@@ -384,6 +501,18 @@ def main(argv: list[str] | None = None) -> int:
             devices=len(jax.devices()) if auto else args.devices,
         )
         print(format_table(result["rows"]))
+        write_convergence(args.run_dir)
+        if args.lane_changes > 0:
+            held = evaluate_heldout(
+                args.run_dir,
+                args.heldout_episodes,
+                lane_changes=args.lane_changes,
+                seed=args.heldout_seed,
+                max_steps=args.max_steps,
+                chunk=args.chunk,
+                devices=len(jax.devices()) if auto else args.devices,
+            )
+            print(heldout.format_rows(held["rows"]))
         from jaxlc import figures, report
 
         made = [] if args.no_figures else figures.make_all(args.run_dir)

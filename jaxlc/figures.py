@@ -35,7 +35,7 @@ from matplotlib.animation import PillowWriter  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 
-from jaxlc import stats  # noqa: E402
+from jaxlc import heldout, stats  # noqa: E402
 from jaxlc.results import OUTCOMES, rank_models  # noqa: E402
 from jaxlc.rundir import RunDir  # noqa: E402
 
@@ -534,6 +534,47 @@ def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | 
     return path
 
 
+TTC_SHOWN = 10.0  # s; longer (or no closing at all) is drawn at this value
+
+
+def heldout_norms(run_dir: Path) -> Path | None:
+    """Per cell (seeds pooled) and the scripted controller, the distribution over held-out
+    lane changes of each norm's measure, the norm as a dashed red line (``jaxlc.safety``)."""
+    rd = RunDir(run_dir)
+    cases = _npz(rd.heldout_cases)
+    if cases is None or not rd.heldout_json.is_file():
+        return None
+    doc = json.loads(rd.heldout_json.read_text())
+    dt = RunDir(run_dir).load_config().env.dt
+    perf = cases["performed"]
+    measures = [
+        {k: v[perf] for k, v in heldout.lane_change_measures(cases, p, dt).items()}
+        for p in range(len(doc["rows"]))
+    ]
+    groups: dict[str, list[int]] = {}  # cell tag (or "scripted") -> policy rows
+    for p, r in enumerate(doc["rows"]):
+        tag = "scripted" if r["model"] is None else r["label"].split(" ")[0]
+        groups.setdefault(tag, []).append(p)
+    fig, axes = plt.subplots(1, len(doc["norms"]), figsize=(3.2 * len(doc["norms"]), 3.6))
+    for ax, norm in zip(axes, doc["norms"], strict=True):
+        name = norm["measure"]
+        data = [np.concatenate([measures[p][name] for p in rows]) for rows in groups.values()]
+        if name.startswith("min_"):
+            data = [np.minimum(d, TTC_SHOWN) for d in data]
+        data = [d[np.isfinite(d)] for d in data]
+        ax.boxplot(data, whis=(1, 99), showfliers=True, flierprops={"markersize": 2})
+        ax.axhline(norm["bound"], color="red", ls="--", lw=1)
+        ax.set_xticks(range(1, len(groups) + 1), list(groups), rotation=90, fontsize=7)
+        ax.set_title(name.replace("_", " "), fontsize=9)
+    fig.suptitle(
+        f"{doc['lane_changes']} held-out lane changes per model (whiskers 1-99%; successes "
+        f"only for duration; TTC/THW drawn at most {TTC_SHOWN:g} s)",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    return _save(fig, rd.figure("heldout_norms.png"))
+
+
 def make_all(run_dir: Path) -> list[Path]:
     """Every figure whose data the run directory holds; returns the files written."""
     run_dir = Path(run_dir)
@@ -545,6 +586,7 @@ def make_all(run_dir: Path) -> list[Path]:
         fig7_trajectories,
         learning_gif,
         profiles,
+        heldout_norms,
     )
     return [path for make in makers if (path := make(run_dir)) is not None]
 

@@ -3,7 +3,9 @@
 Candidates are the gap beside the ego (lag B1, lead A1), the gap ahead (A1, A2) and the gap
 behind (B2, B1). The gap beside is acceptable when both net gaps are at least
 ``s0 + gap_time_headway*v`` and the lag's IDM deceleration with the ego as its leader is no
-harsher than ``-b_safe`` (MOBIL's safety criterion). A gap ahead or behind is acceptable when
+harsher than ``-b_safe`` (MOBIL's safety criterion), and (with ``gap_min_ttc`` > 0) when
+neither the lead nor the lag, at today's speeds, would come within ``s0`` of the ego in
+``gap_min_ttc`` s: a time-to-collision test. A gap ahead or behind is acceptable when
 it is long enough to hold the ego with those margins. If the gap beside is not acceptable,
 the ego adapts its speed toward the nearest acceptable candidate by taking that gap's lead
 vehicle as an extra IDM leader (A2 ahead, B1 behind, A1 when none is acceptable).
@@ -96,7 +98,12 @@ def beside_acceptable(nb: Neighbours, x_ego: Array, v_ego: Array, p) -> Array:
     lag_ok = lag_gap >= p.idm_s0 + p.gap_time_headway * nb.b1_v
     lag_acc = idm_with_params(nb.b1_v, nb.b1_v0, lag_gap, v_ego, p)
     lag_safe = ~nb.has_b1 | (lag_acc >= -p.b_safe)
-    return lead_ok & lag_ok & lag_safe
+    # Anticipation: the gaps after gap_min_ttc s at today's speeds still hold s0. A lag that
+    # does not yield keeps its speed until the ego's body is in its lane, so MOBIL's test of
+    # its braking (as if it yielded) alone lets a fast lag catch a slow ego alongside.
+    lead_ahead = lead_gap - jnp.maximum(v_ego - nb.a1_v, 0.0) * p.gap_min_ttc >= p.idm_s0
+    lag_behind = lag_gap - jnp.maximum(nb.b1_v - v_ego, 0.0) * p.gap_min_ttc >= p.idm_s0
+    return lead_ok & lag_ok & lag_safe & lead_ahead & lag_behind
 
 
 def target_leader(nb: Neighbours, x_ego: Array, v_ego: Array, p) -> tuple[Array, Array]:

@@ -8,6 +8,9 @@
     RUN_DIR/summary.md, summary.json       last-100-episode success rate and return
     RUN_DIR/eval/eval.json, eval.csv       evaluation rows (python -m jaxlc.evaluate)
     RUN_DIR/eval/cases.npz, traces.npz     per policy and case; the drawn cases
+    RUN_DIR/eval/heldout.json, heldout*.csv, collisions.csv, heldout_cases.npz
+                                           the held-out lane changes (jaxlc.heldout)
+    RUN_DIR/eval/convergence.json, .csv    learning speed per model (jaxlc.convergence)
     RUN_DIR/figures/*.png, report.md       figures and report of the evaluated run
 
 Every write is atomic (``jaxlc.checkpoint.write_bytes_atomic``): a reader sees the old file or
@@ -81,6 +84,18 @@ class RunDir:
     @property
     def traces(self) -> Path:
         return self.eval / "traces.npz"
+
+    @property
+    def heldout_json(self) -> Path:
+        return self.eval / "heldout.json"
+
+    @property
+    def heldout_cases(self) -> Path:
+        return self.eval / "heldout_cases.npz"
+
+    @property
+    def convergence(self) -> Path:
+        return self.eval / "convergence.json"
 
     def figure(self, name: str) -> Path:
         return self.root / "figures" / name

@@ -35,9 +35,14 @@ evaluated checkpoint (N below is the fewest seeds of a cell involved):
     if it lies below 0.5, else *undecided at N seeds*.
 (c) A smaller k is better: as (b), the smallest k against the largest.
 (d) ④ succeeds in 100% of its lane changes: *supported* if the interval of ④'s mean
-    success rate lies at or above ``SOLVED`` (99%), *not supported* if its upper end is
-    below 1.0, else *undecided at N seeds* (an interval that merely reaches 1.0 while the
-    mean is lower is no evidence of 100%).
+    success rate lies at or above ``SOLVED`` (99%) and has a width, *not supported* if its
+    upper end is below 1.0, else *undecided at N seeds* (an interval that merely reaches 1.0
+    while the mean is lower is no evidence of 100%; seeds that all score 70 of 70 give a
+    zero-width interval, no evidence either). Where the run has a held-out evaluation, the
+    report decides (d) on ④'s held-out failure bound instead (``jaxlc.heldout.claim_d``).
+
+Below 5 seeds (``RANGE_BELOW``) a verdict needs an interval with a width: one of zero width
+(every resample alike) leaves the claim undecided.
 
 With one seed per cell every verdict is undecided.
 """
@@ -61,6 +66,8 @@ CELL_AXES = ("k", "memory", "actor_lr", "critic_lr", "noise_sigma")
 SOLVED = 0.99  # a success rate that counts as the paper's 100% (claim (d))
 PAPER_BEST = "④"  # the paper's Table 1 tag of k=1, D=4000 (sweep.PAPER_LABELS)
 SEEDS_NOTE = "intervals need >= 2 seeds per cell"
+RANGE_BELOW = 5  # fewer seeds: a cell's "interval" of a mean is the seeds' range (describe)
+RANGE_NOTE = "with fewer than 5 seeds a cell's interval is the range of its seeds"
 
 
 class StatsError(ValueError):
@@ -140,7 +147,11 @@ def describe(x: np.ndarray, seed: int = 0) -> dict[str, float]:
     if x.size == 0:
         return dict.fromkeys(("mean", "mean_lo", "mean_hi", "iqm", "iqm_lo", "iqm_hi"), math.nan)
     est = _mean_iqm(x)
-    lo, hi = interval([x], _mean_iqm, seed)
+    if 2 <= x.size < RANGE_BELOW:
+        # No bootstrap covers at so few seeds; say plainly that this is the seeds' range.
+        lo, hi = np.full(2, x.min()), np.full(2, x.max())
+    else:
+        lo, hi = interval([x], _mean_iqm, seed)
     return {
         "mean": float(est[0]),
         "mean_lo": float(lo[0]),
@@ -283,10 +294,13 @@ def fewest_seeds(cells: Sequence[Cell]) -> int:
 
 
 def seeds_note(cells: Sequence[Cell]) -> str | None:
-    """Why there are no intervals, or None when every cell has >= 2 seeds."""
+    """Why there are no intervals, or that they are the seeds' range (2-4 seeds); None from
+    5 seeds per cell on."""
     n = fewest_seeds(cells)
-    if n >= 2:
+    if n >= RANGE_BELOW:
         return None
+    if n >= 2:
+        return f"{RANGE_NOTE}; this run has {n} in its smallest cell"
     return f"{SEEDS_NOTE}; this run has {n} seed{'s' * (n != 1)} in its smallest cell"
 
 
@@ -352,7 +366,11 @@ def improvement_table(cells: Sequence[Cell]) -> list[dict[str, Any]]:
 
 
 def verdict(lo: float, hi: float, seeds: int) -> str:
-    """The rule for "X is better than Y" from the interval of P(X > Y)."""
+    """The rule for "X is better than Y" from the interval of P(X > Y). A zero-width
+    interval (every resample alike: the seeds of X all beat, or all lose to, those of Y)
+    decides only from ``RANGE_BELOW`` seeds on; with fewer it is no evidence."""
+    if not lo < hi and seeds < RANGE_BELOW:
+        return f"undecided at {seeds} seed{'s' * (seeds != 1)}"
     if lo > 0.5:
         return "supported"
     if hi < 0.5:
@@ -393,9 +411,9 @@ def claims(cells: Sequence[Cell]) -> list[dict[str, str]]:
     else:
         ps = [(c, *improvement([best.final_success], [c.final_success])) for c in others]
         n = fewest_seeds(cells)
-        if all(lo > 0.5 for _, _, lo, _ in ps):
+        if all(verdict(lo, hi, n) == "supported" for _, _, lo, hi in ps):
             v = "supported"
-        elif any(hi < 0.5 for _, _, _, hi in ps):
+        elif any(verdict(lo, hi, n) == "not supported" for _, _, lo, hi in ps):
             v = "not supported"
         else:
             v = verdict(math.nan, math.nan, n)
@@ -429,7 +447,7 @@ def claims(cells: Sequence[Cell]) -> list[dict[str, str]]:
         else:
             v = (
                 "supported"
-                if d["mean_lo"] >= SOLVED
+                if SOLVED <= d["mean_lo"] < d["mean_hi"]  # a zero-width interval decides nothing
                 else "not supported"
                 if d["mean_hi"] < 1.0 - 1e-9
                 else verdict(math.nan, math.nan, len(best.seeds))

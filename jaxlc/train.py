@@ -7,7 +7,8 @@ A *model* is one cell of the grid (k, memory, learning rates, noise) with one se
 share shapes, so the grid is a ``vmap`` over a leading ``(models,)`` axis of one ``TrainState``.
 Each scan step, for every model: the actor (plus truncated-normal noise) acts in all of the
 model's parallel envs; the transitions of envs whose ego is under RL control go into the
-replay memory; once it holds a batch, ``updates_per_step`` DDPG updates follow; episodes that
+replay memory; once it holds a batch, DDPG updates follow (``updates_per_step`` per scan step,
+or ``updates_per_transition`` per RL transition, the paper's schedule); episodes that
 ended are appended to a per-model episode log; when the episode count passes a multiple of
 ``checkpoint_every`` the actor is copied to a snapshot slot the host saves between chunks.
 A model stops learning (its params freeze) once it has done ``train.episodes`` episodes, so
@@ -208,16 +209,36 @@ def _learn(
     h: ddpg.Hyper,
     d: DDPGConfig,
     updating: Array,
-) -> tuple[ddpg.Learner, dict[str, Array]]:
-    """``d.updates_per_step`` DDPG updates on batches from ``memory``, kept only when
-    ``updating``; returns the learner and the losses of each update ``(updates,)``."""
+    transitions: Array,
+) -> tuple[ddpg.Learner, dict[str, Array], Array]:
+    """DDPG updates on batches from ``memory``, kept only when ``updating``: returns the
+    learner, the losses of the last update ``(1,)`` and the count of updates made.
+
+    ``d.updates_per_transition = 0``: ``d.updates_per_step`` updates every scan step.
+    Otherwise that many per RL transition of this step (``transitions``, the model's envs
+    together), the paper's one update per environment step of its single env."""
 
     def one_update(learner: ddpg.Learner, k: Array):
         batch = replay.sample(memory, k, d.batch_size, MIRROR_SIGNS if d.mirror else None)
         return ddpg.update(learner, batch, h, d, key=jax.random.fold_in(k, 1))
 
-    new, losses = jax.lax.scan(one_update, learner, jax.random.split(key, d.updates_per_step))
-    return tree.where(updating, new, learner), losses
+    if d.updates_per_transition == 0:
+        keys = jax.random.split(key, d.updates_per_step)
+        new, losses = jax.lax.scan(one_update, learner, keys)
+        made = jnp.where(updating, d.updates_per_step, 0).astype(jnp.int32)
+        return tree.where(updating, new, learner), jax.tree.map(lambda x: x[-1:], losses), made
+
+    n = jnp.where(updating, transitions * d.updates_per_transition, 0).astype(jnp.int32)
+    shapes = jax.eval_shape(one_update, learner, key)[1]
+    nan = jax.tree.map(lambda s: jnp.full((1,) + s.shape, jnp.nan, s.dtype), shapes)
+
+    def body(c: tuple) -> tuple:
+        i, lrn, _ = c
+        lrn, losses = one_update(lrn, jax.random.fold_in(key, i))
+        return i + 1, lrn, jax.tree.map(lambda x: x[None], losses)
+
+    _, new, losses = jax.lax.while_loop(lambda c: c[0] < n, body, (jnp.int32(0), learner, nan))
+    return new, losses, n
 
 
 def _step_metrics(
@@ -271,7 +292,8 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
 
         # DDPG updates once the memory holds one batch [P]/[S].
         updating = learning & (memory.size >= d.batch_size)
-        learner, losses = _learn(ts.learner, memory, k_update, h, d, updating)
+        transitions = rl.sum(dtype=jnp.int32)
+        learner, losses, updates = _learn(ts.learner, memory, k_update, h, d, updating, transitions)
 
         # Episode bookkeeping; the snapshot slot keeps the actor of the last checkpoint passed.
         terms = ts.terms + jnp.stack([info["r_s"], info["r_e"], info["r_d"]], -1)  # (envs, 3)
@@ -302,7 +324,8 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
                 passed, jnp.minimum(episodes // every * every, t.episodes), ts.snap_episode
             ),
         )
-        return ts, _step_metrics(updating, losses, rl, ended, info, obs, reward)
+        metrics = _step_metrics(updating & (updates > 0), losses, rl, ended, info, obs, reward)
+        return ts, {**metrics, "updates": updates}
 
     def init(key: Array, hyper: ModelHyper) -> TrainState:
         return init_model(key, hyper, cfg)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import jaxlc
+from jaxlc import config, gap, idm, kinematics, reward
 from jaxlc import env as E
-from jaxlc import gap, idm, kinematics, reward
 from jaxlc.controller import scripted_action
 
 
@@ -273,6 +273,21 @@ def test_gap_beside_acceptance(env_params, xs, vs, accept):
     assert bool(gap.beside_acceptable(nb, jnp.float32(x_ego), jnp.float32(v_ego), p)) is accept
 
 
+@pytest.mark.parametrize("min_ttc, accept", [(0.0, True), (2.5, True), (4.0, False)])
+def test_gap_acceptance_by_time_to_collision(env_params, min_ttc, accept):
+    """The scene of the held-out collisions: the ego at 0.6 m/s, the lead 2.95 m ahead (net),
+    a lag at 13.2 m/s 37.9 m behind. MOBIL's test passes (the lag would brake at -3.6 m/s^2
+    if it took the ego as its leader), but a lag that does not yield keeps its speed and
+    comes within s0 of the ego after (37.9 - 2) / 12.6 = 2.85 s."""
+    _, p = env_params
+    p = p.replace(gap_min_ttc=min_ttc)
+    x_ego, v_ego = 100.0, 0.6
+    xs, vs = [x_ego + 5.0 + 2.95, x_ego - 5.0 - 37.9], [5.0, 13.2]
+    nb = gap.neighbours(*_lane(xs, vs, v0s=[30.0, 30.0]), jnp.float32(x_ego))
+    assert bool(gap.beside_acceptable(nb, jnp.float32(x_ego), jnp.float32(v_ego), p)) is accept
+    assert config.Config().env.gap_min_ttc == 4.0  # the default rejects it
+
+
 def _lag_scene(env, p, yielding):
     """Ego under RL control at x=200 m, 15 m/s, holding its lane; in the target lane a lag
     25 m behind at 25 m/s that wants 30 m/s."""
@@ -520,12 +535,12 @@ def test_step_ends_are_booleans_whether_params_are_traced_or_constants():
 
 
 def test_paper_defaults_are_written_once():
-    """``configs/paper.toml`` holds the config dataclasses' defaults, and ``EnvParams()`` is
+    """``configs/default.toml`` holds the config dataclasses' defaults, and ``EnvParams()`` is
     those defaults in SI units: no third copy to drift."""
     from jaxlc import config
     from jaxlc.config import Config, DDPGConfig, EnvConfig
 
-    assert config.load(config.CONFIG_DIR / "paper.toml") == Config()
+    assert config.load(config.DEFAULT_CONFIG) == config.load(None) == Config()
     assert E.EnvParams() == E.EnvParams.from_config(EnvConfig(), gamma=DDPGConfig().gamma)
     assert jaxlc.make()[1] == E.EnvParams()
     # And a changed config default would move EnvParams with it (units converted).

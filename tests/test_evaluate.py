@@ -15,7 +15,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxlc import cases, checkpoint, config, evaluate, results, sweep
+from jaxlc import cases, checkpoint, config, evaluate, heldout, results, safety, sweep
 from jaxlc.controller import scripted_action
 from jaxlc.env import EnvParams
 from jaxlc.policy import actor_fn
@@ -26,6 +26,7 @@ from .conftest import HANG_GUARD_S
 
 SMOKE = Path(__file__).resolve().parent.parent / "configs" / "smoke.toml"
 CASES, CHUNK = 60, 4  # 60 cases: ~40 lane changes, enough for the success-rate thresholds
+LANE_CHANGES = 40  # held-out lane changes per final checkpoint (1000 by default)
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +34,8 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, config.Config, 
     out = tmp_path_factory.mktemp("smoke")
     cfg = config.load(SMOKE, ["train.episodes=20", "train.checkpoint_every=10"])  # < 2 min
     sweep.run_sweep(cfg, out, force=True, progress=False)
-    assert evaluate.main([str(out), "--cases", str(CASES), "--chunk", str(CHUNK)]) == 0
+    args = [str(out), "--cases", str(CASES), "--chunk", str(CHUNK)]
+    assert evaluate.main([*args, "--lane-changes", str(LANE_CHANGES)]) == 0
     return out, cfg, json.loads((out / "eval" / "eval.json").read_text())
 
 
@@ -138,6 +140,34 @@ def test_every_figure_and_the_report_are_written(run) -> None:
     assert "scripted controller" in report and "Best model" in report
     for name, _ in FIGURES:
         assert f"figures/{name}" in report
+
+
+def test_heldout_rows_count_every_lane_change_and_attribute_every_collision(run) -> None:
+    """Final checkpoints and the scripted controller on exactly LANE_CHANGES held-out lane
+    changes each: outcome counts add up, intervals hold the rate, every collision has a row
+    with the vehicle hit, and the report carries the section and claim (d)."""
+    run_dir, _, result = run
+    doc = json.loads((run_dir / "eval" / "heldout.json").read_text())
+    finals = {r["model"] for r in result["rows"] if r["model"] is not None}
+    assert [r["model"] for r in doc["rows"]] == [None, *sorted(finals)]
+    assert doc["lane_changes"] == LANE_CHANGES and doc["cases"] > LANE_CHANGES
+    for r in doc["rows"]:
+        assert r["lane_changes"] == LANE_CHANGES
+        assert sum(r[e] for e in heldout.ENDS) == LANE_CHANGES
+        assert r["success_lo"] <= r["success_rate"] <= r["success_hi"]
+        assert r["failure_bound"] >= 1 - r["success_rate"]  # an upper bound on the failures
+        assert 0.0 <= r["norm_all"] <= r["norm_peak_lat_acc"] <= 1.0
+    hits = sum(r["collision"] for r in doc["rows"])
+    assert len(doc["collisions"]) == hits
+    assert all(h["partner"] in safety.PARTNERS[1:] for h in doc["collisions"])
+    csv_rows = (run_dir / "eval" / "collisions.csv").read_text().strip().splitlines()
+    assert len(csv_rows) == 1 + hits
+    assert len(doc["cells"]) == len({r["cell"] for r in result["rows"] if r["model"] is not None})
+    per_case = np.load(run_dir / "eval" / "heldout_cases.npz")
+    assert per_case["reason"].shape == (len(doc["rows"]), doc["cases"])
+    assert per_case["performed"].sum() == LANE_CHANGES
+    report = (run_dir / "report.md").read_text()
+    assert "## Held-out lane changes" in report and doc["claim_d"]["figures"] in report
 
 
 def test_manoeuvres_keep_their_final_state(run) -> None:

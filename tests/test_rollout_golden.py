@@ -3,7 +3,10 @@
 ``tests/data/rollout_golden.npz`` was written by ``python -m tests.test_rollout_golden`` from
 the single-body step that ``env._advance`` replaced (its phases are now separate functions);
 the refactor moved code and changed no arithmetic, so the final state matches bit for bit.
-Regenerate it only for a deliberate change of the simulator's dynamics, and say so.
+It pins the simulator of ``configs/paper.toml`` (the paper's gap acceptance, no
+time-to-collision test); ``configs/default.toml`` differs from it in ``env.gap_min_ttc``
+alone, which ``tests/test_env.py`` checks on a hand-made gap. Regenerate it only for a
+deliberate change of the simulator's dynamics, and say so.
 """
 
 from pathlib import Path
@@ -13,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxlc
+from jaxlc import config
 
 GOLDEN = Path(__file__).parent / "data" / "rollout_golden.npz"
 ENVS, STEPS = 8, 3000
@@ -20,7 +24,7 @@ ENVS, STEPS = 8, 3000
 
 def rollout() -> dict[str, np.ndarray]:
     """``ENVS`` envs, ``STEPS`` steps of uniform random actions; final state and totals."""
-    env, params = jaxlc.make()
+    env, params = jaxlc.make(config.load(config.PAPER_CONFIG))
 
     def one(key):
         k_reset, k_run = jax.random.split(key)

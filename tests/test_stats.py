@@ -140,9 +140,13 @@ def test_performance_profile_falls_with_tau_inside_its_band() -> None:
 
 def test_verdicts_follow_the_data() -> None:
     grid = _grid(best=0.99)
-    grid[1, 4000] = [1.0] * 8  # every seed of ④ succeeds in every lane change
+    grid[1, 4000] = [1.0] * 7 + [0.995]  # ④ near 100%, its interval above 99%
     agree = _verdicts(grid)
     assert agree == {"(a)": "supported", "(b)": "supported", "(c)": "supported", "(d)": "supported"}
+    # Every seed at 70 of 70: a zero-width interval, no evidence of 100% (the held-out
+    # failure bound decides (d) then: jaxlc.heldout.claim_d).
+    grid[1, 4000] = [1.0] * 8
+    assert _verdicts(grid)["(d)"] == "undecided at 8 seeds"
     # ④ worst, every cell below 100%, and the memory and k orders reversed.
     contra = {key: [1.0 - v for v in vals] for key, vals in _grid(best=0.99, spread=0.02).items()}
     against = _verdicts(contra)

@@ -139,15 +139,45 @@ def test_bad_config_values_get_one_clear_line(override, words, capsys, tmp_path)
     assert not (tmp_path / "r").exists()
 
 
-def test_paper_toml_spells_out_every_default_of_the_config():
-    """configs/paper.toml is the defaults written out: every key there, each equal to the
-    dataclass default, so the file a user reads is the study that runs."""
-    path = config.CONFIG_DIR / "paper.toml"
-    assert config.load(path) == config.Config()
-    written = tomllib.loads(path.read_text())
-    for table in dataclasses.fields(config.Config()):
-        keys = {f.name for f in dataclasses.fields(getattr(config.Config(), table.name))}
-        assert set(written[table.name]) == keys, table.name
+def test_default_and_paper_tomls_spell_out_every_key():
+    """configs/default.toml is the defaults written out and configs/paper.toml every key too,
+    so the file a user reads is the study that runs."""
+    assert config.load(config.DEFAULT_CONFIG) == config.Config()
+    for path in (config.DEFAULT_CONFIG, config.PAPER_CONFIG):
+        written = tomllib.loads(path.read_text())
+        for table in dataclasses.fields(config.Config()):
+            keys = {f.name for f in dataclasses.fields(getattr(config.Config(), table.name))}
+            assert set(written[table.name]) == keys, (path.name, table.name)
+
+
+def test_paper_toml_is_the_papers_method():
+    """paper.toml: eq. (4)'s squared error, no mirroring, one update per RL transition; it
+    differs from default.toml only in the learning aids and schedule the paper does not use."""
+    paper, default = config.load(config.PAPER_CONFIG), config.Config()
+    assert paper.ddpg.huber_delta == 0.0 and not paper.ddpg.mirror
+    assert paper.ddpg.updates_per_transition == 1
+    assert paper.env.gap_min_ttc == 0.0
+    changed = {
+        (t.name, f.name)
+        for t in dataclasses.fields(default)
+        for f in dataclasses.fields(getattr(default, t.name))
+        if getattr(getattr(paper, t.name), f.name) != getattr(getattr(default, t.name), f.name)
+    }
+    allowed = {("ddpg", k) for k in ("huber_delta", "mirror", "tau", "updates_per_transition")}
+    assert changed <= allowed | {("env", "gap_min_ttc")}, changed
+
+
+def test_paper_schedule_makes_one_update_per_rl_transition(smoke_cfg):
+    """``ddpg.updates_per_transition = 1`` (paper.toml): once the memory holds a batch, every
+    scan step makes exactly as many updates as its envs gave RL transitions."""
+    over = ["ddpg.updates_per_transition=1", "train.envs_per_model=16", "train.chunk_steps=50"]
+    cfg = config.load(SMOKE, [*over, "grid.k=[1]", "grid.memory=[256]"])
+    state, m = jax.jit(train.make_train(cfg), static_argnums=1)(jax.random.PRNGKey(3), 300)
+    updates, transitions = np.asarray(m["updates"][:, 0]), np.asarray(m["transitions"][:, 0])
+    filled = np.cumsum(transitions) >= cfg.ddpg.batch_size  # memory.size after the step's add
+    assert filled.any() and (transitions[filled] > 1).any(), "the test must cover many envs"
+    np.testing.assert_array_equal(updates, np.where(filled, transitions, 0))
+    assert int(state.learner.step[0]) == updates.sum() > 0
 
 
 def test_anneal_schedule_is_linear_from_its_start_and_off_by_default():

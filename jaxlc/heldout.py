@@ -1,0 +1,256 @@
+"""What the held-out evaluation concludes: per-model failure rates with binomial intervals,
+the safety and comfort norms per lane change, every collision attributed, cells over seeds
+and cases, and claim (d) as a bound.
+
+Seventy protocol lane changes cannot see a failure rate below ~4% (0 of 70 is consistent with
+4.2% at 95%), so ``python -m jaxlc.evaluate`` also drives each final checkpoint through
+``--lane-changes`` (1,000 by default) held-out lane changes (``jaxlc.cases.heldout_keys``, a
+key stream apart from the protocol's and the sweep's). Pure numpy/scipy, like
+``jaxlc.stats``.
+
+Intervals:
+- a model's success, failure and collision rates: two-sided 95% Clopper-Pearson intervals;
+  ``failure_bound`` is the one-sided 95% upper bound on its failure rate;
+- a cell (its seeds): with >= ``MIN_BOOT_SEEDS`` seeds, a two-level bootstrap of the mean
+  success rate (seeds resampled, then each resampled seed's lane changes), at Hesterberg's
+  expanded level (``stats.expanded_level``); with fewer seeds no bootstrap covers, so the
+  interval is the seeds' range: the lowest and highest end of their Clopper-Pearson
+  intervals (``interval`` says which);
+- the cell's pooled failure bound: one-sided Clopper-Pearson on all its lane changes; for
+  the mean failure rate of those models it is conservative (a sum of binomials with unequal
+  rates is less spread than one binomial with their mean: Hoeffding 1956).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import scipy.stats
+
+from jaxlc.reward import REASONS
+from jaxlc.safety import NORMS, PARTNERS, VEHICLES
+from jaxlc.stats import CONFIDENCE, PAPER_BEST, RESAMPLES, SOLVED, cell_key, expanded_level
+
+MIN_BOOT_SEEDS = 5
+ENDS = ("success", "out_of_bounds", "collision", "timeout", "unfinished")
+NORM_KEYS = tuple(f"norm_{name}" for name, *_ in NORMS) + ("norm_all",)
+CRIT_KEYS = tuple(f"{m}_crit_{v}" for m in ("ttc", "thw") for v in VEHICLES)
+HELDOUT_FIELDS = (
+    ("label", "model", "cell", "seed", "k", "memory", "episode", "lane_changes")
+    + ENDS
+    + ("success_rate", "success_lo", "success_hi", "failure_bound")
+    + ("collision_rate", "collision_lo", "collision_hi")
+    + ("duration_s", "peak_lat_acc", "peak_lat_jerk", "min_ttc_s", "min_thw_s")
+    + NORM_KEYS
+    + CRIT_KEYS
+)
+COLLISION_FIELDS = (
+    "label",
+    "model",
+    "seed",
+    "episode",
+    "case",
+    "partner",
+    "yielding",
+    "hit_speed",
+) + ("time_s", "accept_v", "accept_lead_gap", "accept_lag_gap", "accept_lag_v")
+
+
+def clopper_pearson(k: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """Two-sided exact binomial interval of a rate from ``k`` of ``n``; NaN for n = 0."""
+    if n == 0:
+        return math.nan, math.nan
+    a = 1.0 - confidence
+    lo = 0.0 if k == 0 else float(scipy.stats.beta.ppf(a / 2, k, n - k + 1))
+    hi = 1.0 if k == n else float(scipy.stats.beta.ppf(1 - a / 2, k + 1, n - k))
+    return lo, hi
+
+
+def upper_bound(k: int, n: int, confidence: float = CONFIDENCE) -> float:
+    """One-sided exact upper bound on a rate from ``k`` of ``n`` (0 of 1000: 0.30%)."""
+    if n == 0:
+        return math.nan
+    return 1.0 if k == n else float(scipy.stats.beta.ppf(confidence, k + 1, n - k))
+
+
+def lane_change_measures(out: dict[str, np.ndarray], p: int, dt: float) -> dict[str, np.ndarray]:
+    """Policy ``p``'s measures per case ``(cases,)``: the NORMS' measures (a failed lane change
+    has no duration: inf) and whether each norm, and all of them with success, hold."""
+    ok = out["reason"][p] == REASONS.index("success")
+    m = {
+        "duration_s": np.where(ok, out["steps"][p] * dt, np.inf),
+        "peak_lat_acc": out["peak_lat_acc"][p],
+        "peak_lat_jerk": out["peak_lat_jerk"][p],
+        "min_ttc_s": out["min_ttc"][p].min(axis=-1),
+        "min_thw_s": out["min_thw"][p].min(axis=-1),
+    }
+    inside = {
+        f"norm_{name}": (m[name] < bound) if below else (m[name] >= bound)
+        for name, bound, below, _ in NORMS
+    }
+    inside["norm_all"] = ok & np.all(list(inside.values()), axis=0)
+    return {**m, **inside}
+
+
+def _share(x: np.ndarray) -> float:
+    return float(np.mean(x)) if x.size else math.nan
+
+
+def _median(x: np.ndarray) -> float:
+    return float(np.median(x)) if x.size else math.nan
+
+
+def _mean(x: np.ndarray) -> float:
+    return float(np.mean(x)) if x.size else math.nan
+
+
+def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, dt: float) -> dict:
+    """Policy ``p``'s held-out row (``HELDOUT_FIELDS`` less the identity)."""
+    perf = info["performed"]
+    reason = out["reason"][p][perf]
+    n = int(perf.sum())
+    counts = {
+        e: int((reason == (0 if e == "unfinished" else REASONS.index(e))).sum()) for e in ENDS
+    }
+    ok = reason == REASONS.index("success")
+    m = {k: v[perf] for k, v in lane_change_measures(out, p, dt).items()}
+    fails, hits = n - counts["success"], counts["collision"]
+    crit = {}
+    for name, bound, key in (("ttc", 1.5, "min_ttc"), ("thw", 0.9, "min_thw")):
+        for i, v in enumerate(VEHICLES):
+            crit[f"{name}_crit_{v}"] = _share(out[key][p][perf][:, i] < bound)
+    return {
+        "lane_changes": n,
+        **counts,
+        "success_rate": counts["success"] / n if n else math.nan,
+        **dict(
+            zip(("success_lo", "success_hi"), clopper_pearson(counts["success"], n), strict=True)
+        ),
+        "failure_bound": upper_bound(fails, n),
+        "collision_rate": hits / n if n else math.nan,
+        **dict(zip(("collision_lo", "collision_hi"), clopper_pearson(hits, n), strict=True)),
+        "duration_s": _mean(m["duration_s"][ok]),
+        "peak_lat_acc": _mean(m["peak_lat_acc"][ok]),
+        "peak_lat_jerk": _mean(m["peak_lat_jerk"][ok]),
+        "min_ttc_s": _median(m["min_ttc_s"]),
+        "min_thw_s": _median(m["min_thw_s"]),
+        **{k: _share(m[k]) for k in NORM_KEYS},
+        **crit,
+    }
+
+
+def collisions(
+    out: dict[str, np.ndarray], info: dict[str, np.ndarray], metas: list[dict], dt: float
+) -> list[dict[str, Any]]:
+    """One row per collision (``COLLISION_FIELDS``): the vehicle hit, the ego's speed and
+    time into the manoeuvre, the gaps and lag speed at acceptance, whether the lag yields."""
+    rows = []
+    code = REASONS.index("collision")
+    for p, meta in enumerate(metas):
+        for c in np.nonzero(info["performed"] & (out["reason"][p] == code))[0]:
+            rows.append(
+                {
+                    **{k: meta.get(k) for k in ("label", "model", "seed", "episode")},
+                    "case": int(c),
+                    "partner": PARTNERS[int(out["partner"][p][c])],
+                    "yielding": bool(info["yielding"][c]),
+                    "hit_speed": float(out["hit_speed"][p][c]),
+                    "time_s": float(out["steps"][p][c] * dt),
+                    **{k: float(info[k][c]) for k in COLLISION_FIELDS[-4:]},
+                }
+            )
+    return rows
+
+
+def _two_level(k: np.ndarray, n: np.ndarray, seed: int = 0) -> tuple[float, float]:
+    """Interval of the mean over seeds of ``k / n`` ``(seeds,)``: seeds resampled, then each
+    drawn seed's lane changes (a binomial draw at its own rate)."""
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(0, k.size, (RESAMPLES, k.size))
+    rates = rng.binomial(n[pick], k[pick] / n[pick]) / n[pick]
+    level = expanded_level(k.size)
+    lo, hi = np.quantile(rates.mean(axis=1), [(1 - level) / 2, (1 + level) / 2])
+    return float(lo), float(hi)
+
+
+def cell_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per grid cell of the held-out model rows: the mean success over its seeds
+    with its interval, pooled failures and collisions with their bounds, the norms' share."""
+    models = [r for r in rows if r["model"] is not None and r["lane_changes"]]
+    cells = []
+    for key in dict.fromkeys(cell_key(r) for r in models):
+        mine = [r for r in models if cell_key(r) == key]
+        k = np.asarray([r["success"] for r in mine])
+        n = np.asarray([r["lane_changes"] for r in mine])
+        if len(mine) >= MIN_BOOT_SEEDS:
+            (lo, hi), how = _two_level(k, n), "two-level bootstrap (seeds, then lane changes)"
+        else:
+            lo, hi = min(r["success_lo"] for r in mine), max(r["success_hi"] for r in mine)
+            how = f"range of the {len(mine)} seeds' Clopper-Pearson intervals"
+        fails, hits, total = int((n - k).sum()), sum(r["collision"] for r in mine), int(n.sum())
+        cells.append(
+            {
+                "label": mine[0]["label"],
+                "k": mine[0]["k"],
+                "memory": mine[0]["memory"],
+                "seeds": len(mine),
+                "lane_changes": total,
+                "success_mean": float(np.mean(k / n)),
+                "success_lo": lo,
+                "success_hi": hi,
+                "interval": how,
+                "failures": fails,
+                "failure_bound": upper_bound(fails, total),
+                "collisions": hits,
+                "collision_rate": hits / total,
+                "collision_bound": upper_bound(hits, total),
+                "models_without_failure": int(np.sum(k == n)),
+                "norm_all": float(np.mean([r["norm_all"] for r in mine])),
+            }
+        )
+    return cells
+
+
+def claim_d(cells: list[dict[str, Any]]) -> dict[str, str]:
+    """Claim (d), "④ succeeds in 100%", as a bound on ④'s held-out failure rate: *supported*
+    when the pooled one-sided 95% bound is at most 1 - SOLVED (1%), *not supported* when the
+    two-sided interval's lower end lies above it, else undecided."""
+    row = {"claim": "(d) ④ succeeds in 100% of lane changes", "paper": "100%"}
+    best = next((c for c in cells if str(c["label"]).startswith(PAPER_BEST)), None)
+    if best is None:
+        return {**row, "figures": "the grid has no ④", "verdict": "n/a"}
+    fails, n, s = best["failures"], best["lane_changes"], best["seeds"]
+    lo, _ = clopper_pearson(fails, n)
+    bound = best["failure_bound"]
+    if bound <= 1.0 - SOLVED:
+        v = "supported"
+    elif lo > 1.0 - SOLVED:
+        v = "not supported"
+    else:
+        v = f"undecided at {n} lane changes"
+    figures = (
+        f"④ fails in fewer than {100 * bound:.2f}% of held-out lane changes (95%, "
+        f"Clopper-Pearson: {fails} failures in {n} over {s} seed{'s' * (s != 1)})"
+    )
+    return {**row, "figures": figures, "verdict": v}
+
+
+def _pct(v: Any, digits: int = 1) -> str:
+    return "-" if v is None or v != v else f"{100 * v:.{digits}f}"
+
+
+def format_rows(rows: list[dict[str, Any]]) -> str:
+    """Plain-text table of held-out rows for the terminal."""
+    lines = [
+        "held-out policy            seed  lane ch.  succ% [95% CP]        coll  fail<%  all norms%"
+    ]
+    for r in rows:
+        ci = f"[{_pct(r['success_lo'])}, {_pct(r['success_hi'])}]"
+        lines.append(
+            f"{str(r['label'])[:26]:26} {'-' if r['seed'] is None else r['seed']:>4} "
+            f"{r['lane_changes']:9d}  {_pct(r['success_rate'], 2):>6} {ci:14} "
+            f"{r['collision']:5d}  {_pct(r['failure_bound'], 2):>6}  {_pct(r['norm_all']):>9}"
+        )
+    return "\n".join(lines)

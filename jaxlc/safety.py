@@ -1,0 +1,107 @@
+"""Safety and comfort of one lane change, by the norms an automated-driving engineer applies.
+
+Measured on every step of the RL phase (the manoeuvre), the start state included:
+
+- lateral acceleration a_y = v * omega (m/s^2), its peak against ISO 11270's 3 m/s^2;
+- lateral jerk as ISO 11270 reads it, a 0.5 s moving average: the mean of da_y/dt over the
+  last 0.5 s is ``(a_y(t) - a_y(t - 0.5 s)) / 0.5 s`` (before the manoeuvre the ego drives
+  straight, a_y = 0); its peak against 5 m/s^3;
+- time-to-collision to the target lane's lead and lag and to the leader in the lane holding
+  the ego's centre: ``net gap / closing speed`` while the follower is faster, infinite when
+  it is not (or the vehicle is missing), 0 once the boxes overlap along the road; critical
+  below ~1.5 s;
+- time headway, ``net gap / follower's speed`` (the ego behind a leader, the lag behind the
+  ego): critical below ~0.9 s;
+- duration, against UN R79's 5 s for a lane change (ACSF category C).
+
+A collision is attributed to the vehicle hit (``PARTNERS``): by the lane it drives in (the
+target lane or not) and whether its centre is ahead of the ego's.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+
+# Each norm: (measure, bound, True when the measure must stay below the bound, source).
+NORMS = (
+    ("duration_s", 5.0, True, "UN R79 (ACSF C): lane change in under 5 s"),
+    ("peak_lat_acc", 3.0, True, "ISO 11270: lateral acceleration <= 3 m/s²"),
+    ("peak_lat_jerk", 5.0, True, "ISO 11270: lateral jerk (0.5 s average) <= 5 m/s³"),
+    ("min_ttc_s", 1.5, False, "time-to-collision >= 1.5 s (critical below)"),
+    ("min_thw_s", 0.9, False, "time headway >= 0.9 s (critical below)"),
+)
+JERK_WINDOW_S = 0.5
+VEHICLES = ("lead", "lag", "own")  # target lane's lead and lag, the own-lane leader
+PARTNERS = ("none", "target_lead", "target_lag", "own_leader", "own_follower")
+
+
+def ttc(gap: Array, v_follower: Array, v_leader: Array, present: Array) -> Array:
+    """Time-to-collision, s: ``gap / (v_follower - v_leader)`` while closing, else inf;
+    0 at a gap <= 0 (the boxes overlap along the road), inf for a missing vehicle."""
+    closing = v_follower - v_leader
+    t = jnp.where(closing > 0.0, gap / jnp.where(closing > 0.0, closing, 1.0), jnp.inf)
+    return jnp.where(present, jnp.where(gap <= 0.0, 0.0, t), jnp.inf)
+
+
+def headway(gap: Array, v_follower: Array, present: Array) -> Array:
+    """Time headway, s: ``gap / v_follower``; inf for a standing follower or no vehicle, 0 at a
+    gap <= 0."""
+    h = jnp.where(v_follower > 0.0, gap / jnp.where(v_follower > 0.0, v_follower, 1.0), jnp.inf)
+    return jnp.where(present, jnp.where(gap <= 0.0, 0.0, h), jnp.inf)
+
+
+def conflicts(state, p) -> tuple[Array, Array]:
+    """``(ttc, thw)``, each ``(..., 3)`` over ``VEHICLES``, of an ``EnvState`` (any batch
+    shape; ``p``: EnvParams)."""
+    eg, nb, L = state.ego, state.nb, p.vehicle_length
+    lead_gap = nb.a1_x - L - eg.x
+    lag_gap = eg.x - L - nb.b1_x
+    has_own = state.leader_gap < 1e4  # idm.NO_LEADER_GAP: no leader
+    t = jnp.stack(
+        [
+            ttc(lead_gap, eg.v, nb.a1_v, nb.has_a1),
+            ttc(lag_gap, nb.b1_v, eg.v, nb.has_b1),
+            ttc(state.leader_gap, eg.v, state.leader_v, has_own),
+        ],
+        axis=-1,
+    )
+    h = jnp.stack(
+        [
+            headway(lead_gap, eg.v, nb.has_a1),
+            headway(lag_gap, nb.b1_v, nb.has_b1),
+            headway(state.leader_gap, eg.v, has_own),
+        ],
+        axis=-1,
+    )
+    return t, h
+
+
+def lateral_acc(state) -> Array:
+    """``(...)`` lateral acceleration of the ego, v * omega (m/s^2)."""
+    return state.ego.v * state.ego.omega
+
+
+def jerk_window(p) -> int:
+    """Steps in the 0.5 s moving average of the lateral jerk (at least 1)."""
+    return max(1, int(round(JERK_WINDOW_S / float(p.dt))))
+
+
+def windowed_jerk(history: Array, a_y: Array, dt: float) -> tuple[Array, Array]:
+    """``(jerk, history)``: the lateral jerk averaged over the window that ``history (...,
+    n)`` (the last n lateral accelerations, oldest first) spans, and the history with ``a_y``
+    appended."""
+    n = history.shape[-1]
+    jerk = (a_y - history[..., 0]) / (n * dt)
+    return jerk, jnp.concatenate([history[..., 1:], a_y[..., None]], axis=-1)
+
+
+def partner(overlap: Array, traffic_x: Array, ego, p) -> Array:
+    """``(...)`` int32 index into ``PARTNERS`` of the vehicle an ego box overlaps (the
+    ``(..., lanes, slots)`` mask ``overlap``); 0 when none."""
+    lanes = jnp.arange(p.lanes)[:, None]
+    in_target = lanes == ego.target[..., None, None]
+    # Centres along the road: the ego's box is heading-aligned, front bumper at x.
+    ahead = traffic_x - 0.5 * p.vehicle_length > (ego.x - 0.5 * p.vehicle_length)[..., None, None]
+    code = jnp.where(in_target, jnp.where(ahead, 1, 2), jnp.where(ahead, 3, 4))
+    return jnp.max(jnp.where(overlap, code, 0), axis=(-2, -1)).astype(jnp.int32)

@@ -1,0 +1,164 @@
+"""Held-out evaluation: the safety measures on hand-worked cases, the binomial and two-level
+intervals (their coverage measured), the held-out key stream, claim (d) as a bound."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxlc import cases, config, heldout, safety
+from jaxlc.env import EnvParams, LaneChangeEnv
+
+
+def test_ttc_is_gap_over_closing_speed() -> None:
+    # A follower at 25 m/s 20 m behind a leader at 20 m/s meets it in 20 / 5 = 4 s.
+    assert float(safety.ttc(jnp.float32(20.0), 25.0, 20.0, True)) == pytest.approx(4.0)
+    assert float(safety.ttc(jnp.float32(20.0), 20.0, 25.0, True)) == math.inf  # opening
+    assert float(safety.ttc(jnp.float32(20.0), 25.0, 20.0, False)) == math.inf  # no vehicle
+    assert float(safety.ttc(jnp.float32(-1.0), 20.0, 20.0, True)) == 0.0  # alongside
+
+
+def test_headway_is_gap_over_the_followers_speed() -> None:
+    assert float(safety.headway(jnp.float32(18.0), 20.0, True)) == pytest.approx(0.9)
+    assert float(safety.headway(jnp.float32(18.0), 0.0, True)) == math.inf  # standing
+    assert float(safety.headway(jnp.float32(-0.5), 20.0, True)) == 0.0
+
+
+def test_constant_yaw_acceleration_has_jerk_v_times_alpha() -> None:
+    """a_y = v*omega with omega = alpha*t: the 0.5 s average of da_y/dt is v*alpha once the
+    window lies inside the manoeuvre, and ramps up while it still holds the straight run."""
+    v, alpha, dt = 20.0, 0.5, 0.1
+    n = safety.jerk_window(EnvParams(dt=dt))
+    assert n == 5
+    hist, jerks = jnp.zeros(n), []
+    for t in range(1, 12):
+        jerk, hist = safety.windowed_jerk(hist, jnp.float32(v * alpha * t * dt), dt)
+        jerks.append(float(jerk))
+    # Step t: the window spans a_y(t - 5) .. a_y(t); before the start a_y = 0.
+    expect = [v * alpha * (t * dt - max(t - n, 0) * dt) / (n * dt) for t in range(1, 12)]
+    np.testing.assert_allclose(jerks, expect, rtol=1e-5)
+    assert jerks[-1] == pytest.approx(v * alpha)  # 10 m/s^3: over ISO 11270's 5
+
+
+def test_collision_partner_by_lane_and_side() -> None:
+    p = EnvParams()
+    ego = type("E", (), {"x": jnp.float32(100.0), "target": jnp.int32(2)})
+    x = jnp.zeros((3, 4)).at[2, 0].set(103.0).at[2, 1].set(98.0).at[1, 2].set(104.0)
+    x = x.at[1, 3].set(97.0)
+    for (lane, slot), name in {
+        (2, 0): "target_lead",
+        (2, 1): "target_lag",
+        (1, 2): "own_leader",
+        (1, 3): "own_follower",
+    }.items():
+        mask = jnp.zeros((3, 4), bool).at[lane, slot].set(True)
+        assert safety.PARTNERS[int(safety.partner(mask, x, ego, p))] == name
+    assert int(safety.partner(jnp.zeros((3, 4), bool), x, ego, p)) == 0
+
+
+def test_clopper_pearson_matches_the_closed_forms() -> None:
+    # 0 failures in n: the one-sided upper bound is 1 - 0.05**(1/n).
+    for n in (70, 210, 1000):
+        assert heldout.upper_bound(0, n) == pytest.approx(1 - 0.05 ** (1 / n))
+    assert heldout.upper_bound(0, 70) == pytest.approx(0.0419, abs=1e-4)
+    lo, hi = heldout.clopper_pearson(210, 210)  # two-sided: lower end 0.025**(1/210)
+    assert (lo, hi) == (pytest.approx(0.025 ** (1 / 210)), 1.0)
+    lo, hi = heldout.clopper_pearson(5, 1000)
+    assert lo < 0.005 < hi
+
+
+def test_two_level_interval_covers_the_mean_over_seeds() -> None:
+    """Seeds whose failure rates vary (Beta-drawn), 8 seeds x 1000 lane changes: the
+    interval covers the population's mean success in about 95% of studies."""
+    rng = np.random.default_rng(1)
+    mean_fail, hits, trials = 0.004, 0, 200
+    for t in range(trials):
+        rates = rng.beta(0.8, 0.8 / mean_fail - 0.8, 8)
+        k = 1000 - rng.binomial(1000, rates)
+        lo, hi = heldout._two_level(k, np.full(8, 1000), seed=t)
+        hits += lo <= 1 - mean_fail <= hi
+    assert hits / trials >= 0.88, hits / trials
+
+
+def test_cells_below_five_seeds_use_the_seeds_range() -> None:
+    rows = [
+        {
+            "label": "④ k=1 D=4000",
+            "model": m,
+            "k": 1,
+            "memory": 4000,
+            "seed": m,
+            "success": s,
+            "lane_changes": 1000,
+            "collision": 1000 - s,
+            "norm_all": 0.5,
+            **dict(
+                zip(("success_lo", "success_hi"), heldout.clopper_pearson(s, 1000), strict=True)
+            ),
+        }
+        for m, s in enumerate((1000, 996, 999))
+    ]
+    (cell,) = heldout.cell_rows(rows)
+    assert "range" in cell["interval"]
+    assert cell["success_lo"] == rows[1]["success_lo"] and cell["success_hi"] == 1.0
+    assert cell["failures"] == 5 and cell["lane_changes"] == 3000
+    d = heldout.claim_d([cell])
+    assert d["verdict"] == "supported"  # 5 in 3000: bound 0.35% <= 1%
+    assert "fewer than 0.35%" in d["figures"]
+    worse = heldout.claim_d([{**cell, "failures": 60, "failure_bound": 0.025}])
+    assert worse["verdict"] == "not supported"  # 2% observed: the lower end is above 1%
+
+
+def test_heldout_keys_are_a_stream_apart_from_the_protocols() -> None:
+    held = {tuple(k) for k in np.asarray(cases.heldout_keys(0, 2000)).tolist()}
+    for seed in range(3):
+        protocol = {tuple(k) for k in np.asarray(cases.case_keys(seed, 2000)).tolist()}
+        assert not held & protocol
+    assert held != {tuple(k) for k in np.asarray(cases.heldout_keys(1, 2000)).tolist()}
+
+
+@pytest.fixture(scope="module")
+def smoke_cfg() -> config.Config:
+    return config.load(config.CONFIG_DIR / "smoke.toml")
+
+
+def test_keys_for_lane_changes_hold_exactly_that_many(smoke_cfg: config.Config) -> None:
+    keys = cases.keys_for_lane_changes(smoke_cfg, 25, seed=3, batch=16)
+    start, _ = cases.programs(smoke_cfg, 1500)
+    performed = np.asarray(start(keys).performed)
+    assert performed.sum() == 25 and performed[-1]  # the last case is the 25th lane change
+
+
+def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -> None:
+    """A constant full-left policy on held-out cases; one case replayed with env.step: the
+    rollout's peak windowed jerk and minimum lag TTC equal those computed from the replay."""
+    keys = cases.keys_for_lane_changes(smoke_cfg, 3, seed=0, batch=8)
+    out = cases.evaluate_act(smoke_cfg, lambda obs: jnp.ones((obs.shape[0], 1)), keys=keys)
+    start, _ = cases.programs(smoke_cfg, 1500)
+    cs = start(keys)
+    c = int(np.nonzero(np.asarray(cs.performed))[0][0])
+    p = EnvParams.from_config(smoke_cfg.env, gamma=smoke_cfg.ddpg.gamma)
+    env, state = LaneChangeEnv(), jax.tree.map(lambda a: a[c], cs.state)
+    step = jax.jit(lambda k, s: env.step(k, s, jnp.ones(1), p))
+    a_y, lag_ttc = [float(state.ego.v * state.ego.omega)], [lag_ttc_of(state, p)]
+    for _ in range(200):
+        _, state, _, term, trunc, info = step(jax.random.fold_in(cs.key[c], state.time), state)
+        a_y.append(float(state.ego.v * state.ego.omega))
+        lag_ttc.append(lag_ttc_of(state, p))
+        if int(info["reason"]) != 0:
+            break
+    n = safety.jerk_window(p)
+    padded = np.concatenate([np.full(n, a_y[0]), a_y[1:]])
+    jerk = np.abs(padded[n:] - padded[:-n]) / (n * p.dt)
+    assert int(out["reason"][0][c]) == int(info["reason"])
+    assert out["peak_lat_jerk"][0][c] == pytest.approx(jerk.max(), rel=1e-4)
+    assert out["min_ttc"][0][c][1] == pytest.approx(min(lag_ttc), rel=1e-4)
+
+
+def lag_ttc_of(state, p) -> float:
+    gap = state.ego.x - p.vehicle_length - state.nb.b1_x
+    return float(safety.ttc(gap, state.nb.b1_v, state.ego.v, state.nb.has_b1))
