@@ -4,14 +4,14 @@
     python -m jaxlc.evaluate runs/paper --episodes 100,5000 --model 3
     python -m jaxlc.evaluate --checkpoint runs/paper/checkpoints/m03_s0/ep05000.msgpack
 
-The cases and the program that runs every policy on them are ``jaxlc.cases``; what a result
-row holds is ``jaxlc.results``. This module is the command: it picks the checkpoints, runs them
-and writes the files.
+The cases and the program that runs every policy on them are ``jaxlc.evaluation.cases``; what
+a result row holds is ``jaxlc.evaluation.results``. This module is the command: it picks the
+checkpoints, runs them and writes the files.
 
-Outcome buckets are the reason codes of ``jaxlc.reward`` with 0 read as "unfinished" (hit
+Outcome buckets are the reason codes of ``jaxlc.sim.reward`` with 0 read as "unfinished" (hit
 the step cap), so every case lands in exactly one bucket. Writes ``RUN_DIR/eval/eval.json``,
 ``eval.csv``, ``cases.npz`` (per policy and case) and ``traces.npz`` (the few drawn cases),
-the statistics over seeds (``jaxlc.stats``: ``cells.json``, ``cells.csv``,
+the statistics over seeds (``jaxlc.evaluation.stats``: ``cells.json``, ``cells.csv``,
 ``improvement.csv``), then the figures and ``RUN_DIR/report.md`` (skip figures with
 ``--no-figures``).
 
@@ -39,13 +39,10 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxlc import checkpoint, config, machine, stats
-from jaxlc.cases import evaluate_policies, init_actor
-from jaxlc.checkpoint import CheckpointError
-from jaxlc.env import ACT_DIM
-from jaxlc.observation import OBS_DIM
-from jaxlc.policy import widths
-from jaxlc.results import (
+from jaxlc import config
+from jaxlc.evaluation import stats
+from jaxlc.evaluation.cases import evaluate_policies, init_actor
+from jaxlc.evaluation.results import (
     EVAL_FIELDS,
     META_KEYS,
     OUTCOMES,
@@ -55,8 +52,13 @@ from jaxlc.results import (
     format_table,
     summarise,
 )
-from jaxlc.rundir import RunDir
-from jaxlc.stats import StatsError
+from jaxlc.evaluation.stats import StatsError
+from jaxlc.policy import widths
+from jaxlc.sim.env import ACT_DIM
+from jaxlc.sim.observation import OBS_DIM
+from jaxlc.study import checkpoint, machine
+from jaxlc.study.checkpoint import CheckpointError
+from jaxlc.study.rundir import RunDir
 
 
 def default_episodes(every: int, final: int) -> list[int]:
@@ -293,7 +295,8 @@ def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
     out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
     out.mkdir(parents=True, exist_ok=True)
     checkpoint.write_text_atomic(out / "compare.csv", _csv(table, list(table[0])))
-    from jaxlc import figures, report
+    from jaxlc import figures
+    from jaxlc.evaluation import report
 
     figures.fig_compare(table, run_a.name, run_b.name, out / "compare.png")
     text = report.compare_markdown(table, run_a, run_b)
@@ -341,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         default=None,
         help="devices to lay the policies over (default: every GPU; on a CPU, host devices as "
-        "jaxlc/machine.py picks for --chunk policies over --cases; XLA_FLAGS overrides it)",
+        "jaxlc/study/machine.py picks for --chunk policies over --cases; XLA_FLAGS overrides it)",
     )
     ap.add_argument(
         "--compare",
@@ -384,7 +387,8 @@ def main(argv: list[str] | None = None) -> int:
             devices=len(jax.devices()) if auto else args.devices,
         )
         print(format_table(result["rows"]))
-        from jaxlc import figures, report
+        from jaxlc import figures
+        from jaxlc.evaluation import report
 
         made = [] if args.no_figures else figures.make_all(args.run_dir)
         path = report.write_report(args.run_dir)

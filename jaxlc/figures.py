@@ -10,7 +10,7 @@ progress); ``profiles.png``, performance profiles (share of models above each su
 by k. Training figures read ``metrics/`` and ``summary.json``; the others read ``eval/``
 (``python -m jaxlc.evaluate``). A figure whose data is missing is skipped. With several
 seeds per grid cell a line is the mean over seeds and its band the 95% bootstrap interval
-of that mean (``jaxlc.stats``).
+of that mean (``jaxlc.evaluation.stats``).
 
 Returns span -2000 (out of bounds, eq. (11)) to about -100 (a smooth lane change): when a
 plot's returns span more than a decade its axis is symlog (linear near zero, log beyond).
@@ -35,9 +35,9 @@ from matplotlib.animation import PillowWriter  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 
-from jaxlc import stats  # noqa: E402
-from jaxlc.results import OUTCOMES, rank_models  # noqa: E402
-from jaxlc.rundir import RunDir  # noqa: E402
+from jaxlc.evaluation import stats  # noqa: E402
+from jaxlc.evaluation.results import OUTCOMES, rank_models  # noqa: E402
+from jaxlc.study.rundir import RunDir  # noqa: E402
 
 # The paper's groups for Fig. 3 (one hyperparameter varies in each).
 GROUPS = (

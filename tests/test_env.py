@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import jaxlc
-from jaxlc import env as E
-from jaxlc import gap, idm, kinematics, reward
-from jaxlc.controller import scripted_action
+from jaxlc.sim import env as E
+from jaxlc.sim import gap, idm, kinematics, reward
+from jaxlc.sim.controller import scripted_action
 
 
 @pytest.fixture(scope="module")

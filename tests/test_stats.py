@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxlc import evaluate, figures, report, results, stats
-from jaxlc.results import OUTCOMES
+from jaxlc import evaluate, figures
+from jaxlc.evaluation import report, results, stats
+from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.sweep import PAPER_LABELS
 
 from .conftest import HANG_GUARD_S

@@ -1,10 +1,10 @@
 """``RUN_DIR/report.md``: the evaluation table, the best model, the paper's claims beside ours.
 
-    python -m jaxlc.report RUN_DIR
+    python -m jaxlc.evaluation.report RUN_DIR
 
 Reads ``RUN_DIR/eval/eval.json`` (``python -m jaxlc.evaluate``); every number in the report is
 computed from the run, the paper's only quoted. With several seeds per grid cell the paper's
-claims get a verdict from intervals over seeds (the rules: ``jaxlc.stats``).
+claims get a verdict from intervals over seeds (the rules: ``jaxlc.evaluation.stats``).
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from jaxlc import stats
-from jaxlc.checkpoint import write_text_atomic
-from jaxlc.results import OUTCOMES, EvalError, rank_models
-from jaxlc.rundir import RunDir
-from jaxlc.stats import final_rows
+from jaxlc.evaluation import stats
+from jaxlc.evaluation.results import OUTCOMES, EvalError, rank_models
+from jaxlc.evaluation.stats import final_rows
+from jaxlc.study.checkpoint import write_text_atomic
+from jaxlc.study.rundir import RunDir
 
 FIGURES = (
     ("fig3_returns.png", "Fig. 3: total reward per training episode"),
@@ -173,7 +173,7 @@ def _seed_section(rows: list[dict[str, Any]]) -> list[str]:
         "",
         f"{len(cells)} grid cells, {n} seed{'s' * (n != 1)} in the smallest; each model at its "
         "last evaluated checkpoint. Brackets: 95% bootstrap intervals over seeds (resampled "
-        "within each cell; `jaxlc.stats`, where the verdict rules are).",
+        "within each cell; `jaxlc.evaluation.stats`, where the verdict rules are).",
     ]
     if note:
         lines += ["", f"**Note: {note}**; every verdict is undecided (train with `--seeds N`)."]
@@ -348,7 +348,7 @@ def write_report(run_dir: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     args = argv if argv is not None else sys.argv[1:]
     if len(args) != 1:
-        print("usage: python -m jaxlc.report RUN_DIR", file=sys.stderr)
+        print("usage: python -m jaxlc.evaluation.report RUN_DIR", file=sys.stderr)
         return 2
     try:
         print(write_report(Path(args[0])))

@@ -10,7 +10,7 @@
     RUN_DIR/eval/cases.npz, traces.npz     per policy and case; the drawn cases
     RUN_DIR/figures/*.png, report.md       figures and report of the evaluated run
 
-Every write is atomic (``jaxlc.checkpoint.write_bytes_atomic``): a reader sees the old file or
+Every write is atomic (``jaxlc.study.checkpoint.write_bytes_atomic``): a reader sees the old file or
 the new one, never half of one.
 """
 
@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxlc import checkpoint, config
+from jaxlc import config
+from jaxlc.study import checkpoint
 
 
 @dataclass(frozen=True)
