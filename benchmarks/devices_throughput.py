@@ -54,7 +54,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
         sys.path.insert(0, str(root))
     from sim_throughput import write_csv  # this script's folder is on sys.path
 
-    from jaxlc import config, train
+    from jaxlc import config
+    from jaxlc.learn import train
 
     cfg = config.load(
         config.CONFIG_DIR / "smoke.toml" if args.tiny and args.config is None else args.config

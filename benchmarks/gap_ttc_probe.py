@@ -4,8 +4,8 @@ their collisions and their norms, for the final checkpoints of a run (no retrain
     python benchmarks/gap_ttc_probe.py runs/s0 --ttc 0 3 4 5 --lane-changes 2000
 
 For each value: the share of held-out cases that perform a lane change, and per model the
-held-out outcomes (``jaxlc.heldout``) on the same key stream. Writes ``OUT/probe.csv`` and
-prints it; OUT defaults to ``benchmarks/gap_ttc_probe/``.
+held-out outcomes (``jaxlc.evaluation.heldout``) on the same key stream. Writes
+``OUT/probe.csv`` and prints it; OUT defaults to ``benchmarks/gap_ttc_probe/``.
 """
 
 from __future__ import annotations
@@ -16,11 +16,12 @@ import dataclasses
 import time
 from pathlib import Path
 
-from jaxlc import checkpoint, heldout, machine
-from jaxlc.cases import evaluate_policies, init_actor, keys_for_lane_changes
 from jaxlc.evaluate import _row_meta, final_checkpoints
-from jaxlc.results import SCRIPTED
-from jaxlc.rundir import RunDir
+from jaxlc.evaluation import heldout
+from jaxlc.evaluation.cases import evaluate_policies, init_actor, keys_for_lane_changes
+from jaxlc.evaluation.results import SCRIPTED
+from jaxlc.study import checkpoint, machine
+from jaxlc.study.rundir import RunDir
 
 FIELDS = (
     "gap_min_ttc",

@@ -31,9 +31,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from jaxlc import checkpoint, config, env  # noqa: E402
+from jaxlc import config  # noqa: E402
 from jaxlc.policy import actor_fn  # noqa: E402
-from jaxlc.reward import NONE  # noqa: E402
+from jaxlc.sim import env  # noqa: E402
+from jaxlc.sim.reward import NONE  # noqa: E402
+from jaxlc.study import checkpoint  # noqa: E402
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, float]:

@@ -2,7 +2,7 @@
 
 Training success rates are measured with exploration noise on (truncated normal, sigma in tanh
 units, held for k steps like every action), so even a good controller cannot reach 100%
-there. This script runs ``jaxlc.controller.scripted_action`` plus ``jaxlc.ddpg.explore``
+there. This script runs ``jaxlc.sim.controller.scripted_action`` plus ``jaxlc.learn.ddpg.explore``
 noise, for each action-update step k and noise sigma, in N parallel envs of the paper's
 simulator, and counts how the lane changes end: the ceiling a learned policy is judged
 against in training.
@@ -28,10 +28,10 @@ if str(ROOT) not in sys.path:  # run as a script from anywhere, without installi
 from sim_throughput import RESULTS, write_csv  # noqa: E402 (this folder is on sys.path)
 
 from jaxlc import config  # noqa: E402
-from jaxlc.controller import scripted_action  # noqa: E402
-from jaxlc.ddpg import explore  # noqa: E402
-from jaxlc.env import EnvParams, LaneChangeEnv  # noqa: E402
-from jaxlc.reward import COLLISION, NO_GAP, OUT_OF_BOUNDS, SUCCESS, TIMEOUT  # noqa: E402
+from jaxlc.learn.ddpg import explore  # noqa: E402
+from jaxlc.sim.controller import scripted_action  # noqa: E402
+from jaxlc.sim.env import EnvParams, LaneChangeEnv  # noqa: E402
+from jaxlc.sim.reward import COLLISION, NO_GAP, OUT_OF_BOUNDS, SUCCESS, TIMEOUT  # noqa: E402
 
 
 def make_runner(cfg: config.Config, n_envs: int, steps: int):

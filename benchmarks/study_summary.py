@@ -2,8 +2,8 @@
 (the file committed beside each study under ``benchmarks/``):
 
 - per cell: mean evaluated success at the last checkpoint with its 95% bootstrap interval
-  over seeds (``jaxlc.stats``), the best checkpoint's mean and the drop from it to the last
-  (a late collapse), and the mean lane-change duration, peak lateral acceleration and
+  over seeds (``jaxlc.evaluation.stats``), the best checkpoint's mean and the drop from it to
+  the last (a late collapse), and the mean lane-change duration, peak lateral acceleration and
   overshoot of the successful cases; the scripted controller beside them;
 - read as one-seed studies (the nine cells of one seed index each): how many have a model
   at >= 99% at the last checkpoint.
@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from jaxlc import stats  # noqa: E402
+from jaxlc.evaluation import stats  # noqa: E402
 from jaxlc.sweep import PAPER_LABELS  # noqa: E402
 
 

@@ -43,7 +43,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from sim_throughput import write_csv
 
-    from jaxlc import config, machine, sweep, train
+    from jaxlc import config, sweep
+    from jaxlc.learn import train
+    from jaxlc.study import machine
 
     path = config.CONFIG_DIR / "smoke.toml" if args.tiny and args.config is None else args.config
     cfg = config.load(path, [*args.overrides, f"train.seeds={args.seeds}"])

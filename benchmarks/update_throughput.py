@@ -51,9 +51,9 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
     sys.path.insert(0, str(ROOT))
 
-from jaxlc import ddpg, replay  # noqa: E402
 from jaxlc.config import DDPGConfig  # noqa: E402
-from jaxlc.env import OBS_DIM  # noqa: E402
+from jaxlc.learn import ddpg, replay  # noqa: E402
+from jaxlc.sim.env import OBS_DIM  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 

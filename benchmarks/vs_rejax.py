@@ -5,10 +5,11 @@ Each algorithm is ``rejax.get_algo(name).create(env=env, env_params=params, ...)
 Rejax's defaults except ``gamma = 0.98`` (the task's), ``--timesteps`` RL decisions per seed
 and the settings in ``HYPER``; its ``train`` runs vmapped over ``--seeds`` seeds in one jitted
 call, compiled ahead so that the compile time is reported apart. Every seed's final policy
-then drives the same 100 fixed cases as jaxlc's checkpoints (``jaxlc.cases.evaluate_act``),
-with its deterministic action (the Gaussian's mean, squashed for SAC; TD3's actor as it is),
-beside the untrained policy of the same learner. Success is over the cases that reached a
-lane change; the interval is a 95% bootstrap over seeds (``jaxlc.stats.describe``).
+then drives the same 100 fixed cases as jaxlc's checkpoints
+(``jaxlc.evaluation.cases.evaluate_act``), with its deterministic action (the Gaussian's mean,
+squashed for SAC; TD3's actor as it is), beside the untrained policy of the same learner.
+Success is over the cases that reached a lane change; the interval is a 95% bootstrap over
+seeds (``jaxlc.evaluation.stats.describe``).
 
     python benchmarks/vs_rejax.py                                  # ppo sac td3, 3 seeds, 1M
     python benchmarks/vs_rejax.py --algos ppo --seeds 5 --timesteps 2000000
@@ -36,7 +37,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import jaxlc  # noqa: E402
-from jaxlc import cases, config, machine, results, stats  # noqa: E402
+from jaxlc import config  # noqa: E402
+from jaxlc.evaluation import cases, results, stats  # noqa: E402
+from jaxlc.study import machine  # noqa: E402
 
 # Beyond Rejax's defaults: the task's discount (set in run), PPO's reward normalisation
 # (returns reach -2,000 here), and batch sizes for a 14-d task.
@@ -79,7 +82,7 @@ def greedy(name: str, algo: Any, ts: Any) -> Callable[[jax.Array], jax.Array]:
 
 
 def evaluate(cfg: config.Config, name: str, algo: Any, ts: Any) -> dict[str, Any]:
-    """The result row (``jaxlc.results``) of one trained state's greedy policy."""
+    """The result row (``jaxlc.evaluation.results``) of one trained state's greedy policy."""
     out = cases.evaluate_act(cfg, greedy(name, algo, ts))
     return results.summarise(out, cfg.env.dt)[0]
 

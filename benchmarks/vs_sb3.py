@@ -61,8 +61,9 @@ if str(ROOT) not in sys.path:  # run as a script from anywhere
 
 import jax  # noqa: E402
 
-from jaxlc import config, train  # noqa: E402
-from jaxlc.reward import REASONS, SUCCESS  # noqa: E402
+from jaxlc import config  # noqa: E402
+from jaxlc.learn import train  # noqa: E402
+from jaxlc.sim.reward import REASONS, SUCCESS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 TINY_OVERRIDES = [

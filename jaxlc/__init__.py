@@ -2,7 +2,7 @@
 
 from typing import Any
 
-from jaxlc.env import EnvParams, EnvState, LaneChangeEnv, make
+from jaxlc.sim.env import EnvParams, EnvState, LaneChangeEnv, make
 
 __version__ = "0.1.0"
 

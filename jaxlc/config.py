@@ -7,6 +7,10 @@ written. Overrides are ``table.key=value`` strings (TOML syntax for the value).
 
 Any problem (unknown table or key, wrong type, value out of range) raises ``ConfigError`` with
 one line naming the key and what is allowed; nothing is run with a bad config.
+
+This module stays at the top of the package, below every layer: ``jaxlc.sim``, ``learn``,
+``study`` and ``evaluation`` may all import it, and it imports no other jaxlc module
+(``tests/test_layout.py`` checks both).
 """
 
 from __future__ import annotations

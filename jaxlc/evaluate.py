@@ -4,14 +4,14 @@
     python -m jaxlc.evaluate runs/paper --episodes 100,5000 --model 3
     python -m jaxlc.evaluate --checkpoint runs/paper/checkpoints/m03_s0/ep05000.msgpack
 
-The cases and the program that runs every policy on them are ``jaxlc.cases``; what a result
-row holds is ``jaxlc.results``. This module is the command: it picks the checkpoints, runs them
-and writes the files.
+The cases and the program that runs every policy on them are ``jaxlc.evaluation.cases``; what
+a result row holds is ``jaxlc.evaluation.results``. This module is the command: it picks the
+checkpoints, runs them and writes the files.
 
-Outcome buckets are the reason codes of ``jaxlc.reward`` with 0 read as "unfinished" (hit
+Outcome buckets are the reason codes of ``jaxlc.sim.reward`` with 0 read as "unfinished" (hit
 the step cap), so every case lands in exactly one bucket. Writes ``RUN_DIR/eval/eval.json``,
 ``eval.csv``, ``cases.npz`` (per policy and case) and ``traces.npz`` (the few drawn cases),
-the statistics over seeds (``jaxlc.stats``: ``cells.json``, ``cells.csv``,
+the statistics over seeds (``jaxlc.evaluation.stats``: ``cells.json``, ``cells.csv``,
 ``improvement.csv``), then the figures and ``RUN_DIR/report.md`` (skip figures with
 ``--no-figures``).
 
@@ -19,8 +19,8 @@ Beside the paper's 100 cases, each model's final checkpoint (and those of
 ``--heldout-episodes``) drives ``--lane-changes`` held-out lane changes (1,000 by default; 0
 skips them), on cases of a key stream of their own (``--heldout-seed``): failure rates with
 binomial intervals, the safety and comfort norms, every collision attributed
-(``jaxlc.heldout``). Writes ``eval/heldout.json``, ``heldout.csv``, ``heldout_cells.csv``,
-``collisions.csv`` and ``heldout_cases.npz``.
+(``jaxlc.evaluation.heldout``). Writes ``eval/heldout.json``, ``heldout.csv``,
+``heldout_cells.csv``, ``collisions.csv`` and ``heldout_cases.npz``.
 
     python -m jaxlc.evaluate --compare RUN_A RUN_B [--out DIR]
 
@@ -46,13 +46,10 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxlc import checkpoint, config, convergence, heldout, machine, stats
-from jaxlc.cases import evaluate_policies, init_actor, keys_for_lane_changes
-from jaxlc.checkpoint import CheckpointError
-from jaxlc.env import ACT_DIM
-from jaxlc.observation import OBS_DIM
-from jaxlc.policy import widths
-from jaxlc.results import (
+from jaxlc import config
+from jaxlc.evaluation import convergence, heldout, stats
+from jaxlc.evaluation.cases import evaluate_policies, init_actor, keys_for_lane_changes
+from jaxlc.evaluation.results import (
     EVAL_FIELDS,
     META_KEYS,
     OUTCOMES,
@@ -62,9 +59,14 @@ from jaxlc.results import (
     format_table,
     summarise,
 )
-from jaxlc.rundir import RunDir
-from jaxlc.safety import NORMS
-from jaxlc.stats import StatsError, final_rows
+from jaxlc.evaluation.safety import NORMS
+from jaxlc.evaluation.stats import StatsError, final_rows
+from jaxlc.policy import widths
+from jaxlc.sim.env import ACT_DIM
+from jaxlc.sim.observation import OBS_DIM
+from jaxlc.study import checkpoint, machine
+from jaxlc.study.checkpoint import CheckpointError
+from jaxlc.study.rundir import RunDir
 
 
 def default_episodes(every: int, final: int) -> list[int]:
@@ -197,7 +199,7 @@ def evaluate_heldout(
     devices: int = 1,
 ) -> dict[str, Any]:
     """Every model's final checkpoint (and those of ``episodes``) and the scripted baseline
-    on ``lane_changes`` held-out lane changes (``jaxlc.heldout``); writes
+    on ``lane_changes`` held-out lane changes (``jaxlc.evaluation.heldout``); writes
     ``eval/heldout.json``, ``heldout.csv``, ``heldout_cells.csv``, ``collisions.csv`` and
     ``heldout_cases.npz``; returns the JSON's content."""
     run_dir, rd = Path(run_dir), RunDir(run_dir)
@@ -223,7 +225,7 @@ def evaluate_heldout(
     result = {
         "config_hash": cfg.hash(),
         "seed": seed,
-        "key_stream": f"jaxlc.cases.heldout_keys({seed}, {len(keys)})",
+        "key_stream": f"jaxlc.evaluation.cases.heldout_keys({seed}, {len(keys)})",
         "cases": len(keys),
         "lane_changes": int(info["performed"].sum()),
         "norms": [
@@ -254,7 +256,7 @@ def evaluate_heldout(
 def write_convergence(run_dir: Path) -> dict[str, Any] | None:
     """``eval/convergence.json`` and ``convergence.csv``: the learning-speed measures of every
     model from its training curves and the paper's comparisons on them
-    (``jaxlc.convergence``); None when the run has no episode metrics."""
+    (``jaxlc.evaluation.convergence``); None when the run has no episode metrics."""
     rd = RunDir(run_dir)
     episodes = rd.load_npz(rd.episodes)
     if episodes is None or not rd.summary_json.is_file():
@@ -395,7 +397,8 @@ def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
     out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
     out.mkdir(parents=True, exist_ok=True)
     checkpoint.write_text_atomic(out / "compare.csv", _csv(table, list(table[0])))
-    from jaxlc import figures, report
+    from jaxlc import figures
+    from jaxlc.evaluation import report
 
     figures.fig_compare(table, run_a.name, run_b.name, out / "compare.png")
     text = report.compare_markdown(table, run_a, run_b)
@@ -423,7 +426,7 @@ def _host_devices(args: argparse.Namespace) -> int:
     return machine.host_devices_for(args.chunk, machine.largest_product(args.cases, widths))
 
 
-def main(argv: list[str] | None = None) -> int:
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(
         prog="python -m jaxlc.evaluate",
         description=__doc__,
@@ -456,7 +459,7 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         default=None,
         help="devices to lay the policies over (default: every GPU; on a CPU, host devices as "
-        "jaxlc/machine.py picks for --chunk policies over --cases; XLA_FLAGS overrides it)",
+        "jaxlc/study/machine.py picks for --chunk policies over --cases; XLA_FLAGS overrides it)",
     )
     ap.add_argument(
         "--compare",
@@ -466,7 +469,40 @@ def main(argv: list[str] | None = None) -> int:
         help="compare two evaluated runs cell by cell (B - A); no evaluation",
     )
     ap.add_argument("--out", type=Path, default=None, help="--compare: output directory")
-    args = ap.parse_intermixed_args(argv)
+    return ap.parse_intermixed_args(argv)
+
+
+def _evaluate_run_dir(args: argparse.Namespace, devices: int) -> int:
+    """The protocol's cases, the learning-speed measures, the held-out lane changes, the
+    figures and the report of ``args.run_dir``."""
+    if args.run_dir is None:
+        raise EvalError("give a run directory (or --checkpoint FILE)")
+    kw = dict(max_steps=args.max_steps, chunk=args.chunk, devices=devices)
+    result = evaluate_run(
+        args.run_dir, args.episodes, cases=args.cases, model=args.model, seed=args.seed, **kw
+    )
+    print(format_table(result["rows"]))
+    write_convergence(args.run_dir)
+    if args.lane_changes > 0:
+        held = evaluate_heldout(
+            args.run_dir,
+            args.heldout_episodes,
+            lane_changes=args.lane_changes,
+            seed=args.heldout_seed,
+            **kw,
+        )
+        print(heldout.format_rows(held["rows"]))
+    from jaxlc import figures
+    from jaxlc.evaluation import report
+
+    made = [] if args.no_figures else figures.make_all(args.run_dir)
+    path = report.write_report(args.run_dir)
+    print(f"Wrote {RunDir(args.run_dir).eval}, {len(made)} figures, {path}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
     try:
         if args.compare is not None:
             out = compare_runs(*args.compare, args.out)
@@ -488,40 +524,10 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(format_table(result["rows"]))
             return 0
-        if args.run_dir is None:
-            raise EvalError("give a run directory (or --checkpoint FILE)")
-        result = evaluate_run(
-            args.run_dir,
-            args.episodes,
-            cases=args.cases,
-            model=args.model,
-            seed=args.seed,
-            max_steps=args.max_steps,
-            chunk=args.chunk,
-            devices=len(jax.devices()) if auto else args.devices,
-        )
-        print(format_table(result["rows"]))
-        write_convergence(args.run_dir)
-        if args.lane_changes > 0:
-            held = evaluate_heldout(
-                args.run_dir,
-                args.heldout_episodes,
-                lane_changes=args.lane_changes,
-                seed=args.heldout_seed,
-                max_steps=args.max_steps,
-                chunk=args.chunk,
-                devices=len(jax.devices()) if auto else args.devices,
-            )
-            print(heldout.format_rows(held["rows"]))
-        from jaxlc import figures, report
-
-        made = [] if args.no_figures else figures.make_all(args.run_dir)
-        path = report.write_report(args.run_dir)
+        return _evaluate_run_dir(args, len(jax.devices()) if auto else args.devices)
     except (EvalError, StatsError, CheckpointError, config.ConfigError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    print(f"Wrote {RunDir(args.run_dir).eval}, {len(made)} figures, {path}")
-    return 0
 
 
 if __name__ == "__main__":

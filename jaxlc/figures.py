@@ -10,7 +10,7 @@ progress); ``profiles.png``, performance profiles (share of models above each su
 by k. Training figures read ``metrics/`` and ``summary.json``; the others read ``eval/``
 (``python -m jaxlc.evaluate``). A figure whose data is missing is skipped. With several
 seeds per grid cell a line is the mean over seeds and its band the 95% bootstrap interval
-of that mean (``jaxlc.stats``).
+of that mean (``jaxlc.evaluation.stats``).
 
 Returns span -2000 (out of bounds, eq. (11)) to about -100 (a smooth lane change): when a
 plot's returns span more than a decade its axis is symlog (linear near zero, log beyond).
@@ -35,9 +35,9 @@ from matplotlib.animation import PillowWriter  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 
-from jaxlc import heldout, stats  # noqa: E402
-from jaxlc.results import OUTCOMES, rank_models  # noqa: E402
-from jaxlc.rundir import RunDir  # noqa: E402
+from jaxlc.evaluation import heldout, stats  # noqa: E402
+from jaxlc.evaluation.results import OUTCOMES, rank_models  # noqa: E402
+from jaxlc.study.rundir import RunDir  # noqa: E402
 
 # The paper's groups for Fig. 3 (one hyperparameter varies in each).
 GROUPS = (
@@ -539,7 +539,8 @@ TTC_SHOWN = 10.0  # s; longer (or no closing at all) is drawn at this value
 
 def heldout_norms(run_dir: Path) -> Path | None:
     """Per cell (seeds pooled) and the scripted controller, the distribution over held-out
-    lane changes of each norm's measure, the norm as a dashed red line (``jaxlc.safety``)."""
+    lane changes of each norm's measure, the norm as a dashed red line
+    (``jaxlc.evaluation.safety``)."""
     rd = RunDir(run_dir)
     cases = _npz(rd.heldout_cases)
     if cases is None or not rd.heldout_json.is_file():

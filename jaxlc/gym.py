@@ -11,7 +11,7 @@
     envs = gym.make_vec("jaxlc/LaneChange-v0", num_envs=64)  # LaneChangeVectorEnv, one jit call
 
 Each ``step`` is one RL decision and an episode exactly one lane change: the traffic before a
-manoeuvre runs inside (``jaxlc.decision``, shared with the gymnax env). ``terminated`` /
+manoeuvre runs inside (``jaxlc.sim.decision``, shared with the gymnax env). ``terminated`` /
 ``truncated`` mean what they mean in the functional env (success, out of bounds and collision
 terminate; the 10 s timeout truncates, so a learner bootstraps from it).
 
@@ -23,7 +23,7 @@ next ego (its first observation was computed by the step that ended the episode)
 of an episode it starts a fresh road (new warm-up) drawn from the key stream. A ``reset()``
 with no seed before any seeded one draws the key from ``self.np_random``.
 
-The observation space's bounds are ``jaxlc.observation.bounds`` (why each holds is written
+The observation space's bounds are ``jaxlc.sim.observation.bounds`` (why each holds is written
 there): finite for the default curvature 0; with a curvature, psi and offset are unbounded.
 """
 
@@ -42,11 +42,11 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from jax import Array
 
-from jaxlc import observation as obs_layout
 from jaxlc.config import Config, EnvConfig
-from jaxlc.decision import DEFAULT_MAX_SKIP_STEPS, reset_core, step_core
-from jaxlc.env import ACT_DIM, OBS_DIM, EnvParams, EnvState, make
-from jaxlc.reward import REASONS
+from jaxlc.sim import observation as obs_layout
+from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, reset_core, step_core
+from jaxlc.sim.env import ACT_DIM, OBS_DIM, EnvParams, EnvState, make
+from jaxlc.sim.reward import REASONS
 
 ENV_ID = "jaxlc/LaneChange-v0"
 
@@ -274,7 +274,7 @@ class LaneChangeGymEnv(gymnasium.Env[np.ndarray, np.ndarray]):
         render_mode: ``None`` or ``"rgb_array"``.
         max_skip_steps: cap on the env-steps one fast-forward may run.
 
-    ``step`` info: ``reason`` (name from ``jaxlc.reward.REASONS``, "none" while the manoeuvre
+    ``step`` info: ``reason`` (name from ``jaxlc.sim.reward.REASONS``, "none" while the manoeuvre
     goes on), ``reason_code``, the reward terms ``r_s``/``r_e``/``r_d`` of eqs. (8)-(10),
     ``episode_return``/``episode_steps`` of the manoeuvre so far, ``offset`` (m from the target
     lane's centre) and ``action`` (the executed, held action). ``reset`` info:

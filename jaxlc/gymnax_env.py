@@ -7,7 +7,7 @@
 
 An episode is one lane change. The traffic before a manoeuvre, and episodes that end without
 one (no acceptable gap, or a collision before the gap was accepted), run inside ``reset`` and
-inside the step that ends a manoeuvre (``jaxlc.decision``, shared with the gymnasium
+inside the step that ends a manoeuvre (``jaxlc.sim.decision``, shared with the gymnasium
 wrapper), so a learner only ever sees decisions. Auto-reset continues the same road with the
 next ego, as the simulator does: on ``done`` the returned ``obs`` and ``state`` are the next
 manoeuvre's first, and the step's own last observation is ``info["final_observation"]``.
@@ -15,7 +15,7 @@ manoeuvre's first, and the step's own last observation is ``info["final_observat
 ``step`` returns the five values that gymnax-based learners (Rejax, PureJaxRL) unpack;
 ``done = terminated | truncated``, and ``info`` tells them apart: ``terminated`` (success,
 out of bounds, collision), ``truncated`` (the 10 s timeout, to bootstrap from; terminal
-instead with ``env.terminal_timeout``), ``reason`` (a code of ``jaxlc.reward.REASONS``),
+instead with ``env.terminal_timeout``), ``reason`` (a code of ``jaxlc.sim.reward.REASONS``),
 ``discount`` (0 only when terminated) and the reward terms. ``params.max_steps_in_episode`` is
 the manoeuvre's decision limit (``manoeuvre_time_limit / dt``, 100): the simulator's own
 timeout ends an episode there, and learners read it for their evaluation loops.
@@ -33,11 +33,11 @@ from flax import struct
 from gymnax.environments import environment, spaces
 from jax import Array
 
-from jaxlc import observation as obs_layout
 from jaxlc.config import Config, EnvConfig
-from jaxlc.decision import DEFAULT_MAX_SKIP_STEPS, reset_core, step_core
-from jaxlc.env import ACT_DIM, EnvParams, EnvState, make
-from jaxlc.observation import OBS_DIM
+from jaxlc.sim import observation as obs_layout
+from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, reset_core, step_core
+from jaxlc.sim.env import ACT_DIM, EnvParams, EnvState, make
+from jaxlc.sim.observation import OBS_DIM
 
 
 @struct.dataclass
@@ -125,7 +125,7 @@ class LaneChangeGymnax(environment.Environment):
         return spaces.Box(-1.0, 1.0, (ACT_DIM,), jnp.float32)
 
     def observation_space(self, params: LaneChangeParams | None = None) -> spaces.Box:
-        """The bounds of ``jaxlc.observation.bounds``."""
+        """The bounds of ``jaxlc.sim.observation.bounds``."""
         params = self.default_params if params is None else params
         low, high = obs_layout.bounds(params.sim)
         return spaces.Box(jnp.asarray(low), jnp.asarray(high), (OBS_DIM,), jnp.float32)

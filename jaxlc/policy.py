@@ -16,10 +16,11 @@ from typing import Any
 
 from jax import Array
 
-from jaxlc import checkpoint, config
-from jaxlc.env import ACT_DIM
-from jaxlc.networks import make_networks
-from jaxlc.rundir import RunDir
+from jaxlc import config
+from jaxlc.learn.networks import make_networks
+from jaxlc.sim.env import ACT_DIM
+from jaxlc.study import checkpoint
+from jaxlc.study.rundir import RunDir
 
 
 def actor_fn(actor_params: Any, hidden: Sequence[int]) -> Callable[[Array], Array]:

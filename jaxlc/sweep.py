@@ -41,11 +41,13 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
-from jaxlc import checkpoint, config, machine, train
-from jaxlc.env import ACT_DIM, OBS_DIM
-from jaxlc.reward import REASONS, SUCCESS
-from jaxlc.rundir import RunDir
-from jaxlc.tracking import TensorBoard
+from jaxlc import config
+from jaxlc.learn import train
+from jaxlc.sim.env import ACT_DIM, OBS_DIM
+from jaxlc.sim.reward import REASONS, SUCCESS
+from jaxlc.study import checkpoint, machine
+from jaxlc.study.rundir import RunDir
+from jaxlc.study.tracking import TensorBoard
 
 # The paper's Table 1 numbers the models by (k, memory size).
 PAPER_LABELS = {
@@ -387,7 +389,7 @@ def run_sweep(
     The full training state is saved atomically every ``train.save_every_s`` seconds (at
     chunk boundaries), on Ctrl-C and at the end; ``resume=True`` continues from it and ends
     with the same params, bit for bit, as a run never interrupted. ``tensorboard``: a
-    directory for live curves (``jaxlc.tracking``), written at every chunk boundary."""
+    directory for live curves (``jaxlc.study.tracking``), written at every chunk boundary."""
     n_dev = len(jax.devices()) if devices is None else devices
     lead = jax.process_index() == 0  # writes the files of the whole run
     train.check_devices(n_dev)
@@ -546,7 +548,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         type=int,
         default=None,
         help="devices to lay the models over (default: every GPU; on a CPU, the host-device "
-        "count that trains fastest, see jaxlc/machine.py; XLA_FLAGS overrides it)",
+        "count that trains fastest, see jaxlc/study/machine.py; XLA_FLAGS overrides it)",
     )
     ap.add_argument(
         "--distributed",

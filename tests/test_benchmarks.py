@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from jaxlc import checkpoint
+from jaxlc.study import checkpoint
 
 from .conftest import HANG_GUARD_S
 

@@ -12,8 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxlc import checkpoint
-from jaxlc.checkpoint import CheckpointError
+from jaxlc.study import checkpoint
+from jaxlc.study.checkpoint import CheckpointError
 
 
 def _params(obs: int = 17) -> dict:

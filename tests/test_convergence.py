@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxlc import convergence
-from jaxlc.reward import OUT_OF_BOUNDS, SUCCESS
+from jaxlc.evaluation import convergence
+from jaxlc.sim.reward import OUT_OF_BOUNDS, SUCCESS
 
 
 def _curves(switch: int, n: int = 2000, noise: float = 0.0, seed: int = 0) -> dict:

@@ -10,9 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxlc import ddpg
 from jaxlc.config import DDPGConfig
-from jaxlc.networks import make_networks
+from jaxlc.learn import ddpg
+from jaxlc.learn.networks import make_networks
 
 OBS_DIM = 5
 # a big final init and tau so that every term of the update moves the params visibly

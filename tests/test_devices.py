@@ -10,14 +10,15 @@ import flax.serialization
 import jax
 import numpy as np
 
-from jaxlc import checkpoint
-from jaxlc.rundir import RunDir
+from jaxlc.study import checkpoint
+from jaxlc.study.rundir import RunDir
 
 from .conftest import HANG_GUARD_S, SMOKE
 
 SCRIPT = textwrap.dedent("""
     import jax, numpy as np
-    from jaxlc import config, train
+    from jaxlc import config
+    from jaxlc.learn import train
     cfg = config.load(config.CONFIG_DIR / "smoke.toml")
     grid = train.make_grid(cfg)  # 4 models: padded to 6 on 3 devices
     assert len(jax.devices()) == 4, jax.devices()
@@ -32,7 +33,7 @@ SCRIPT = textwrap.dedent("""
         for a, b in zip(jax.tree.leaves(results[1]), jax.tree.leaves(results[n]), strict=True):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-5)
     # Evaluation lays its policies over the devices the same way (5 policies: padded to 6).
-    from jaxlc import cases
+    from jaxlc.evaluation import cases
     actors = [jax.tree.map(lambda a, i=i: a[i], results[1].learner.actor) for i in range(4)]
     evals = {
         n: cases.evaluate_policies(cfg, [None, *actors], [1, 1, 1, 2, 2], cases=6,

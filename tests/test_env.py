@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 import jaxlc
-from jaxlc import config, gap, idm, kinematics, reward
-from jaxlc import env as E
-from jaxlc.controller import scripted_action
+from jaxlc import config
+from jaxlc.sim import env as E
+from jaxlc.sim import gap, idm, kinematics, reward
+from jaxlc.sim.controller import scripted_action
 
 
 @pytest.fixture(scope="module")

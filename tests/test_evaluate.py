@@ -15,12 +15,14 @@ import jax
 import numpy as np
 import pytest
 
-from jaxlc import cases, checkpoint, config, evaluate, heldout, results, safety, sweep
-from jaxlc.controller import scripted_action
-from jaxlc.env import EnvParams
+from jaxlc import config, evaluate, sweep
+from jaxlc.evaluation import cases, heldout, results, safety
+from jaxlc.evaluation.report import FIGURES
+from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.policy import actor_fn
-from jaxlc.report import FIGURES
-from jaxlc.results import OUTCOMES
+from jaxlc.sim.controller import scripted_action
+from jaxlc.sim.env import EnvParams
+from jaxlc.study import checkpoint
 
 from .conftest import HANG_GUARD_S
 

@@ -12,8 +12,9 @@ import jax
 import numpy as np
 import pytest
 
-from jaxlc import checkpoint, sweep
-from jaxlc.rundir import RunDir
+from jaxlc import sweep
+from jaxlc.study import checkpoint
+from jaxlc.study.rundir import RunDir
 
 from .conftest import HANG_GUARD_S, SMOKE
 

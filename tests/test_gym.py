@@ -19,10 +19,10 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
 import jaxlc
 import jaxlc.gym as G
-import jaxlc.observation as O
-from jaxlc.controller import scripted_action
-from jaxlc.env import RL, LaneChangeEnv
-from jaxlc.reward import REASONS
+import jaxlc.sim.observation as O
+from jaxlc.sim.controller import scripted_action
+from jaxlc.sim.env import RL, LaneChangeEnv
+from jaxlc.sim.reward import REASONS
 
 ROOT = Path(__file__).resolve().parent.parent
 N_VEC = 4  # one batch size for every vector test, so the vmapped program compiles once

@@ -12,7 +12,7 @@ gymnax = pytest.importorskip("gymnax", reason="optional: pip install -e '.[gymna
 import jaxlc  # noqa: E402
 import jaxlc.gym as G  # noqa: E402
 from jaxlc.gymnax_env import LaneChangeGymnax  # noqa: E402
-from jaxlc.reward import REASONS  # noqa: E402
+from jaxlc.sim.reward import REASONS  # noqa: E402
 
 from .test_gym import _policy  # noqa: E402
 

@@ -10,8 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxlc import cases, config, heldout, safety
-from jaxlc.env import EnvParams, LaneChangeEnv
+from jaxlc import config
+from jaxlc.evaluation import cases, heldout, safety
+from jaxlc.sim.env import EnvParams, LaneChangeEnv
 
 
 def test_ttc_is_gap_over_closing_speed() -> None:

@@ -1,4 +1,15 @@
-"""The package's shape: functions a reader can see whole, modules without import circles."""
+"""The package's shape: functions a reader can see whole, modules without import circles, and
+layers that import only downwards.
+
+The floors, lowest first (a module may import its own floor and those below, never above):
+
+    0  jaxlc.config        the validated edge every layer reads; imports no jaxlc module
+    1  jaxlc.sim           the simulator
+    2  jaxlc.learn         DDPG and the training grid
+    3  jaxlc.study         run directory, checkpoints, tracking, the machine
+    4  jaxlc.evaluation    cases, results, statistics, the report
+    5  top level           the commands and the public API (``TOP_LEVEL``)
+"""
 
 from __future__ import annotations
 
@@ -8,9 +19,39 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parent.parent / "jaxlc"
 MAX_LINES = 80
 
+FLOORS = {"config": 0, "sim": 1, "learn": 2, "study": 3, "evaluation": 4}
+TOP = 5
+# The package root (jaxlc/__init__.py) and the modules beside it: commands and public API only.
+TOP_LEVEL = {
+    "jaxlc",
+    "jaxlc.evaluate",
+    "jaxlc.figures",
+    "jaxlc.gym",
+    "jaxlc.gymnax_env",
+    "jaxlc.policy",
+    "jaxlc.sweep",
+}
+# Upward imports allowed by name, each with its reason; an entry no module makes fails a test.
+EXCEPTIONS = {
+    ("jaxlc.study.checkpoint", "jaxlc"): "reads jaxlc.__version__ (deferred) for the metadata",
+}
+
+
+def _name(path: Path) -> str:
+    """Dotted module name: ``jaxlc/sim/env.py`` -> ``jaxlc.sim.env``, ``jaxlc/sim/__init__.py``
+    -> ``jaxlc.sim``."""
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
 
 def _trees() -> dict[str, ast.Module]:
-    return {p.stem: ast.parse(p.read_text(encoding="utf-8")) for p in PACKAGE.glob("*.py")}
+    """Every module of the package, subpackages included."""
+    return {_name(p): ast.parse(p.read_text(encoding="utf-8")) for p in PACKAGE.rglob("*.py")}
+
+
+def _floor(module: str) -> int:
+    parts = module.split(".")
+    return FLOORS.get(parts[1], TOP) if len(parts) > 1 else TOP
 
 
 def test_no_function_is_longer_than_a_screen():
@@ -24,24 +65,34 @@ def test_no_function_is_longer_than_a_screen():
     assert not long, long
 
 
-def _imports(tree: ast.Module, modules: set[str]) -> set[str]:
-    """jaxlc modules a module imports, at its top or inside a function."""
+def _imports(tree: ast.Module, name: str, modules: set[str]) -> set[str]:
+    """jaxlc modules a module imports, at its top or inside a function (full dotted names;
+    ``from jaxlc.sim import env`` is ``jaxlc.sim.env``, ``import jaxlc`` the package root)."""
+    packages = {_name(p) for p in PACKAGE.rglob("__init__.py")}
+    package = name if name in packages else name.rpartition(".")[0]
     found = set()
     for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("jaxlc"):
-            if node.module == "jaxlc":
-                found |= {a.name for a in node.names if a.name in modules}
-            else:
-                found.add(node.module.split(".")[1])
+        if isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:  # relative: resolve against this module's package
+                up = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(up + ([base] if base else []))
+            for alias in node.names:
+                sub = f"{base}.{alias.name}"
+                found.add(sub if sub in modules else base)
         elif isinstance(node, ast.Import):
-            found |= {a.name.split(".")[1] for a in node.names if a.name.startswith("jaxlc.")}
+            found |= {alias.name for alias in node.names}
     return found & modules
 
 
-def test_no_import_circle():
+def _graph() -> dict[str, set[str]]:
     trees = _trees()
-    modules = set(trees) - {"__init__"}
-    graph = {m: _imports(trees[m], modules) - {m} for m in modules}
+    modules = set(trees)
+    return {m: _imports(trees[m], m, modules) - {m} for m in modules}
+
+
+def test_no_import_circle():
+    graph = _graph()
     done: set[str] = set()
 
     def visit(m: str, path: list[str]) -> None:
@@ -53,5 +104,53 @@ def test_no_import_circle():
             visit(n, path + [m])
         done.add(m)
 
-    for m in sorted(modules):
+    for m in sorted(graph):
         visit(m, [])
+
+
+def test_no_module_imports_a_layer_above_its_own():
+    """config < sim < learn < study < evaluation < the top-level commands and API."""
+    upward = [
+        f"{m} (floor {_floor(m)}) imports {n} (floor {_floor(n)})"
+        for m, imported in sorted(_graph().items())
+        for n in sorted(imported)
+        if _floor(n) > _floor(m) and (m, n) not in EXCEPTIONS
+    ]
+    assert not upward, upward
+
+
+def test_every_exception_is_still_needed():
+    graph = _graph()
+    stale = [edge for edge in EXCEPTIONS if edge[1] not in graph.get(edge[0], set())]
+    assert not stale, stale
+
+
+def test_config_imports_no_jaxlc_module():
+    assert _graph()["jaxlc.config"] == set()
+
+
+def test_the_import_graph_sees_every_form_of_import():
+    """The checks above are only as good as the graph: known edges of each form are in it."""
+    graph = _graph()
+    assert "jaxlc.sim.env" in graph["jaxlc"]  # from jaxlc.sim.env import ...
+    assert "jaxlc.sim.gap" in graph["jaxlc.sim.env"]  # from jaxlc.sim import gap
+    assert "jaxlc.config" in graph["jaxlc.sim.env"]  # from jaxlc import config (in a function)
+    assert "jaxlc.sim.env" in graph["jaxlc.learn.train"]
+    assert "jaxlc.learn.tree" in graph["jaxlc.evaluation.cases"]
+    assert "jaxlc.evaluation.report" in graph["jaxlc.evaluate"]  # deferred, in a function
+    assert "jaxlc" in graph["jaxlc.study.checkpoint"]  # import jaxlc
+
+
+def test_the_top_level_is_the_commands_and_the_public_api():
+    """Everything else lives in a layer folder; a new folder needs its floor in ``FLOORS``."""
+    assert {m for m in _trees() if _floor(m) == TOP} == TOP_LEVEL
+
+
+def test_every_layer_is_a_package_that_says_what_it_may_import():
+    trees = _trees()
+    for layer in FLOORS.keys() - {"config"}:
+        doc = ast.get_docstring(trees[f"jaxlc.{layer}"]) or ""
+        assert "Imports:" in doc, layer
+        assert any(m.startswith(f"jaxlc.{layer}.") for m in trees), f"{layer} has no modules"
+    folders = {p.parent for p in PACKAGE.rglob("*.py")}
+    assert all((d / "__init__.py").is_file() for d in folders), folders

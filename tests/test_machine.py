@@ -4,7 +4,8 @@ import os
 
 import pytest
 
-from jaxlc import config, evaluate, machine, sweep
+from jaxlc import config, evaluate, sweep
+from jaxlc.study import machine
 
 from .conftest import SMOKE
 

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxlc import replay
+from jaxlc.learn import replay
 
 CAPS = (5, 7, 9)
 CAP_MAX = 9

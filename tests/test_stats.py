@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxlc import evaluate, figures, report, results, stats
-from jaxlc.results import OUTCOMES
+from jaxlc import evaluate, figures
+from jaxlc.evaluation import report, results, stats
+from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.sweep import PAPER_LABELS
 
 from .conftest import HANG_GUARD_S
@@ -144,7 +145,7 @@ def test_verdicts_follow_the_data() -> None:
     agree = _verdicts(grid)
     assert agree == {"(a)": "supported", "(b)": "supported", "(c)": "supported", "(d)": "supported"}
     # Every seed at 70 of 70: a zero-width interval, no evidence of 100% (the held-out
-    # failure bound decides (d) then: jaxlc.heldout.claim_d).
+    # failure bound decides (d) then: jaxlc.evaluation.heldout.claim_d).
     grid[1, 4000] = [1.0] * 8
     assert _verdicts(grid)["(d)"] == "undecided at 8 seeds"
     # ④ worst, every cell below 100%, and the memory and k orders reversed.

@@ -7,9 +7,11 @@ import pytest
 
 pytest.importorskip("tensorboardX", reason="optional: pip install -e '.[track]'")
 
-from jaxlc import sweep, tracking, train  # noqa: E402
-from jaxlc.reward import SUCCESS  # noqa: E402
-from jaxlc.rundir import RunDir  # noqa: E402
+from jaxlc import sweep  # noqa: E402
+from jaxlc.learn import train  # noqa: E402
+from jaxlc.sim.reward import SUCCESS  # noqa: E402
+from jaxlc.study import tracking  # noqa: E402
+from jaxlc.study.rundir import RunDir  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -14,11 +14,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxlc import checkpoint, config, sweep, train, tree
+from jaxlc import config, sweep
 from jaxlc.config import DDPGConfig
-from jaxlc.env import OBS_DIM
+from jaxlc.learn import train, tree
 from jaxlc.policy import actor_fn, load_policy
-from jaxlc.reward import NONE
+from jaxlc.sim.env import OBS_DIM
+from jaxlc.sim.reward import NONE
+from jaxlc.study import checkpoint
 
 from .conftest import HANG_GUARD_S
 
@@ -244,7 +246,7 @@ def test_console_scripts_run_the_clis():
 
 
 def test_tree_where_picks_whole_trees_or_rows():
-    """``jaxlc.tree.where``: a () mask picks one whole tree; a mask of leading axes picks
+    """``jaxlc.learn.tree.where``: a () mask picks one whole tree; a mask of leading axes picks
     row by row, broadcast over each leaf's trailing axes (leaves of different ranks)."""
     new = {"a": jnp.ones((3, 2)), "b": jnp.ones((3,), jnp.int32)}
     old = {"a": jnp.zeros((3, 2)), "b": jnp.zeros((3,), jnp.int32)}

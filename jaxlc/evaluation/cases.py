@@ -11,7 +11,7 @@ simulates it once per case, and ``rollout``, which broadcasts those states to al
 and runs them in one jitted program, vmapped over policies and cases, with a ``while_loop``
 over time. Step keys are ``fold_in(case key, env time)``, so the split changes no random
 draw. "Left" is toward higher y (lane index up; y points left of the driving direction).
-Outcome codes are those of ``jaxlc.results.OUTCOMES``.
+Outcome codes are those of ``jaxlc.evaluation.results.OUTCOMES``.
 """
 
 from __future__ import annotations
@@ -28,14 +28,16 @@ from jax import Array
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-from jaxlc import config, safety, tree
-from jaxlc.controller import scripted_action
-from jaxlc.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation, overlaps
-from jaxlc.networks import make_networks
-from jaxlc.observation import OBS_DIM
-from jaxlc.results import EvalError
-from jaxlc.reward import COLLISION
-from jaxlc.train import check_devices
+from jaxlc import config
+from jaxlc.evaluation import safety
+from jaxlc.evaluation.results import EvalError
+from jaxlc.learn import tree
+from jaxlc.learn.networks import make_networks
+from jaxlc.learn.train import check_devices
+from jaxlc.sim.controller import scripted_action
+from jaxlc.sim.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation, overlaps
+from jaxlc.sim.observation import OBS_DIM
+from jaxlc.sim.reward import COLLISION
 
 
 @flax.struct.dataclass
@@ -78,7 +80,7 @@ class Outcome:
     final_offset: Array  # signed offset to the target centre line toward the target side, m
     final_psi: Array  # heading, rad
     final_omega: Array  # yaw rate, rad/s
-    # Safety and comfort over the manoeuvre (jaxlc.safety), the start state included.
+    # Safety and comfort over the manoeuvre (jaxlc.evaluation.safety), the start state included.
     peak_lat_jerk: Array  # max |lateral jerk| over a 0.5 s moving average, m/s^3
     min_ttc: Array  # (policies, cases, 3) min time-to-collision to lead, lag, own leader, s
     min_thw: Array  # (policies, cases, 3) min time headway, s
@@ -453,7 +455,8 @@ def evaluate_act(
 ) -> dict[str, np.ndarray]:
     """Any learner's policy, given as a jittable ``act(obs (cases, OBS_DIM)) -> action (cases,
     1)``, on the same fixed cases as every checkpoint (or those of ``keys``): the outcome dict
-    of ``evaluate_policies`` with one row (``jaxlc.results.summarise`` turns it into a row)."""
+    of ``evaluate_policies`` with one row (``jaxlc.evaluation.results.summarise`` turns it into
+    a row)."""
     start, _ = programs(cfg, max_steps)  # the checkpoints' own (cached) case program
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     rollout = jax.jit(make_rollout(base, lambda _, obs: act(obs), max_steps))

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxlc.reward import REASONS
-from jaxlc.stats import CELL_AXES, final_rows
+from jaxlc.evaluation.stats import CELL_AXES, final_rows
+from jaxlc.sim.reward import REASONS
 
 OUTCOMES = ("unfinished",) + REASONS[1:]  # index = reason code; 0: hit the step cap
 MEASURES = (

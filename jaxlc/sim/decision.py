@@ -1,6 +1,6 @@
 """One RL decision per step: the functional env with the traffic between manoeuvres run inside.
 
-The simulator (``jaxlc.env``) advances the whole highway every dt while the ego goes through
+The simulator (``jaxlc.sim.env``) advances the whole highway every dt while the ego goes through
 WAIT, CRUISE and GAP before the RL phase; only RL-phase steps are decisions. ``fast_forward``
 runs the simulator with no action, in one ``lax.while_loop``, through those phases and through
 whole episodes that end before any RL step (no gap found, or a collision before the gap was
@@ -19,8 +19,8 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
-from jaxlc.reward import NONE
+from jaxlc.sim.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
+from jaxlc.sim.reward import NONE
 
 # Env-steps the fast-forward may run before giving up: ~33 simulated minutes, far beyond the
 # ~30 s one episode takes (an ego needs ~15-25 s to reach the command point, then at most 5 s

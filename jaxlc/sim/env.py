@@ -21,7 +21,7 @@ When an episode ends the ego leaves the road and the env goes back to WAIT on th
 ``obs`` is the observation after the step: on the step an episode ends it is the terminal
 observation, which is what a learner bootstraps from.
 
-Observation (``OBS_DIM`` = 14, normalised): the table ``jaxlc.observation.LAYOUT`` gives each
+Observation (``OBS_DIM`` = 14, normalised): the table ``jaxlc.sim.observation.LAYOUT`` gives each
 entry's name, index, scale and meaning (speed, acceleration, heading, yaw rate, offset from the
 target lane, held action, manoeuvre time, curvature, then gap and dv to the target lane's
 leader and follower and to the leader in the ego's current lane); ``MIRROR_SIGNS`` reflects an
@@ -38,11 +38,11 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc import gap, kinematics, reward
-from jaxlc import observation as obs_layout
 from jaxlc.config import Config, DDPGConfig, EnvConfig
-from jaxlc.idm import NO_LEADER_GAP, idm_with_params
-from jaxlc.observation import GAP_CLIP, MIRROR_SIGNS, OBS_DIM  # noqa: F401 (re-exported)
+from jaxlc.sim import gap, kinematics, reward
+from jaxlc.sim import observation as obs_layout
+from jaxlc.sim.idm import NO_LEADER_GAP, idm_with_params
+from jaxlc.sim.observation import GAP_CLIP, MIRROR_SIGNS, OBS_DIM  # noqa: F401 (re-exported)
 
 WAIT, CRUISE, GAP, RL = 0, 1, 2, 3
 PHASES = ("wait", "cruise", "gap", "rl")
@@ -228,7 +228,7 @@ def lateral_offset(eg: Ego, p: EnvParams) -> Array:
 
 def observation(state: EnvState, p: EnvParams) -> Array:
     """``(OBS_DIM,)`` normalised observation of ``state``: the entries of
-    ``jaxlc.observation.LAYOUT``, each raw value divided by its scale."""
+    ``jaxlc.sim.observation.LAYOUT``, each raw value divided by its scale."""
     eg, nb = state.ego, state.nb
     L = p.vehicle_length
 
@@ -471,7 +471,7 @@ def gap_decision(ego: Ego, nb: gap.Neighbours, p: EnvParams) -> tuple[Array, Arr
 
 
 def end_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
-    """``()`` int32 reason code of ``jaxlc.reward.REASONS``: the RL manoeuvre's own, else a
+    """``()`` int32 reason code of ``jaxlc.sim.reward.REASONS``: the RL manoeuvre's own, else a
     collision or no gap before it, else NONE."""
     before_rl = jnp.where(crashed, reward.COLLISION, jnp.where(no_gap, reward.NO_GAP, reward.NONE))
     return jnp.where(in_rl, rl_reason, before_rl).astype(jnp.int32)
@@ -595,7 +595,7 @@ class LaneChangeEnv:
     ) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
         """Advance one dt. ``terminated``/``truncated`` refer to the RL manoeuvre (a timeout
         truncates unless ``params.terminal_timeout``); ``info`` has the reward terms, phase
-        and ``reason`` codes of ``jaxlc.reward.REASONS``."""
+        and ``reason`` codes of ``jaxlc.sim.reward.REASONS``."""
         state, r, info = _advance(key, state, action, params, spawn=True)
         reason = info["reason"]
         rl = info["rl_step"]

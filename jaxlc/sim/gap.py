@@ -20,7 +20,7 @@ import flax.struct
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.idm import NO_LEADER_GAP, idm_with_params
+from jaxlc.sim.idm import NO_LEADER_GAP, idm_with_params
 
 FAR = 1e6  # position standing in for a missing vehicle
 

@@ -7,7 +7,7 @@ is that ``EnvParams`` field (it can differ between models). Gaps are net (bumper
 clipped to ``GAP_CLIP`` m; a missing vehicle reads gap 100 m and dv 0, dv = v_other - v.
 ``mirror`` is the entry's sign under the reflection y -> -y (lateral quantities flip).
 
-    from jaxlc.observation import INDEX, scale
+    from jaxlc.sim.observation import INDEX, scale
     offset_m = obs[..., INDEX["offset"]] * scale("offset", params)
 """
 
@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-# Params are any object with EnvParams' fields (jaxlc.env imports this module, not back).
+# Params are any object with EnvParams' fields (jaxlc.sim.env imports this module, not back).
 EnvParams = Any
 
 

@@ -89,7 +89,7 @@ def sample(
     ``(batch,)``. An empty memory yields slot 0 (zeros); callers start updating once a batch
     is stored ([P]/[S]: README, "Decisions beyond the paper").
 
-    With ``mirror`` (per-entry signs of the reflection, ``jaxlc.observation.MIRROR_SIGNS``)
+    With ``mirror`` (per-entry signs of the reflection, ``jaxlc.sim.observation.MIRROR_SIGNS``)
     each drawn transition is reflected with probability 1/2: obs and next obs times the signs,
     action negated; reward and end unchanged. The draw of the slots is the same either way.
     """

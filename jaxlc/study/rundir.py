@@ -9,11 +9,11 @@
     RUN_DIR/eval/eval.json, eval.csv       evaluation rows (python -m jaxlc.evaluate)
     RUN_DIR/eval/cases.npz, traces.npz     per policy and case; the drawn cases
     RUN_DIR/eval/heldout.json, heldout*.csv, collisions.csv, heldout_cases.npz
-                                           the held-out lane changes (jaxlc.heldout)
-    RUN_DIR/eval/convergence.json, .csv    learning speed per model (jaxlc.convergence)
+                                           the held-out lane changes (jaxlc.evaluation.heldout)
+    RUN_DIR/eval/convergence.json, .csv    learning speed per model (jaxlc.evaluation.convergence)
     RUN_DIR/figures/*.png, report.md       figures and report of the evaluated run
 
-Every write is atomic (``jaxlc.checkpoint.write_bytes_atomic``): a reader sees the old file or
+Every write is atomic (``jaxlc.study.checkpoint.write_bytes_atomic``): a reader sees the old file or
 the new one, never half of one.
 """
 
@@ -27,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxlc import checkpoint, config
+from jaxlc import config
+from jaxlc.study import checkpoint
 
 
 @dataclass(frozen=True)

@@ -17,9 +17,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxlc import tree
 from jaxlc.config import DDPGConfig
-from jaxlc.networks import make_networks
+from jaxlc.learn import tree
+from jaxlc.learn.networks import make_networks
 
 Params = dict
 

@@ -20,8 +20,9 @@ final success, which every cell of a good run shares. Per model, from
 - ``plateau``: the plateau return itself (performance, where "best" is about the end).
 
 Each comparison of the paper is decided by the probability of improvement over pairs of
-seeds with its bootstrap interval (``jaxlc.stats.improvement``: rliable's definition; fewer
-episodes is better for the three episode counts, more for ``auc`` and ``plateau``).
+seeds with its bootstrap interval (``jaxlc.evaluation.stats.improvement``: rliable's
+definition; fewer episodes is better for the three episode counts, more for ``auc`` and
+``plateau``).
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxlc import stats
-from jaxlc.reward import SUCCESS
+from jaxlc.evaluation import stats
+from jaxlc.sim.reward import SUCCESS
 
 WINDOW = 100
 PLATEAU = 500

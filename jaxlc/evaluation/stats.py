@@ -39,7 +39,7 @@ evaluated checkpoint (N below is the fewest seeds of a cell involved):
     upper end is below 1.0, else *undecided at N seeds* (an interval that merely reaches 1.0
     while the mean is lower is no evidence of 100%; seeds that all score 70 of 70 give a
     zero-width interval, no evidence either). Where the run has a held-out evaluation, the
-    report decides (d) on ④'s held-out failure bound instead (``jaxlc.heldout.claim_d``).
+    report decides (d) on ④'s held-out failure bound instead (``jaxlc.evaluation.heldout.claim_d``).
 
 Below 5 seeds (``RANGE_BELOW``) a verdict needs an interval with a width: one of zero width
 (every resample alike) leaves the claim undecided.

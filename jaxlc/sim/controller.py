@@ -12,8 +12,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.env import EnvParams
-from jaxlc.observation import INDEX, scale
+from jaxlc.sim.env import EnvParams
+from jaxlc.sim.observation import INDEX, scale
 
 DEFAULT_POLE = 1.2  # 1/s: a lane change of about 4-5 s, inside the 3-8 s of human drivers
 

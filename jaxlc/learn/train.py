@@ -30,12 +30,12 @@ from jax import Array
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-from jaxlc import ddpg, replay, tree
 from jaxlc.config import Config, ConfigError, DDPGConfig, TrainConfig
-from jaxlc.env import ACT_DIM, EnvParams, EnvState, LaneChangeEnv
-from jaxlc.networks import make_networks
-from jaxlc.observation import MIRROR_SIGNS, OBS_DIM
-from jaxlc.reward import SUCCESS
+from jaxlc.learn import ddpg, replay, tree
+from jaxlc.learn.networks import make_networks
+from jaxlc.sim.env import ACT_DIM, EnvParams, EnvState, LaneChangeEnv
+from jaxlc.sim.observation import MIRROR_SIGNS, OBS_DIM
+from jaxlc.sim.reward import SUCCESS
 
 # Fewest env-steps one episode can take: the ego must drive command_distance (80 m) from the
 # entrance at no more than its entry speed plus IDM acceleration; 50 steps (5 s) is below that.
@@ -57,7 +57,7 @@ class EpisodeLog:
 
     ret: Array  # total reward
     steps: Array  # manoeuvre steps (int32)
-    reason: Array  # jaxlc.reward reason code (int32)
+    reason: Array  # jaxlc.sim.reward reason code (int32)
     r_s: Array  # sum of eq. (8) terms
     r_e: Array  # sum of eq. (9) terms
     r_d: Array  # sum of eq. (10)/(11) terms

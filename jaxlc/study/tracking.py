@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxlc.reward import SUCCESS
+from jaxlc.sim.reward import SUCCESS
 
 LAST = 100  # episodes behind return_last100 and success_last100
 

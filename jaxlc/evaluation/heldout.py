@@ -4,9 +4,10 @@ and cases, and claim (d) as a bound.
 
 Seventy protocol lane changes cannot see a failure rate below ~4% (0 of 70 is consistent with
 4.2% at 95%), so ``python -m jaxlc.evaluate`` also drives each final checkpoint through
-``--lane-changes`` (1,000 by default) held-out lane changes (``jaxlc.cases.heldout_keys``, a
-key stream apart from the protocol's and the sweep's). Pure numpy/scipy, like
-``jaxlc.stats``.
+``--lane-changes`` (1,000 by default) held-out lane changes
+(``jaxlc.evaluation.cases.heldout_keys``, a key stream apart from the protocol's and the
+sweep's). Pure numpy/scipy, like
+``jaxlc.evaluation.stats``.
 
 Intervals:
 - a model's success, failure and collision rates: two-sided 95% Clopper-Pearson intervals;
@@ -29,9 +30,16 @@ from typing import Any
 import numpy as np
 import scipy.stats
 
-from jaxlc.reward import REASONS
-from jaxlc.safety import NORMS, PARTNERS, VEHICLES
-from jaxlc.stats import CONFIDENCE, PAPER_BEST, RESAMPLES, SOLVED, cell_key, expanded_level
+from jaxlc.evaluation.safety import NORMS, PARTNERS, VEHICLES
+from jaxlc.evaluation.stats import (
+    CONFIDENCE,
+    PAPER_BEST,
+    RESAMPLES,
+    SOLVED,
+    cell_key,
+    expanded_level,
+)
+from jaxlc.sim.reward import REASONS
 
 MIN_BOOT_SEEDS = 5
 ENDS = ("success", "out_of_bounds", "collision", "timeout", "unfinished")

@@ -1,10 +1,10 @@
 """``RUN_DIR/report.md``: the evaluation table, the best model, the paper's claims beside ours.
 
-    python -m jaxlc.report RUN_DIR
+    python -m jaxlc.evaluation.report RUN_DIR
 
 Reads ``RUN_DIR/eval/eval.json`` (``python -m jaxlc.evaluate``); every number in the report is
 computed from the run, the paper's only quoted. With several seeds per grid cell the paper's
-claims get a verdict from intervals over seeds (the rules: ``jaxlc.stats``).
+claims get a verdict from intervals over seeds (the rules: ``jaxlc.evaluation.stats``).
 """
 
 from __future__ import annotations
@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from jaxlc import stats
-from jaxlc.checkpoint import write_text_atomic
-from jaxlc.results import OUTCOMES, EvalError, rank_models
-from jaxlc.rundir import RunDir
-from jaxlc.stats import final_rows
+from jaxlc.evaluation import stats
+from jaxlc.evaluation.results import OUTCOMES, EvalError, rank_models
+from jaxlc.evaluation.stats import final_rows
+from jaxlc.study.checkpoint import write_text_atomic
+from jaxlc.study.rundir import RunDir
 
 FIGURES = (
     ("fig3_returns.png", "Fig. 3: total reward per training episode"),
@@ -176,7 +176,7 @@ def _seed_section(rows: list[dict[str, Any]], run_dir: Path | None = None) -> li
         "",
         f"{len(cells)} grid cells, {n} seed{'s' * (n != 1)} in the smallest; each model at its "
         "last evaluated checkpoint. Brackets: 95% bootstrap intervals over seeds (resampled "
-        "within each cell; `jaxlc.stats`, where the verdict rules are).",
+        "within each cell; `jaxlc.evaluation.stats`, where the verdict rules are).",
     ]
     if note and n < 2:
         lines += ["", f"**Note: {note}**; every verdict is undecided (train with `--seeds N`)."]
@@ -383,7 +383,7 @@ def _heldout_section(run_dir: Path) -> list[str]:
         f"the failure rate. The norms, per lane change: {norms}. A lane change is inside "
         "every norm when it succeeds and meets all of them; TTC and time headway are the "
         "minimum over the target lane's lead and lag and the own-lane leader, from the "
-        "manoeuvre's start to its end (`jaxlc.safety`). Figure: "
+        "manoeuvre's start to its end (`jaxlc.evaluation.safety`). Figure: "
         "[heldout_norms.png](figures/heldout_norms.png).",
         "",
         f"**Claim (d)**: {d['figures']}: **{d['verdict']}** (supported when the bound is at "
@@ -398,7 +398,7 @@ def _heldout_section(run_dir: Path) -> list[str]:
 
 
 def _convergence_section(run_dir: Path) -> list[str]:
-    """The paper's comparisons decided on learning speed (``jaxlc.convergence``)."""
+    """The paper's comparisons decided on learning speed (``jaxlc.evaluation.convergence``)."""
     path = RunDir(run_dir).convergence
     if not path.is_file():
         return []
@@ -407,7 +407,8 @@ def _convergence_section(run_dir: Path) -> list[str]:
         "## The paper's claims on learning speed",
         "",
         "The paper argues (a)–(c) from its training curves (Figs. 3, 4), so they are decided "
-        "here on measures of each model's training curves (noise on; `jaxlc.convergence`): "
+        "here on measures of each model's training curves (noise on; "
+        "`jaxlc.evaluation.convergence`): "
         f"`converged`, the episode from which the return's {doc['window']}-episode moving "
         f"average stays within {100 * doc['band']:.0f}% of its rise from its plateau (the mean "
         f"of the last {doc['plateau_episodes']} episodes); `success95`, the first episode with "
@@ -491,7 +492,7 @@ def write_report(run_dir: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     args = argv if argv is not None else sys.argv[1:]
     if len(args) != 1:
-        print("usage: python -m jaxlc.report RUN_DIR", file=sys.stderr)
+        print("usage: python -m jaxlc.evaluation.report RUN_DIR", file=sys.stderr)
         return 2
     try:
         print(write_report(Path(args[0])))

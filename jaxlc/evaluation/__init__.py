@@ -1,0 +1,11 @@
+"""The evaluation layer: trained policies on fixed cases, and what the results mean.
+
+In: checkpoints and the run directory (``jaxlc.study``), the actor network (``jaxlc.learn``),
+the simulator and its reason codes (``jaxlc.sim``), the ``Config`` (``jaxlc.config``).
+Out: the fixed cases and the program that runs every policy on them (``cases``), result rows,
+outcomes and ranking (``results``), statistics over seeds (``stats``), ``report.md``
+(``report``). The figures are drawn by ``jaxlc.figures``, a top-level command kept whole.
+
+Imports: ``jaxlc.config``, ``jaxlc.sim``, ``jaxlc.learn`` and ``jaxlc.study``; never the
+top-level commands (``tests/test_layout.py`` checks it).
+"""

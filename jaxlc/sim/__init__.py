@@ -1,0 +1,12 @@
+"""The simulator layer: the lane-change task as pure JAX functions over pytrees.
+
+In: ``EnvConfig`` (``jaxlc.config``) turned into ``EnvParams``; PRNG keys and actions.
+Out: ``LaneChangeEnv`` (``reset`` / ``step``), its state and observation layout, the reward
+and its reason codes, the one-decision-per-step core the gym and gymnax wrappers share, and
+the scripted controller.
+
+Modules: ``env`` (the highway step), ``idm``, ``gap``, ``kinematics``, ``reward``,
+``observation``, ``decision``, ``controller``.
+
+Imports: ``jaxlc.config`` only; no other layer (``tests/test_layout.py`` checks it).
+"""
