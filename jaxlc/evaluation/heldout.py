@@ -42,6 +42,7 @@ from jaxlc.evaluation.stats import (
 from jaxlc.sim.reward import REASONS
 
 MIN_BOOT_SEEDS = 5
+BOUNDS = {name: bound for name, bound, *_ in NORMS}
 ENDS = ("success", "out_of_bounds", "collision", "timeout", "unfinished")
 NORM_KEYS = tuple(f"norm_{name}" for name, *_ in NORMS) + ("norm_all",)
 CRIT_KEYS = tuple(f"{m}_crit_{v}" for m in ("ttc", "thw") for v in VEHICLES)
@@ -106,8 +107,8 @@ def _share(x: np.ndarray) -> float:
     return float(np.mean(x)) if x.size else math.nan
 
 
-def _median(x: np.ndarray) -> float:
-    return float(np.median(x)) if x.size else math.nan
+def _p5(x: np.ndarray) -> float:
+    return float(np.percentile(x, 5, method="lower")) if x.size else math.nan
 
 
 def _mean(x: np.ndarray) -> float:
@@ -126,9 +127,10 @@ def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, d
     m = {k: v[perf] for k, v in lane_change_measures(out, p, dt).items()}
     fails, hits = n - counts["success"], counts["collision"]
     crit = {}
-    for name, bound, key in (("ttc", 1.5, "min_ttc"), ("thw", 0.9, "min_thw")):
+    for name in ("ttc", "thw"):
+        bound = BOUNDS[f"min_{name}_s"]
         for i, v in enumerate(VEHICLES):
-            crit[f"{name}_crit_{v}"] = _share(out[key][p][perf][:, i] < bound)
+            crit[f"{name}_crit_{v}"] = _share(out[f"min_{name}"][p][perf][:, i] < bound)
     return {
         "lane_changes": n,
         **counts,
@@ -142,8 +144,9 @@ def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, d
         "duration_s": _mean(m["duration_s"][ok]),
         "peak_lat_acc": _mean(m["peak_lat_acc"][ok]),
         "peak_lat_jerk": _mean(m["peak_lat_jerk"][ok]),
-        "min_ttc_s": _median(m["min_ttc_s"]),
-        "min_thw_s": _median(m["min_thw_s"]),
+        # The low tail is what safety is about: 5th percentiles over the lane changes.
+        "min_ttc_s": _p5(m["min_ttc_s"]),
+        "min_thw_s": _p5(m["min_thw_s"]),
         **{k: _share(m[k]) for k in NORM_KEYS},
         **crit,
     }
@@ -196,7 +199,11 @@ def cell_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             (lo, hi), how = _two_level(k, n), "two-level bootstrap (seeds, then lane changes)"
         else:
             lo, hi = min(r["success_lo"] for r in mine), max(r["success_hi"] for r in mine)
-            how = f"range of the {len(mine)} seeds' Clopper-Pearson intervals"
+            how = (
+                f"range of the {len(mine)} seeds' Clopper-Pearson intervals"
+                if len(mine) > 1
+                else "Clopper-Pearson interval of the one seed"
+            )
         fails, hits, total = int((n - k).sum()), sum(r["collision"] for r in mine), int(n.sum())
         cells.append(
             {
