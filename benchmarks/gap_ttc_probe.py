@@ -16,12 +16,10 @@ import dataclasses
 import time
 from pathlib import Path
 
-from jaxlc.evaluate import _row_meta, final_checkpoints
+from jaxlc.evaluate import final_checkpoints, load_rows
 from jaxlc.evaluation import heldout
-from jaxlc.evaluation.cases import evaluate_policies, init_actor, keys_for_lane_changes
-from jaxlc.evaluation.results import SCRIPTED
-from jaxlc.study import checkpoint, machine
-from jaxlc.study.rundir import RunDir
+from jaxlc.evaluation.cases import evaluate_policies, keys_for_lane_changes
+from jaxlc.study import machine
 
 FIELDS = (
     "gap_min_ttc",
@@ -47,11 +45,7 @@ def main() -> None:
     ap.add_argument("--lane-changes", type=int, default=2000)
     ap.add_argument("--out", type=Path, default=Path(__file__).with_suffix(""))
     args = ap.parse_args()
-    base = RunDir(args.run_dir).load_config()
-    chosen = final_checkpoints(args.run_dir)
-    shapes = checkpoint.shapes_of(init_actor(base))
-    actors = [checkpoint.load(p, expect_shapes=shapes)[0] for p, _ in chosen]
-    metas = [SCRIPTED] + [_row_meta(p, m, args.run_dir) for p, m in chosen]
+    base, actors, metas = load_rows(args.run_dir, final_checkpoints(args.run_dir))
     rows = []
     for ttc in args.ttc:
         t0 = time.time()

@@ -22,11 +22,11 @@ from pathlib import Path
 
 import jax
 
-from jaxlc.evaluate import final_checkpoints
-from jaxlc.evaluation.cases import evaluate_policies, init_actor, keys_for_lane_changes
+from jaxlc.evaluate import final_checkpoints, load_rows
+from jaxlc.evaluation.cases import evaluate_policies, keys_for_lane_changes
 from jaxlc.sim.env import ACT_DIM
 from jaxlc.sim.observation import OBS_DIM
-from jaxlc.study import checkpoint, machine
+from jaxlc.study import machine
 from jaxlc.study.rundir import RunDir
 
 
@@ -43,10 +43,8 @@ def main() -> None:
     widths = (OBS_DIM, *cfg.ddpg.hidden, ACT_DIM)
     product = machine.largest_product(int(1.4 * args.lane_changes), widths)
     machine.use_host_devices(machine.host_devices_for(args.chunk, product))
-    chosen = final_checkpoints(args.run_dir)
-    shapes = checkpoint.shapes_of(init_actor(cfg))
-    loaded = [checkpoint.load(p, expect_shapes=shapes)[0] for p, _ in chosen]
-    ks = [m["k"] for _, m in chosen]
+    _, loaded, metas = load_rows(args.run_dir, final_checkpoints(args.run_dir))
+    ks = [m["k"] for m in metas[1:]]
     actors = [loaded[i % len(loaded)] for i in range(args.policies)]
     ks = [1] + [ks[i % len(ks)] for i in range(args.policies)]
     devices = len(jax.devices())

@@ -137,6 +137,18 @@ def _row_meta(path: Path, meta: dict[str, Any], run_dir: Path | None) -> dict[st
     return {**{k: meta.get(k) for k in META_KEYS}, "checkpoint": str(shown)}
 
 
+def load_rows(
+    run_dir: Path, chosen: list[tuple[Path, dict[str, Any]]]
+) -> tuple[config.Config, list[Any], list[dict[str, Any]]]:
+    """``(config, actors, metas)`` of the ``chosen`` checkpoints of ``run_dir``: the run's
+    config, their actor params (shapes checked against it) and the row identities, the
+    scripted baseline first."""
+    cfg = _run_config(run_dir)
+    shapes = checkpoint.shapes_of(init_actor(cfg))
+    actors = [checkpoint.load(p, expect_shapes=shapes)[0] for p, _ in chosen]
+    return cfg, actors, [SCRIPTED] + [_row_meta(p, m, run_dir) for p, m in chosen]
+
+
 def evaluate_run(
     run_dir: Path,
     episodes: Sequence[int] | None = None,
@@ -154,10 +166,7 @@ def evaluate_run(
     JSON's content."""
     run_dir, rd = Path(run_dir), RunDir(run_dir)
     chosen = select_checkpoints(run_dir, episodes, model)
-    cfg = _run_config(run_dir)
-    shapes = checkpoint.shapes_of(init_actor(cfg))
-    actors = [checkpoint.load(p, expect_shapes=shapes)[0] for p, _ in chosen]
-    metas = [SCRIPTED] + [_row_meta(p, m, run_dir) for p, m in chosen]
+    cfg, actors, metas = load_rows(run_dir, chosen)
     kw = dict(cases=cases, seed=seed, max_steps=max_steps, chunk=chunk, traced=traced)
     out, trace, info = evaluate_policies(
         cfg, [None, *actors], [1] + [m["k"] for m in metas[1:]], devices=devices, **kw
@@ -204,10 +213,7 @@ def evaluate_heldout(
     ``heldout_cases.npz``; returns the JSON's content."""
     run_dir, rd = Path(run_dir), RunDir(run_dir)
     chosen = final_checkpoints(run_dir, episodes)
-    cfg = _run_config(run_dir)
-    shapes = checkpoint.shapes_of(init_actor(cfg))
-    actors = [checkpoint.load(p, expect_shapes=shapes)[0] for p, _ in chosen]
-    metas = [SCRIPTED] + [_row_meta(p, m, run_dir) for p, m in chosen]
+    cfg, actors, metas = load_rows(run_dir, chosen)
     keys = keys_for_lane_changes(cfg, lane_changes, seed, max_steps)
     out, _, info = evaluate_policies(
         cfg,
