@@ -17,11 +17,16 @@ under the run directory:
     RUN_DIR/metrics/steps.npz              per scan step and model: losses, transitions
     RUN_DIR/summary.md, summary.json       last-100-episode success rate and return
 
+One writer per run directory: the sweep holds an OS lock on ``RUN_DIR/lock`` for its whole
+life (``jaxlc.study.lock``), and a second sweep or ``--resume`` there is refused (exit status 2).
+SIGINT (Ctrl-C), SIGTERM and SIGUSR1 stop the run at the end of the chunk in flight, save
+the full state and exit with 128 + the signal's number (130, 143, 138); ``--resume`` goes on.
+
 Multi-host (``--distributed``): every process runs this same program after
-``jax.distributed.initialize``; the models axis spans the devices of all processes. Each
-process writes the checkpoints of the models on its own devices; process 0 writes the files
-of the whole run (config, full state, metrics, summary), so the run directory must be on a
-file system that every host sees.
+``jax.distributed.initialize``; the models axis spans the devices of all processes. Process 0
+alone writes, every file of the run (it has every result gathered anyway), and holds the
+lock; the run directory must be on a file system that every host sees, as ``--resume`` reads
+it on every process.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ import json
 import os
 import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,7 +51,7 @@ from jaxlc import config
 from jaxlc.learn import train
 from jaxlc.sim.env import ACT_DIM, OBS_DIM
 from jaxlc.sim.reward import REASONS, SUCCESS
-from jaxlc.study import checkpoint, machine
+from jaxlc.study import checkpoint, lock, machine
 from jaxlc.study.rundir import RunDir
 from jaxlc.study.tracking import TensorBoard
 
@@ -101,15 +107,6 @@ def to_host(tree: Any) -> Any:
         return np.asarray(multihost_utils.process_allgather(a, tiled=True))
 
     return jax.tree.map(whole, tree)
-
-
-def owned_models(n_models: int, devices: list[jax.Device]) -> np.ndarray:
-    """``(n_models,)`` bool: which models live on this process's devices. The models axis
-    is padded to a multiple of the device count and cut into equal blocks, one per device
-    (``train.make_grid_fns``)."""
-    block = -(-n_models // len(devices))
-    owner = np.asarray([devices[i // block].process_index for i in range(n_models)])
-    return owner == jax.process_index()
 
 
 def distributed_init() -> None:
@@ -207,20 +204,57 @@ def prepare_run_dir(out: Path, cfg: config.Config, force: bool) -> None:
     rd.write_config(cfg)
 
 
-def _prepare_everywhere(out: Path, cfg: config.Config, force: bool) -> None:
-    """``prepare_run_dir`` on process 0; the others learn whether it refused."""
-    problem = ""
+def take_run_dir(rd: RunDir, cfg: config.Config, force: bool, resume: bool) -> lock.RunLock:
+    """Lock ``rd`` for this process (one line on stderr when the last holder died holding
+    it, or when the file system has no locks), then prepare it for a new run. Refuses
+    (``ConfigError``) while another sweep holds it: two writers would interleave their saves."""
+    try:
+        held = lock.acquire(rd.lock)
+    except lock.LockHeld as err:
+        raise config.ConfigError(
+            f"run directory '{rd.root}' is in use by another sweep ({err.who}); wait for it to "
+            f"end, or stop it (SIGTERM or Ctrl-C saves) and continue with python -m "
+            f"jaxlc.sweep --resume {rd.root}"
+        ) from None
+    if not held.locked:
+        last = f"; the last record names {held.previous}" if held.previous else ""
+        print(
+            f"jaxlc: warning: cannot lock {rd.lock} ({held.reason}): nothing stops a second "
+            f"sweep from writing to '{rd.root}'{last}",
+            file=sys.stderr,
+        )
+    elif held.previous is not None:
+        print(
+            f"jaxlc: run directory '{rd.root}' was locked by {held.previous}, which is gone; "
+            "taking the lock over",
+            file=sys.stderr,
+        )
+    try:
+        if not resume:
+            prepare_run_dir(rd.root, cfg, force)
+    except BaseException:
+        held.release()
+        raise
+    return held
+
+
+def _take_everywhere(
+    rd: RunDir, cfg: config.Config, force: bool, resume: bool
+) -> lock.RunLock | None:
+    """``take_run_dir`` on process 0, the one writer; the others learn whether it refused."""
+    problem, held = "", None
     if jax.process_index() == 0:
         try:
-            prepare_run_dir(out, cfg, force)
+            held = take_run_dir(rd, cfg, force, resume)
         except config.ConfigError as err:
             problem = str(err)
     if jax.process_count() > 1:
         refused = multihost_utils.broadcast_one_to_all(np.asarray(bool(problem)))
         if bool(refused) and not problem:
-            problem = f"process 0 refused the run directory '{out}'; see its message"
+            problem = f"process 0 refused the run directory '{rd.root}'; see its message"
     if problem:
         raise config.ConfigError(problem)
+    return held
 
 
 @dataclass
@@ -259,16 +293,64 @@ class NumericalFault(RuntimeError):
     """A model produced a non-finite loss, reward or observation; the run stopped."""
 
 
+# SIGTERM: Slurm, Kubernetes, systemd and `timeout` stopping a job; SIGUSR1: what Slurm's
+# --signal sends ahead of a time limit. Each is a request to save and stop, as Ctrl-C is.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)
+
+
+class Interrupted(Exception):
+    """A stop signal came; the run saved its full state and stopped at a chunk boundary."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(signal.Signals(signum).name)
+
+
+class StopSignals:
+    """While entered, a stop signal only records itself (``signum``, the first one that came);
+    the loop acts on it at the next chunk boundary, where the state and the bookkeeping
+    agree. A signal ignored on entry (``nohup``, a background job's SIGINT) stays ignored;
+    outside the main thread, where Python cannot catch signals, nothing is installed."""
+
+    def __init__(self) -> None:
+        self.signum = 0
+        self._old: dict[int, Any] = {}
+
+    def _record(self, signum: int, frame: Any) -> None:
+        self.signum = self.signum or signum
+
+    def __enter__(self) -> StopSignals:
+        if threading.current_thread() is threading.main_thread():
+            for s in STOP_SIGNALS:
+                if signal.getsignal(s) is not signal.SIG_IGN:
+                    self._old[s] = signal.signal(s, self._record)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for s, handler in self._old.items():
+            signal.signal(s, handler)
+
+
+def _stop_signal(stop: StopSignals) -> int:
+    """The stop signal every process acts on now (0: none): any process's, so that all of
+    them stop at the same chunk boundary and join the same final save."""
+    if jax.process_count() == 1:
+        return stop.signum
+    return int(np.max(multihost_utils.process_allgather(np.asarray(stop.signum))))
+
+
 # Test hook: with this variable set, a run stops after its first full-state save and waits
 # for a signal, so an interrupt lands mid-run however fast or slow the machine is.
 HOLD_ENV = "JAXLC_HOLD_AFTER_SAVE"
 HOLD_LINE = "jaxlc: state saved; holding for a signal"
 
 
-def _hold_for_a_signal() -> None:
+def _hold_for_a_signal(stop: StopSignals) -> None:
     print(f"{HOLD_LINE} ({HOLD_ENV} is set)", file=sys.stderr, flush=True)
-    while True:  # only a signal that raises (Ctrl-C) or kills ends the wait
-        signal.pause()
+    # A short sleep, not signal.pause(): a signal landing between the test and the pause
+    # would leave the pause waiting for a second one.
+    while not stop.signum:  # a stop signal ends the wait; SIGKILL kills
+        time.sleep(0.05)
 
 
 def _save_state(rd: RunDir, state: train.TrainState, host: dict[str, Any]) -> None:
@@ -322,15 +404,15 @@ def _save_checkpoints(
     state: train.TrainState,
     snap_ep: np.ndarray,
     book: Bookkeeping,
-    mine: np.ndarray,
 ) -> None:
-    """Write the actor of every model (of this process) that passed a checkpoint episode
-    since the last chunk: the snapshot slot holds it as it was at that episode."""
+    """Write the actor of every model that passed a checkpoint episode since the last chunk:
+    the snapshot slot holds it as it was at that episode. Every process joins the gather;
+    process 0, the run directory's one writer, writes."""
     new = np.nonzero(snap_ep > book.saved)[0]
     if not len(new):
         return
     actors = to_host(state.snap_actor)
-    for i in new[mine[new]]:
+    for i in new if jax.process_index() == 0 else ():
         params = jax.tree.map(lambda a, i=i: a[i], actors)
         meta = {**model_meta(cfg, grid, int(i)), "episode": int(snap_ep[i])}
         checkpoint.save(rd.checkpoint(int(i), grid.seeds[i], int(snap_ep[i])), params, meta)
@@ -386,21 +468,39 @@ def run_sweep(
 ) -> dict[str, Any]:
     """Train every model of ``cfg``'s grid and write the run directory; returns the summary.
 
-    The full training state is saved atomically every ``train.save_every_s`` seconds (at
-    chunk boundaries), on Ctrl-C and at the end; ``resume=True`` continues from it and ends
-    with the same params, bit for bit, as a run never interrupted. ``tensorboard``: a
-    directory for live curves (``jaxlc.study.tracking``), written at every chunk boundary."""
+    The run holds the run directory's lock throughout (``take_run_dir``: a second writer is
+    refused). The full training state is saved atomically every ``train.save_every_s``
+    seconds (at chunk boundaries), on SIGINT, SIGTERM and SIGUSR1 (then ``Interrupted`` is
+    raised) and at the end; ``resume=True`` continues from it and ends with the same params,
+    bit for bit, as a run never interrupted. ``tensorboard``: a directory for live curves
+    (``jaxlc.study.tracking``), written at every chunk boundary."""
     n_dev = len(jax.devices()) if devices is None else devices
-    lead = jax.process_index() == 0  # writes the files of the whole run
     train.check_devices(n_dev)
     if jax.process_count() > 1 and n_dev != len(jax.devices()):
         raise config.ConfigError("--devices: a multi-host run uses every device of every host")
     rd = RunDir(out)
-    if not resume:
-        _prepare_everywhere(out, cfg, force)
+    with StopSignals() as stop:  # from here on, a stop signal is a save
+        held = _take_everywhere(rd, cfg, force, resume)
+        try:
+            return _train(cfg, rd, resume, n_dev, stop, progress, tensorboard)
+        finally:
+            if held is not None:
+                held.release()
+
+
+def _train(
+    cfg: config.Config,
+    rd: RunDir,
+    resume: bool,
+    n_dev: int,
+    stop: StopSignals,
+    progress: bool,
+    tensorboard: Path | None,
+) -> dict[str, Any]:
+    """The chunk loop of ``run_sweep``, in the run directory it holds."""
+    lead = jax.process_index() == 0  # writes the files of the whole run
     grid, t = train.make_grid(cfg), cfg.train
     init, run = train.make_grid_fns(cfg, grid, jax.devices()[:n_dev])
-    mine = owned_models(grid.size, jax.devices()[:n_dev])
     t0 = time.perf_counter()
     state, host = init(train.model_keys(cfg, grid)), None
     if resume:
@@ -413,8 +513,13 @@ def run_sweep(
     tracker = TensorBoard(tensorboard, metas) if tensorboard is not None and lead else None
     last_save, hold = time.perf_counter(), bool(os.environ.get(HOLD_ENV))
     chunk_env_steps = t.chunk_steps * t.envs_per_model * grid.size
+    signum = 0
     try:
         while not _finished(counters, t):
+            # Read between chunks only: there the state and the bookkeeping agree, so the
+            # save below is one that a resume continues bit for bit.
+            if signum := _stop_signal(stop):
+                break
             t_chunk = time.perf_counter()
             new_state, metrics = run(state, t.chunk_steps)
             metrics = to_host(metrics)
@@ -425,27 +530,25 @@ def run_sweep(
             )
             book.chunks.append(metrics)
             book.env_steps += chunk_env_steps
-            _save_checkpoints(rd, cfg, grid, state, counters["snap"], book, mine)
+            _save_checkpoints(rd, cfg, grid, state, counters["snap"], book)
             if _save_due(last_save, t.save_every_s):
                 _save_state(rd, state, book.dump())
                 last_save = time.perf_counter()
                 if hold:
-                    _hold_for_a_signal()
+                    _hold_for_a_signal(stop)
             rate = chunk_env_steps / (time.perf_counter() - t_chunk)
             bar.update(np.minimum(counters["episodes"], t.episodes), metrics, rate)
             if tracker is not None:  # only the two log fields the curves read cross over
                 log = to_host({"ret": state.log.ret, "reason": state.log.reason})
                 steps = book.env_steps // grid.size
                 tracker.chunk(steps, log, counters["episodes"], metrics, rate)
-    except KeyboardInterrupt:
-        bar.close()
-        if book.chunks:
-            _save_state(rd, state, book.dump())
-        raise
     finally:
+        bar.close()
         if tracker is not None:
             tracker.close()  # flushes: the curves so far stay readable whatever stopped the run
-    bar.close()
+    if signum:  # saved even before a first chunk: --resume always has a state to go on from
+        _save_state(rd, state, book.dump())
+        raise Interrupted(signum)
     return _finish(rd, cfg, grid, state, counters["episodes"], book, n_dev)
 
 
@@ -636,11 +739,15 @@ def main(argv: list[str] | None = None) -> int:
     except NumericalFault as err:
         print(f"error: {err}", file=sys.stderr)
         return 3
-    except KeyboardInterrupt:
+    except Interrupted as err:
         print(
-            f"\ninterrupted: state saved; continue with python -m jaxlc.sweep --resume {out}",
+            f"\ninterrupted by {err}: state saved; continue with python -m jaxlc.sweep "
+            f"--resume {out}",
             file=sys.stderr,
         )
+        return 128 + err.signum  # what a shell reports for a process the signal killed
+    except KeyboardInterrupt:  # Ctrl-C before the run's own handler was in place
+        print("\ninterrupted before training started: nothing saved", file=sys.stderr)
         return 130
     if jax.process_index() == 0:
         _print_done(summary, cfg, out)

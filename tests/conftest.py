@@ -12,6 +12,17 @@ SMOKE = config.CONFIG_DIR / "smoke.toml"
 HANG_GUARD_S = 3600
 
 
+def wait_for_line(proc, start: str) -> None:
+    """Read ``proc``'s stderr until a line starts with ``start`` (``sweep.HOLD_LINE``: the
+    run holds); fail with what it printed if it ends first."""
+    seen = []
+    for line in proc.stderr:
+        seen.append(line)
+        if line.startswith(start):
+            return
+    pytest.fail(f"the process ended before '{start}': {''.join(seen)[-3000:]}")
+
+
 @pytest.fixture(scope="session")
 def smoke_cfg():
     return config.load(SMOKE)

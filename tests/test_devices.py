@@ -1,6 +1,7 @@
 """The models axis laid over several devices gives the results of one device."""
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -10,10 +11,11 @@ import flax.serialization
 import jax
 import numpy as np
 
+from jaxlc import sweep
 from jaxlc.study import checkpoint
 from jaxlc.study.rundir import RunDir
 
-from .conftest import HANG_GUARD_S, SMOKE
+from .conftest import HANG_GUARD_S, SMOKE, wait_for_line
 
 SCRIPT = textwrap.dedent("""
     import jax, numpy as np
@@ -70,12 +72,61 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _two_processes(args: list[str], extra_env: dict[str, str]) -> list[subprocess.Popen]:
+    """Processes 0 and 1 of one ``--distributed`` sweep on loopback, one CPU device each."""
+    port, procs = _free_port(), []
+    for pid in (0, 1):
+        env = {
+            **os.environ,
+            **extra_env,
+            "JAX_PLATFORMS": "cpu",
+            "JAX_COORDINATOR_ADDRESS": f"127.0.0.1:{port}",
+            "JAX_NUM_PROCESSES": "2",
+            "JAX_PROCESS_ID": str(pid),
+        }
+        cmd = [sys.executable, "-m", "jaxlc.sweep", "--no-progress", "--distributed", *args]
+        procs.append(
+            subprocess.Popen(
+                cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            )
+        )
+    return procs
+
+
+def _stop_while_held(out, procs: list[subprocess.Popen]) -> list[tuple[str, str]]:
+    """Both processes hold after their first save (``sweep.HOLD_ENV``). A third sweep is
+    refused, naming process 0, the lock's one holder; then each process gets a different
+    signal, and both act on the same one (any process's, the larger number: SIGTERM)."""
+    try:
+        for p in procs:
+            wait_for_line(p, sweep.HOLD_LINE)
+        third = subprocess.run(
+            [sys.executable, "-m", "jaxlc.sweep", "--resume", str(out), "--no-progress"],
+            env={**os.environ, "JAX_PLATFORMS": "cpu"},
+            capture_output=True,
+            text=True,
+            timeout=HANG_GUARD_S,
+        )
+        assert third.returncode == 2, third.stderr[-3000:]
+        assert f"in use by another sweep (pid {procs[0].pid} on host" in third.stderr
+        os.kill(procs[0].pid, signal.SIGUSR1)
+        os.kill(procs[1].pid, signal.SIGTERM)
+        return [p.communicate(timeout=HANG_GUARD_S) for p in procs]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+
+
 def test_two_processes_with_jax_distributed_match_one_process(tmp_path):
-    """Two processes on loopback, one CPU device each, run the smoke sweep together: each
-    writes the checkpoints of its own models, process 0 the run's files, and the params
-    equal those of one process laying the models over two host devices. (That reference
-    runs the same per-device program; a one-device program sums in another order, and an
-    RL run turns such last-bit differences into different episodes within 40 episodes.)"""
+    """Two processes on loopback, one CPU device each, run the smoke sweep together, are
+    stopped by signals after their first save, and resume: process 0 alone writes the run
+    directory and holds its lock, a signal to each stops both at the same chunk boundary,
+    and the params equal those of one process laying the models over two host devices.
+    (That reference runs the same per-device program; a one-device program sums in
+    another order, and an RL run turns such last-bit differences into different episodes
+    within 40 episodes.)"""
     ref_dir, out = tmp_path / "one_host", tmp_path / "two_hosts"
     cmd = [sys.executable, "-m", "jaxlc.sweep", "--config", str(SMOKE), "--no-progress"]
     ref = subprocess.run(
@@ -86,30 +137,19 @@ def test_two_processes_with_jax_distributed_match_one_process(tmp_path):
         timeout=HANG_GUARD_S,
     )
     assert ref.returncode == 0, ref.stderr[-3000:]
-    port = _free_port()
-    cmd = [*cmd, "--out", str(out)]
-    procs = []
-    for pid in (0, 1):
-        env = {
-            **os.environ,
-            "JAX_PLATFORMS": "cpu",
-            "JAX_COORDINATOR_ADDRESS": f"127.0.0.1:{port}",
-            "JAX_NUM_PROCESSES": "2",
-            "JAX_PROCESS_ID": str(pid),
-        }
-        procs.append(
-            subprocess.Popen(
-                [*cmd, "--distributed"],
-                env=env,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE,
-                text=True,
-            )
-        )
+    held = _two_processes(["--config", str(SMOKE), "--out", str(out)], {sweep.HOLD_ENV: "1"})
+    stopped = _stop_while_held(out, held)
+    for p, (_, err) in zip(held, stopped, strict=True):
+        assert p.returncode == 128 + signal.SIGTERM, err[-3000:]
+        assert err.strip().splitlines()[-1].startswith("interrupted by SIGTERM: state saved")
+    assert not (out / "summary.json").exists()
+    procs = _two_processes(["--resume", str(out)], {})
     outputs = [p.communicate(timeout=HANG_GUARD_S) for p in procs]
     for p, (_, err) in zip(procs, outputs, strict=True):
         assert p.returncode == 0, err[-3000:]
+        assert "taking the lock over" not in err, "the stopped run let go of its lock"
     assert "Run directory" in outputs[0][0] and "Run directory" not in outputs[1][0]
+    assert RunDir(out).lock.read_bytes() == b""
 
     def state(run_dir):
         raw = flax.serialization.msgpack_restore(RunDir(run_dir).state.read_bytes())

@@ -35,7 +35,9 @@ def _leaves(run_dir):
     return jax.tree.leaves(raw["state"])
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["sigkill", "ctrl-c"])
+@pytest.mark.parametrize(
+    "sig", [signal.SIGKILL, signal.SIGINT, signal.SIGTERM], ids=["sigkill", "ctrl-c", "sigterm"]
+)
 def test_interrupt_then_resume_ends_bit_for_bit_like_an_uninterrupted_run(smoke_run, tmp_path, sig):
     ref_dir, _ = smoke_run
     out = tmp_path / "killed"
@@ -72,11 +74,17 @@ def test_interrupt_then_resume_ends_bit_for_bit_like_an_uninterrupted_run(smoke_
     else:
         pytest.fail(f"the run ended without holding: {''.join(seen)[-2000:]}")
     assert RunDir(out).state.exists(), "the run held before saving its state"
+    if sig != signal.SIGKILL:  # then what --resume finds can only be the save on the way out
+        RunDir(out).state.unlink()
     os.kill(proc.pid, sig)
     _, err = proc.communicate(timeout=HANG_GUARD_S)
-    if sig == signal.SIGINT:  # Ctrl-C: saves, says how to go on, exits 130
-        assert proc.returncode == 130, err[-2000:]
-        assert err.strip().splitlines()[-1].startswith("interrupted: state saved; continue with")
+    if sig != signal.SIGKILL:  # Ctrl-C, SIGTERM: save, say how to go on, exit 128 + signal
+        assert proc.returncode == 128 + sig, err[-2000:]
+        assert err.strip().splitlines()[-1] == (
+            f"interrupted by {sig.name}: state saved; continue with python -m jaxlc.sweep "
+            f"--resume {out}"
+        )
+        assert RunDir(out).lock.read_bytes() == b"", "the lock's record is cleared on the way out"
     else:
         assert proc.returncode == -signal.SIGKILL
     assert not (out / "summary.json").exists(), "the kill must land before the end"
@@ -95,6 +103,13 @@ def test_interrupt_then_resume_ends_bit_for_bit_like_an_uninterrupted_run(smoke_
         text=True,
     )
     assert done.returncode == 0, done.stderr[-2000:]
+    # SIGKILL left the lock's record behind: the resume takes the lock over, in one line
+    # naming the dead holder; after a save-and-stop there is nothing to take over.
+    took_over = [line for line in done.stderr.splitlines() if "taking the lock over" in line]
+    if sig == signal.SIGKILL:
+        assert len(took_over) == 1 and f"pid {proc.pid} on host" in took_over[0], done.stderr
+    else:
+        assert not took_over, done.stderr
     ref, got = _leaves(ref_dir), _leaves(out)
     assert len(ref) == len(got)
     for a, b in zip(ref, got, strict=True):

@@ -6,6 +6,7 @@
     RUN_DIR/metrics/episodes.npz           per model: return, steps, reason, reward terms
     RUN_DIR/metrics/steps.npz              per scan step and model: losses, transitions
     RUN_DIR/summary.md, summary.json       last-100-episode success rate and return
+    RUN_DIR/lock                           the writing sweep's host, PID, start (jaxlc.study.lock)
     RUN_DIR/eval/eval.json, eval.csv       evaluation rows (python -m jaxlc.evaluate)
     RUN_DIR/eval/cases.npz, traces.npz     per policy and case; the drawn cases
     RUN_DIR/eval/heldout.json, heldout*.csv, collisions.csv, heldout_cases.npz
@@ -53,6 +54,10 @@ class RunDir:
     @property
     def state(self) -> Path:
         return self.root / "state" / checkpoint.TRAIN_STATE_FILE
+
+    @property
+    def lock(self) -> Path:
+        return self.root / "lock"
 
     @property
     def episodes(self) -> Path:
