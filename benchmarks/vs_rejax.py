@@ -1,15 +1,17 @@
 """Rejax's learners, unmodified, on the lane-change task (``jaxlc.make_gymnax``), beside
 jaxlc's DDPG: evaluated success on the 100 fixed cases, wall time, decisions/s, seeds.
 
-Each algorithm is ``rejax.get_algo(name).create(env=env, env_params=params, ...)`` with
+Each algorithm is ``rejax.get_algo(name).create(env=FiveValueAdapter(env), env_params=params,
+...)`` (Rejax 0.1.3 unpacks gymnax 0.0.x's five step values; ``jaxlc.gymnax_env``) with
 Rejax's defaults except ``gamma = 0.98`` (the task's), ``--timesteps`` RL decisions per seed
 and the settings in ``HYPER``; its ``train`` runs vmapped over ``--seeds`` seeds in one jitted
 call, compiled ahead so that the compile time is reported apart. Every seed's final policy
 then drives the same 100 fixed cases as jaxlc's checkpoints
-(``jaxlc.evaluation.cases.evaluate_act``), with its deterministic action (the Gaussian's mean,
-squashed for SAC; TD3's actor as it is), beside the untrained policy of the same learner.
-Success is over the cases that reached a lane change; the interval is a 95% bootstrap over
-seeds (``jaxlc.evaluation.stats.describe``).
+(``jaxlc.evaluation.cases.evaluate_act``), with its deterministic action (the Gaussian's
+mean, squashed for SAC; TD3's actor as it is), beside the untrained policies of the same
+learner (each seed's initial one; the mean over seeds is reported). Success is over the
+cases that reached a
+lane change; the interval is a 95% bootstrap over seeds (``jaxlc.evaluation.stats.describe``).
 
     python benchmarks/vs_rejax.py                                  # ppo sac td3, 3 seeds, 1M
     python benchmarks/vs_rejax.py --algos ppo --seeds 5 --timesteps 2000000
@@ -56,10 +58,10 @@ HYPER: dict[str, dict[str, Any]] = {
 }
 
 
-def greedy(name: str, algo: Any, ts: Any) -> Callable[[jax.Array], jax.Array]:
-    """``obs (n, 14) -> action (n, 1)``: the policy without exploration."""
-    params = ts.actor_ts.params
-
+def greedy(name: str, algo: Any) -> Callable[[Any, jax.Array], jax.Array]:
+    """``(policy, obs (n, 14)) -> action (n, 1)``: the policy without exploration, where
+    ``policy`` is ``policy_of`` a train state (params are an argument, not constants, so one
+    compiled rollout serves every seed and the untrained policy)."""
     if name == "td3":
 
         def head(m: Any, o: jax.Array) -> jax.Array:
@@ -73,44 +75,75 @@ def greedy(name: str, algo: Any, ts: Any) -> Callable[[jax.Array], jax.Array]:
         def head(m: Any, o: jax.Array) -> jax.Array:
             return m.action_loc + jnp.tanh(m.action_mean(m.features(o))) * m.action_scale
 
-    def act(obs: jax.Array) -> jax.Array:
-        if getattr(algo, "normalize_observations", False):
-            obs = algo.normalize_obs(ts.obs_rms_state, obs)
+    def act(policy: Any, obs: jax.Array) -> jax.Array:
+        params, obs_rms = policy
+        if obs_rms is not None:
+            obs = algo.normalize_obs(obs_rms, obs)
         return jnp.reshape(algo.actor.apply(params, obs, method=head), (obs.shape[0], 1))
 
     return act
 
 
-def evaluate(cfg: config.Config, name: str, algo: Any, ts: Any) -> dict[str, Any]:
-    """The result row (``jaxlc.evaluation.results``) of one trained state's greedy policy."""
-    out = cases.evaluate_act(cfg, greedy(name, algo, ts))
-    return results.summarise(out, cfg.env.dt)[0]
+def policy_of(algo: Any, ts: Any) -> tuple[Any, Any]:
+    """What ``greedy``'s policy reads from a train state: actor params, observation stats."""
+    normalize = getattr(algo, "normalize_observations", False)
+    return ts.actor_ts.params, ts.obs_rms_state if normalize else None
+
+
+def evaluate(cfg: config.Config, name: str, algo: Any, policies: list[Any]) -> list[dict[str, Any]]:
+    """The result rows (``jaxlc.evaluation.results``) of greedy policies on the 100 fixed
+    cases of ``jaxlc.evaluation.cases.evaluate_act``, all in one compiled rollout vmapped over
+    the policies."""
+    max_steps, n = 1500, len(policies)
+    start, _ = cases.programs(cfg, max_steps)  # the checkpoints' own (cached) case program
+    rollout = jax.jit(cases.make_rollout(jaxlc.make(cfg)[1], greedy(name, algo), max_steps))
+    cs = start(cases.case_keys(0, 100))
+    pol = cases.Policies(
+        actor=jax.tree.map(lambda *xs: jnp.stack(xs), *policies),
+        k=jnp.ones(n, jnp.int32),
+        scripted=jnp.zeros(n, bool),
+    )
+    out, _ = jax.device_get(rollout(pol, cs, jnp.zeros(1, jnp.int32)))
+    return results.summarise({k: np.asarray(v) for k, v in vars(out).items()}, cfg.env.dt)
 
 
 def run(name: str, seeds: int, timesteps: int, cfg: config.Config) -> dict[str, Any]:
     import rejax
 
+    from jaxlc.gymnax_env import FiveValueAdapter
+
     env, params = jaxlc.make_gymnax(cfg)
     hyper = {**HYPER[name], "gamma": 0.98, "total_timesteps": timesteps, "eval_freq": timesteps}
     if name != "ppo":
         hyper["fill_buffer"] = min(hyper["fill_buffer"], timesteps // 2)
-    algo = rejax.get_algo(name).create(env=env, env_params=params, **hyper)
+    algo = rejax.get_algo(name).create(env=FiveValueAdapter(env), env_params=params, **hyper)
     # Rejax's own evaluation (128 fresh roads at each eval_freq) is replaced by the fixed
     # cases below: a callback is configuration, the learner is untouched.
     algo = algo.replace(eval_callback=lambda algo, ts, key: ())
-    train = jax.jit(jax.vmap(algo.train))
+
+    def train_seed(key: jax.Array) -> tuple[Any, Any]:
+        # Rejax's train(key) is train(train_state=init_state(key)); returning the initial
+        # policy too gives the untrained baseline without another compile of the env's reset.
+        ts0 = algo.init_state(key)
+        return algo.train(train_state=ts0)[0], policy_of(algo, ts0)
+
+    train = jax.jit(jax.vmap(train_seed))
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     t0 = time.perf_counter()
     compiled = train.lower(keys).compile()
     t1 = time.perf_counter()
-    ts, _ = jax.block_until_ready(compiled(keys))
+    ts, initial = jax.block_until_ready(compiled(keys))
     wall = time.perf_counter() - t1
-    success, ret = [], []
-    for s in range(seeds):
-        row = evaluate(cfg, name, algo, jax.tree.map(lambda a, s=s: a[s], ts))
-        success.append(row["success_rate"])
-        ret.append(row["avg_return"])
-    untrained = evaluate(cfg, name, algo, algo.init_state(jax.random.PRNGKey(0)))
+    final = policy_of(algo, ts)
+    policies = [
+        jax.tree.map(lambda a, s=s: a[s], p) for p in (final, initial) for s in range(seeds)
+    ]
+    rows = evaluate(cfg, name, algo, policies)
+    success = [row["success_rate"] for row in rows[:seeds]]
+    ret = [row["avg_return"] for row in rows[:seeds]]
+    untrained = {
+        k: float(np.mean([row[k] for row in rows[seeds:]])) for k in ("success_rate", "avg_return")
+    }
     d = stats.describe(np.asarray(success))
     return {
         "learner": f"rejax {name}",

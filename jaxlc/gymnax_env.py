@@ -3,48 +3,67 @@
     import jaxlc
     env, params = jaxlc.make_gymnax()           # pip install -e ".[gymnax]"
     obs, state = env.reset(key, params)
-    obs, state, reward, done, info = env.step(key, state, action, params)
+    obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
 
 An episode is one lane change. The traffic before a manoeuvre, and episodes that end without
 one (no acceptable gap, or a collision before the gap was accepted), run inside ``reset`` and
 inside the step that ends a manoeuvre (``jaxlc.sim.decision``, shared with the gymnasium
 wrapper), so a learner only ever sees decisions. Auto-reset continues the same road with the
-next ego, as the simulator does: on ``done`` the returned ``obs`` and ``state`` are the next
-manoeuvre's first, and the step's own last observation is ``info["final_observation"]``.
+next ego, as the simulator does: on ``terminated | truncated`` the returned ``obs`` and
+``state`` are the next manoeuvre's first, and the step's own last observation is
+``info["final_observation"]``.
 
-``step`` returns the five values that gymnax-based learners (Rejax, PureJaxRL) unpack;
-``done = terminated | truncated``, and ``info`` tells them apart: ``terminated`` (success,
-out of bounds, collision), ``truncated`` (the 10 s timeout, to bootstrap from; terminal
-instead with ``env.terminal_timeout``), ``reason`` (a code of ``jaxlc.sim.reward.REASONS``),
-``discount`` (0 only when terminated) and the reward terms. ``params.max_steps_in_episode`` is
-the manoeuvre's decision limit (``manoeuvre_time_limit / dt``, 100): the simulator's own
-timeout ends an episode there, and learners read it for their evaluation loops.
+The contract is gymnax 1.x's: ``step`` returns six values, and is built, as gymnax's own
+``Environment.step`` is, from ``step_env`` (one decision, no reset: ``obs, state, reward,
+terminated, info``) and ``is_truncated(state, params)``; ``info`` gets ``terminated``,
+``truncated`` and ``final_observation``. So gymnax's wrappers (``LogWrapper``,
+``FlattenObservationWrapper``, ...) work on it. ``terminated``: success, out of bounds,
+collision (and the timeout with ``env.terminal_timeout``); ``truncated``: the simulator's 10 s
+timeout, to bootstrap from. ``info`` also has ``reason`` (a code of ``jaxlc.sim.reward.REASONS``),
+``discount`` (0 only when terminated), the reward terms and the env's own ``episode_return``
+and ``episode_steps``. ``params.max_steps_in_episode`` is the manoeuvre's decision limit
+(``manoeuvre_time_limit / dt``, 100), derived from the simulator's params; learners read it
+for their evaluation loops.
+
+Learners written for gymnax 0.0.x's five values ``obs, state, reward, done, info`` (Rejax
+0.1.3, PureJaxRL's single files) take the env through ``FiveValueAdapter``:
+
+    env5 = FiveValueAdapter(env)                # done = terminated | truncated
 
 Given the same keys and actions it reproduces the gymnasium wrapper step for step
-(``tests/test_gymnax.py``): the key a ``step`` receives drives ``decision.step_core``.
+(``tests/test_gymnax.py``): the key a ``step`` receives is split as ``decision.step_core``
+splits it.
 """
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 from flax import struct
 from gymnax.environments import environment, spaces
+from gymnax.wrappers.purerl import GymnaxWrapper
 from jax import Array
 
 from jaxlc.config import Config, EnvConfig
 from jaxlc.sim import observation as obs_layout
-from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, reset_core, step_core
-from jaxlc.sim.env import ACT_DIM, EnvParams, EnvState, make
+from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, fast_forward, reset_core
+from jaxlc.sim.env import ACT_DIM, EnvParams, EnvState, LaneChangeEnv, make, observation
 from jaxlc.sim.observation import OBS_DIM
+
+_SIM = LaneChangeEnv()
 
 
 @struct.dataclass
 class LaneChangeParams(environment.EnvParams):
     """gymnax params: the simulator's ``EnvParams`` and the decision loop's limits."""
 
-    max_steps_in_episode: int = 100  # decisions in one manoeuvre (set by ``make_gymnax``)
+    # Decisions in one manoeuvre, derived from the simulator's timeout by ``params_for``;
+    # learners bound their evaluation loops with it. The simulator's own timeout ends an
+    # episode (``is_truncated``), so set ``env.manoeuvre_time_limit`` to change it.
+    max_steps_in_episode: int = 100
     # Static: compiled in as constants, as the trainer and the gymnasium wrapper do. Traced,
     # XLA may fuse y - 1.5 W into one rounding, so the offset at the start of a manoeuvre is
     # no longer exactly +-W and a zero action can end it out of bounds at once.
@@ -55,9 +74,14 @@ class LaneChangeParams(environment.EnvParams):
 
 @struct.dataclass
 class LaneChangeState(environment.EnvState):
-    """``time``: decisions so far in this manoeuvre; ``sim``: the whole highway."""
+    """``time``: decisions so far in this manoeuvre; ``sim``: the whole highway;
+    ``truncated``: the decision that produced this state hit the simulator's timeout."""
 
     sim: EnvState
+    # What ``is_truncated`` reads. gymnax's default rule, ``time >= max_steps_in_episode``,
+    # would also flag a success or a crash on the 100th decision, and a timeout that
+    # ``env.terminal_timeout`` makes terminal; the simulator knows which end it was.
+    truncated: Array
 
 
 class LaneChangeGymnax(environment.Environment):
@@ -67,51 +91,68 @@ class LaneChangeGymnax(environment.Environment):
     def default_params(self) -> LaneChangeParams:
         return params_for(EnvParams())  # the paper's: EnvParams' defaults are the config's
 
-    def reset(
-        self, key: Array, params: LaneChangeParams | None = None
-    ) -> tuple[Array, LaneChangeState]:
+    def reset_env(self, key: Array, params: LaneChangeParams) -> tuple[Array, LaneChangeState]:
         """A fresh road, warmed up, then run to the first decision."""
-        params = self.default_params if params is None else params
         _, sim, out = reset_core(key, params.sim, params.max_skip_steps)
-        return out["obs"], LaneChangeState(time=jnp.int32(0), sim=sim)
+        return out["obs"], LaneChangeState(time=jnp.int32(0), sim=sim, truncated=jnp.bool_(False))
 
+    def step_env(
+        self, key: Array, state: LaneChangeState, action: Array, params: LaneChangeParams
+    ) -> tuple[Array, LaneChangeState, Array, Array, dict[str, Any]]:
+        """One decision, no reset: ``(obs, state, reward, terminated, info)``, gymnax's
+        environment-specific step. The state is the one the decision produced; when its
+        manoeuvre ended, the ego has left the road and only ``step`` moves on to the next."""
+        obs, sim, reward, terminated, truncated, out = _SIM.step(key, state.sim, action, params.sim)
+        info = {
+            "reason": out["reason"],
+            "discount": 1.0 - terminated.astype(jnp.float32),
+            "r_s": out["r_s"],
+            "r_e": out["r_e"],
+            "r_d": out["r_d"],
+            "episode_return": out["episode_return"],
+            "episode_steps": out["episode_steps"],
+        }
+        state = LaneChangeState(time=state.time + 1, sim=sim, truncated=truncated)
+        return obs, state, reward, terminated, info
+
+    def is_truncated(self, state: LaneChangeState, params: LaneChangeParams) -> Array:
+        """The simulator's timeout: ``params.max_steps_in_episode`` decisions (10 s) without
+        another end, truncating unless ``env.terminal_timeout``."""
+        return state.truncated
+
+    @partial(jax.jit, static_argnames=("self",))
     def step(
         self,
         key: Array,
         state: LaneChangeState,
         action: Array,
         params: LaneChangeParams | None = None,
-    ) -> tuple[Array, LaneChangeState, Array, Array, dict[str, Any]]:
-        """One decision; auto-resets to the next manoeuvre on the same road."""
+    ) -> tuple[Array, LaneChangeState, Array, Array, Array, dict[str, Any]]:
+        """gymnax's ``Environment.step`` but for the reset: on an end, the same road runs on
+        to the next ego's first decision (``reset_env`` would warm up a fresh road, and under
+        ``vmap`` every env would pay for that on every step)."""
         params = self.default_params if params is None else params
-        _, _, nxt, out = step_core(key, state.sim, action, params.sim, params.max_skip_steps)
-        terminated, truncated = out["terminated"], out["truncated"]
-        done = terminated | truncated
+        # decision.step_core's split (the step's key second): the gymnasium wrapper's numbers.
+        key_reset, key_step = jax.random.split(key)
+        obs_st, state_st, reward, terminated, info = self.step_env(key_step, state, action, params)
+        truncated = self.is_truncated(state_st, params)
+        done = jnp.logical_or(terminated, truncated)
+        # A no-op while the manoeuvre goes on: the ego is still under RL control.
+        _, sim, _, _ = fast_forward(key_reset, state_st.sim, params.sim, params.max_skip_steps)
+        obs = jnp.where(done, observation(sim, params.sim), obs_st)
+        state = LaneChangeState(
+            time=jnp.where(done, 0, state_st.time), sim=sim, truncated=jnp.zeros_like(truncated)
+        )
         info = {
+            **info,
             "terminated": terminated,
             "truncated": truncated,
-            "reason": out["reason_code"],
-            "discount": 1.0 - terminated.astype(jnp.float32),
-            "final_observation": out["obs"],
-            "r_s": out["r_s"],
-            "r_e": out["r_e"],
-            "r_d": out["r_d"],
+            "final_observation": obs_st,
         }
-        state = LaneChangeState(time=jnp.where(done, 0, state.time + 1), sim=nxt)
-        return out["next_obs"], state, out["reward"], done, info
-
-    # gymnax's hooks, for tools that call them directly: this env's reset and step already
-    # are the environment-specific ones (the next manoeuvre follows on the same road).
-    def reset_env(self, key: Array, params: LaneChangeParams) -> tuple[Array, LaneChangeState]:
-        return self.reset(key, params)
-
-    def step_env(
-        self, key: Array, state: LaneChangeState, action: Array, params: LaneChangeParams
-    ) -> tuple[Array, LaneChangeState, Array, Array, dict[str, Any]]:
-        return self.step(key, state, action, params)
+        return obs, state, reward, terminated, truncated, info
 
     def is_terminal(self, state: LaneChangeState, params: LaneChangeParams) -> Array:
-        return jnp.bool_(False)  # every state a learner holds is one to act in
+        return jnp.bool_(False)  # every state ``step`` returns is one to act in
 
     @property
     def name(self) -> str:
@@ -142,3 +183,29 @@ def make_gymnax(
 ) -> tuple[LaneChangeGymnax, LaneChangeParams]:
     """``env, params = jaxlc.make_gymnax()``: the paper's defaults, or those of ``config``."""
     return LaneChangeGymnax(), params_for(make(config, k)[1])
+
+
+class FiveValueAdapter(GymnaxWrapper):
+    """gymnax 0.0.x's step for learners that unpack five values (Rejax 0.1.3, PureJaxRL):
+    ``obs, state, reward, done, info`` with ``done = terminated | truncated``; ``info`` keeps
+    both apart. Wraps any gymnax 1.x env (this one, or it inside gymnax's wrappers); every
+    other attribute is the wrapped env's.
+
+        env, params = jaxlc.make_gymnax()
+        algo = rejax.get_algo("ppo").create(env=FiveValueAdapter(env), env_params=params)
+    """
+
+    def __getattr__(self, name: str) -> Any:
+        # A copy is built without ``__init__`` (Rejax deep-copies its config, env included);
+        # gymnax's own ``__getattr__`` would then look up ``_env`` through itself forever.
+        if name == "_env":
+            raise AttributeError(name)
+        return getattr(self._env, name)
+
+    # Not jitted itself: the wrapped env's step is (gymnax's are), and one more jit would
+    # compile that step again for the same arguments.
+    def step(
+        self, key: Array, state: Any, action: Array, params: Any = None
+    ) -> tuple[Array, Any, Array, Array, dict[str, Any]]:
+        obs, state, reward, terminated, truncated, info = self._env.step(key, state, action, params)
+        return obs, state, reward, jnp.logical_or(terminated, truncated), info
