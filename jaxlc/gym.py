@@ -268,7 +268,7 @@ class LaneChangeGymEnv(gymnasium.Env[np.ndarray, np.ndarray]):
     """One jaxlc highway as a ``gymnasium.Env``; an episode is one lane change.
 
     Args:
-        config: a ``Config`` or ``EnvConfig`` (default: configs/paper.toml), as ``jaxlc.make``.
+        config: a ``Config`` or ``EnvConfig`` (default: configs/default.toml), as ``jaxlc.make``.
         k: the action-update step (the action is held for ``k`` RL steps).
         params: ready-made ``EnvParams``; overrides ``config`` and ``k``.
         render_mode: ``None`` or ``"rgb_array"``.

@@ -1,6 +1,6 @@
 """``python -m jaxlc.sweep``: train the grid of models (default: the paper's nine) in one process.
 
-    python -m jaxlc.sweep                                  # configs/paper.toml
+    python -m jaxlc.sweep                                  # configs/default.toml
     python -m jaxlc.sweep --config configs/smoke.toml --out runs/smoke
     python -m jaxlc.sweep train.envs_per_model=64 grid.k=[1,2] --seeds 3
     python -m jaxlc.sweep --devices 4                      # models laid over 4 devices

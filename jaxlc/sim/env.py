@@ -50,8 +50,8 @@ ACT_DIM = 1
 KMH = 1.0 / 3.6
 
 
-# The paper's defaults are written once, in jaxlc/config.py (and configs/paper.toml, which a
-# test holds equal to them); EnvParams takes them over in SI units.
+# The defaults are written once, in jaxlc/config.py (and configs/default.toml, which a test
+# holds equal to them); EnvParams takes them over in SI units.
 _C = EnvConfig()
 _WARMUP_STEPS = int(round(_C.warmup_time / _C.dt))
 
