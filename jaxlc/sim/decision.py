@@ -6,8 +6,9 @@ runs the simulator with no action, in one ``lax.while_loop``, through those phas
 whole episodes that end before any RL step (no gap found, or a collision before the gap was
 accepted), until the next gap is accepted or ``max_steps`` steps ran. ``reset_core`` and
 ``step_core`` build on it, so an episode is exactly one lane change and each step one decision.
-The gymnasium wrapper (``jaxlc.gym``) and the gymnax env (``jaxlc.gymnax_env``) are thin
-fronts over these three pure functions.
+The gymnasium wrapper (``jaxlc.gym``) is a thin front over these three pure functions; the
+gymnax env (``jaxlc.gymnax_env``) uses ``reset_core`` and ``fast_forward``, and splits its
+step's key as ``step_core`` does (its gymnax ``step_env`` is the simulator's step alone).
 
 Randomness: ``reset_core`` and ``step_core`` split their key once per simulator step, always
 in the same order, so a rollout can be replayed step for step with the functional API.
