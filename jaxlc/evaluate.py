@@ -95,6 +95,28 @@ def select_checkpoints(
 
     ``episodes=None``: ``default_episodes`` of the run's checkpoint spacing up to each
     model's last checkpoint."""
+    found = _checkpoints(run_dir)
+    if model is not None:
+        found = [(p, m) for p, m in found if m.get("model") == model]
+        if not found:
+            raise EvalError(f"no checkpoints of model {model} in {run_dir}; see its checkpoints/")
+    have = sorted({m["episode"] for _, m in found})
+    if episodes is not None:
+        chosen = [(p, m) for p, m in found if m["episode"] in set(episodes)]
+        if not chosen:
+            raise EvalError(
+                f"none of the episodes {sorted(episodes)} has a checkpoint; there are {have}"
+            )
+        return chosen
+    every = have[0] if len(have) == 1 else int(min(np.diff(have)))
+    # Per model, so one that stopped early still has its own last checkpoint evaluated.
+    want = {i: set(default_episodes(every, e)) for i, e in _last_episodes(found).items()}
+    chosen = [(p, m) for p, m in found if m["episode"] in want[m["model"]]]
+    return chosen or found
+
+
+def _checkpoints(run_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
+    """``(path, meta)`` of every checkpoint of ``run_dir``, their metadata checked."""
     if not run_dir.is_dir():
         raise EvalError(f"run directory {run_dir} does not exist; check the path")
     found = [(p, _sidecar(p)) for p in checkpoint.list_checkpoints(run_dir)]
@@ -110,26 +132,15 @@ def select_checkpoints(
             f"no checkpoints in {RunDir(run_dir).checkpoints}; train first with "
             f"python -m jaxlc.sweep --out {run_dir}"
         )
-    if model is not None:
-        found = [(p, m) for p, m in found if m.get("model") == model]
-        if not found:
-            raise EvalError(f"no checkpoints of model {model} in {run_dir}; see its checkpoints/")
-    have = sorted({m["episode"] for _, m in found})
-    if episodes is not None:
-        chosen = [(p, m) for p, m in found if m["episode"] in set(episodes)]
-        if not chosen:
-            raise EvalError(
-                f"none of the episodes {sorted(episodes)} has a checkpoint; there are {have}"
-            )
-        return chosen
-    every = have[0] if len(have) == 1 else int(min(np.diff(have)))
-    # Per model, so one that stopped early still has its own last checkpoint evaluated.
-    last = {}
+    return found
+
+
+def _last_episodes(found: list[tuple[Path, dict[str, Any]]]) -> dict[int, int]:
+    """Each model's last checkpoint episode."""
+    last: dict[int, int] = {}
     for _, m in found:
         last[m["model"]] = max(last.get(m["model"], 0), m["episode"])
-    want = {i: set(default_episodes(every, e)) for i, e in last.items()}
-    chosen = [(p, m) for p, m in found if m["episode"] in want[m["model"]]]
-    return chosen or found
+    return last
 
 
 def _row_meta(path: Path, meta: dict[str, Any], run_dir: Path | None) -> dict[str, Any]:
@@ -174,10 +185,7 @@ def evaluate_run(
     result = _result(cfg, out, info, metas, kw)
     _write(rd.eval, "eval", result)
     write_seed_stats(rd.eval, result["rows"])
-    ids = {
-        "policy_model": np.asarray([-1 if m["model"] is None else m["model"] for m in metas]),
-        "policy_episode": np.asarray([m["episode"] or 0 for m in metas]),
-    }
+    ids = _policy_ids(metas)
     rd.save_npz(rd.cases, {**out, **ids, **info})
     traced_side = info["side"][info["traced"]]
     rd.save_npz(rd.traces, {**trace, **ids, "traced": info["traced"], "side": traced_side})
@@ -188,12 +196,8 @@ def final_checkpoints(
     run_dir: Path, episodes: Sequence[int] | None = None
 ) -> list[tuple[Path, dict[str, Any]]]:
     """Each model's last checkpoint, and those of ``episodes`` too, by model then episode."""
-    select_checkpoints(run_dir)  # checks the metadata; its errors name the fix
-    found = [(p, _sidecar(p)) for p in checkpoint.list_checkpoints(run_dir)]
-    last: dict[int, int] = {}
-    for _, m in found:
-        last[m["model"]] = max(last.get(m["model"], 0), m["episode"])
-    want = set(episodes or ())
+    found = _checkpoints(Path(run_dir))
+    last, want = _last_episodes(found), set(episodes or ())
     return [(p, m) for p, m in found if m["episode"] in want | {last[m["model"]]}]
 
 
@@ -242,19 +246,11 @@ def evaluate_heldout(
         "claim_d": heldout.claim_d(cells),
         "collisions": heldout.collisions(out, info, metas, dt),
     }
-    rd.eval.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(_json_safe(result), indent=1) + "\n"
-    checkpoint.write_text_atomic(rd.heldout_json, text)
-    for name, table, fields in (
-        ("heldout", rows, heldout.HELDOUT_FIELDS),
-        ("heldout_cells", cells, list(cells[0]) if cells else []),
-        ("collisions", result["collisions"], heldout.COLLISION_FIELDS),
-    ):
-        checkpoint.write_text_atomic(rd.eval / f"{name}.csv", _csv(table, fields))
-    ids = {
-        "policy_model": np.asarray([-1 if m["model"] is None else m["model"] for m in metas]),
-        "policy_episode": np.asarray([m["episode"] or 0 for m in metas]),
-    }
+    _write_json(rd.heldout_json, result)
+    _write_table(rd.eval / "heldout.csv", rows, heldout.HELDOUT_FIELDS)
+    _write_table(rd.eval / "heldout_cells.csv", cells)
+    _write_table(rd.eval / "collisions.csv", result["collisions"], heldout.COLLISION_FIELDS)
+    ids = _policy_ids(metas)
     rd.save_npz(rd.heldout_cases, {**out, **ids, **info})
     return result
 
@@ -268,10 +264,8 @@ def write_convergence(run_dir: Path) -> dict[str, Any] | None:
     if episodes is None or not rd.summary_json.is_file():
         return None
     doc = convergence.study(episodes, rd.read_json(rd.summary_json)["models"])
-    rd.eval.mkdir(parents=True, exist_ok=True)
-    checkpoint.write_text_atomic(rd.convergence, json.dumps(_json_safe(doc), indent=1) + "\n")
-    fields = list(doc["models"][0]) if doc["models"] else []
-    checkpoint.write_text_atomic(rd.eval / "convergence.csv", _csv(doc["models"], fields))
+    _write_json(rd.convergence, doc)
+    _write_table(rd.eval / "convergence.csv", doc["models"])
     return doc
 
 
@@ -338,10 +332,27 @@ def _result(
 
 
 def _write(out_dir: Path, name: str, result: dict[str, Any]) -> None:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(_json_safe(result), indent=1) + "\n"
-    checkpoint.write_text_atomic(out_dir / f"{name}.json", text)
+    _write_json(out_dir / f"{name}.json", result)
     checkpoint.write_text_atomic(out_dir / f"{name}.csv", _csv(result["rows"]))
+
+
+def _write_json(path: Path, doc: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    checkpoint.write_text_atomic(path, json.dumps(_json_safe(doc), indent=1) + "\n")
+
+
+def _write_table(path: Path, table: list[dict[str, Any]], fields: Sequence[str] = ()) -> None:
+    """A CSV of ``table``'s rows; its columns ``fields``, else the first row's keys."""
+    fields = fields or (list(table[0]) if table else [])
+    checkpoint.write_text_atomic(path, _csv(table, fields))
+
+
+def _policy_ids(metas: list[dict[str, Any]]) -> dict[str, np.ndarray]:
+    """Which model and episode each evaluated row is (-1 and 0 for the scripted baseline)."""
+    return {
+        "policy_model": np.asarray([-1 if m["model"] is None else m["model"] for m in metas]),
+        "policy_episode": np.asarray([m["episode"] or 0 for m in metas]),
+    }
 
 
 def _json_safe(obj: Any) -> Any:
@@ -378,12 +389,9 @@ def write_seed_stats(out_dir: Path, rows: list[dict[str, Any]]) -> dict[str, Any
         "improvement": stats.improvement_table(cells),
         "claims": stats.claims(cells),
     }
-    out_dir.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(_json_safe(doc), indent=1) + "\n"
-    checkpoint.write_text_atomic(out_dir / "cells.json", text)
-    for name, table in (("cells", doc["cells"]), ("improvement", doc["improvement"])):
-        fields = list(table[0]) if table else []
-        checkpoint.write_text_atomic(out_dir / f"{name}.csv", _csv(table, fields))
+    _write_json(out_dir / "cells.json", doc)
+    for name in ("cells", "improvement"):
+        _write_table(out_dir / f"{name}.csv", doc[name])
     return doc
 
 
@@ -402,7 +410,7 @@ def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
     table = stats.compare(stats.cells_of(_eval_rows(run_a)), stats.cells_of(_eval_rows(run_b)))
     out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
     out.mkdir(parents=True, exist_ok=True)
-    checkpoint.write_text_atomic(out / "compare.csv", _csv(table, list(table[0])))
+    _write_table(out / "compare.csv", table)
     from jaxlc import figures
     from jaxlc.evaluation import report
 

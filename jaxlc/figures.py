@@ -36,6 +36,7 @@ from matplotlib.patches import Rectangle  # noqa: E402
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 
 from jaxlc.evaluation import heldout, stats  # noqa: E402
+from jaxlc.evaluation.convergence import moving  # noqa: E402
 from jaxlc.evaluation.results import OUTCOMES, rank_models  # noqa: E402
 from jaxlc.study.rundir import RunDir  # noqa: E402
 
@@ -94,16 +95,6 @@ def _eval(run_dir: Path) -> tuple[dict[str, Any], dict, dict] | None:
     return json.loads(path.read_text()), traces, cases
 
 
-def smooth(y: np.ndarray, window: int) -> np.ndarray:
-    """Trailing moving average ``(n,) -> (n - window + 1,)``, NaNs ignored."""
-    ok = np.isfinite(y)
-    kernel = np.ones(window)
-    total = np.convolve(np.where(ok, y, 0.0), kernel, "valid")
-    count = np.convolve(ok.astype(float), kernel, "valid")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return total / count
-
-
 def _window(n: int) -> int:
     return max(1, min(100, n // 20))  # 100 episodes for the paper's 5000, a few for smoke
 
@@ -115,7 +106,7 @@ def _seed_curves(ax: Any, series: list[np.ndarray], colour: str, label: str) -> 
     if n == 0:
         return
     w = _window(n)
-    curves = np.stack([smooth(s[:n].astype(float), w) for s in series])
+    curves = np.stack([moving(s[:n].astype(float), w) for s in series])
     x = np.arange(w, n + 1)
     with warnings.catch_warnings():  # all-NaN columns (no loss before updates start)
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -546,7 +537,7 @@ def heldout_norms(run_dir: Path) -> Path | None:
     if cases is None or not rd.heldout_json.is_file():
         return None
     doc = json.loads(rd.heldout_json.read_text())
-    dt = RunDir(run_dir).load_config().env.dt
+    dt = rd.load_config().env.dt
     perf = cases["performed"]
     measures = [
         {k: v[perf] for k, v in heldout.lane_change_measures(cases, p, dt).items()}

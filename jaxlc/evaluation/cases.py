@@ -132,14 +132,16 @@ def keys_for_lane_changes(
     lane changes: cases are started ``batch`` at a time until enough reach the RL phase."""
     start, _ = programs(cfg, max_steps)
     performed: list[np.ndarray] = []
-    while sum(int(p.sum()) for p in performed) < lane_changes:
+    total = 0  # lane changes among the cases started so far
+    while total < lane_changes:
         lo = batch * len(performed)
         keys = heldout_keys(seed, lo + batch)[lo:]
         performed.append(np.asarray(start(keys).performed))
+        total += int(performed[-1].sum())
         if len(performed) * batch > 100 * lane_changes:
             raise EvalError(
                 f"fewer than 1 in 100 held-out cases performs a lane change "
-                f"({sum(int(p.sum()) for p in performed)} of {len(performed) * batch}); "
+                f"({total} of {len(performed) * batch}); "
                 "check the config's traffic and gap settings"
             )
     n = int(np.searchsorted(np.cumsum(np.concatenate(performed)), lane_changes)) + 1

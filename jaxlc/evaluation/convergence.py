@@ -58,12 +58,17 @@ COMPARISONS = (
 
 
 def moving(x: np.ndarray, window: int = WINDOW) -> np.ndarray:
-    """Trailing moving average ``(n,) -> (n - window + 1,)`` (the whole mean if shorter)."""
+    """Trailing moving average ``(n,) -> (n - window + 1,)``, NaNs ignored (the whole mean if
+    shorter than the window); the figures' curves are drawn with it too."""
     x = np.asarray(x, float)
     if x.size < window:
-        return np.asarray([x.mean()]) if x.size else x
-    c = np.cumsum(np.concatenate([[0.0], x]))
-    return (c[window:] - c[:-window]) / window
+        return np.asarray([np.nanmean(x)]) if x.size else x
+    ok = np.isfinite(x)
+    kernel = np.ones(window)
+    total = np.convolve(np.where(ok, x, 0.0), kernel, "valid")
+    count = np.convolve(ok.astype(float), kernel, "valid")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return total / count
 
 
 def _first(mask: np.ndarray, default: int) -> int:
@@ -79,7 +84,7 @@ def first_stays(curve: np.ndarray, target: float, band: float) -> int:
 
 def model_measures(ret: np.ndarray, steps: np.ndarray, reason: np.ndarray) -> dict[str, float]:
     """The measures of one model from its episodes ``(episodes,)``; ``auc`` unnormalised
-    (the mean of the return's moving average; ``normalise_auc`` scales it over a run)."""
+    (the mean of the return's moving average; ``run_measures`` scales it over a run)."""
     n = ret.size
     ma = moving(ret)
     plateau = float(np.mean(ret[-PLATEAU:]))

@@ -163,7 +163,7 @@ def _ci(est: float, lo: float, hi: float, fmt: str, scale: float = 1.0) -> str:
     return text
 
 
-def _seed_section(rows: list[dict[str, Any]], run_dir: Path | None = None) -> list[str]:
+def _seed_section(rows: list[dict[str, Any]], held: dict[str, Any] | None = None) -> list[str]:
     """The paper's claims with verdicts from intervals over seeds, the cells' means and
     IQMs, and the probability that each cell improves on each other."""
     cells = stats.cells_of(rows)
@@ -183,10 +183,9 @@ def _seed_section(rows: list[dict[str, Any]], run_dir: Path | None = None) -> li
     elif note:
         lines += ["", f"**Note: {note}.**"]
     lines += ["", "| claim | paper | this run | verdict |", "|---|---|---|---|"]
-    held = RunDir(run_dir).heldout_json if run_dir is not None else None
     for c in stats.claims(cells):
-        if c["claim"].startswith("(d)") and held is not None and held.is_file():
-            c = {**json.loads(held.read_text())["claim_d"], "claim": c["claim"] + " (held-out)"}
+        if c["claim"].startswith("(d)") and held is not None:  # decided on the held-out bound
+            c = {**held["claim_d"], "claim": c["claim"] + " (held-out)"}
         lines.append(f"| {c['claim']} | {c['paper']} | {c['figures']} | **{c['verdict']}** |")
     lines += [
         "",
@@ -371,11 +370,10 @@ def _collision_tally(doc: dict[str, Any]) -> list[str]:
 COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
 
 
-def _heldout_section(run_dir: Path) -> list[str]:
-    path = RunDir(run_dir).heldout_json
-    if not path.is_file():
+def _heldout_section(doc: dict[str, Any] | None) -> list[str]:
+    """``eval/heldout.json``'s content (``doc``; None: the run has no held-out evaluation)."""
+    if doc is None:
         return []
-    doc = json.loads(path.read_text())
     norms = "; ".join(n["source"] for n in doc["norms"])
     d = doc["claim_d"]
     return [
@@ -450,6 +448,8 @@ def build_report(run_dir: Path) -> str:
     result = json.loads(path.read_text())
     rows = result["rows"]
     best_lines, best = _best_section(rows)
+    held_path = RunDir(run_dir).heldout_json
+    held = json.loads(held_path.read_text()) if held_path.is_file() else None
     early = result["before_rl"]
     text = [
         f"# Evaluation report: {run_dir.name}",
@@ -471,8 +471,8 @@ def build_report(run_dir: Path) -> str:
         *best_lines,
         *_timeout_line(result, best),
         "",
-        *_heldout_section(run_dir),
-        *_seed_section(rows, run_dir),
+        *_heldout_section(held),
+        *_seed_section(rows, held),
         *_convergence_section(run_dir),
         "## The paper's claims beside this run",
         "",

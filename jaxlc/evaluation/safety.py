@@ -23,6 +23,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
+from jaxlc.sim.idm import NO_LEADER_GAP
+
 # Each norm: (measure, bound, True when the measure must stay below the bound, source).
 NORMS = (
     ("duration_s", 5.0, True, "UN R79 (ACSF C): lane change in under 5 s"),
@@ -57,7 +59,7 @@ def conflicts(state, p) -> tuple[Array, Array]:
     eg, nb, L = state.ego, state.nb, p.vehicle_length
     lead_gap = nb.a1_x - L - eg.x
     lag_gap = eg.x - L - nb.b1_x
-    has_own = state.leader_gap < 1e4  # idm.NO_LEADER_GAP: no leader
+    has_own = state.leader_gap < NO_LEADER_GAP
     t = jnp.stack(
         [
             ttc(lead_gap, eg.v, nb.a1_v, nb.has_a1),
