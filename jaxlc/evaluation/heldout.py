@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import scipy.stats
 
+from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.evaluation.safety import NORMS, PARTNERS, VEHICLES
 from jaxlc.evaluation.stats import (
     CONFIDENCE,
@@ -39,7 +40,6 @@ from jaxlc.evaluation.stats import (
     cell_key,
     expanded_level,
 )
-from jaxlc.sim.reward import REASONS
 
 MIN_BOOT_SEEDS = 5
 BOUNDS = {name: bound for name, bound, *_ in NORMS}
@@ -87,7 +87,7 @@ def upper_bound(k: int, n: int, confidence: float = CONFIDENCE) -> float:
 def lane_change_measures(out: dict[str, np.ndarray], p: int, dt: float) -> dict[str, np.ndarray]:
     """Policy ``p``'s measures per case ``(cases,)``: the NORMS' measures (a failed lane change
     has no duration: inf) and whether each norm, and all of them with success, hold."""
-    ok = out["reason"][p] == REASONS.index("success")
+    ok = out["reason"][p] == OUTCOMES.index("success")
     m = {
         "duration_s": np.where(ok, out["steps"][p] * dt, np.inf),
         "peak_lat_acc": out["peak_lat_acc"][p],
@@ -103,10 +103,6 @@ def lane_change_measures(out: dict[str, np.ndarray], p: int, dt: float) -> dict[
     return {**m, **inside}
 
 
-def _share(x: np.ndarray) -> float:
-    return float(np.mean(x)) if x.size else math.nan
-
-
 def _p5(x: np.ndarray) -> float:
     return float(np.percentile(x, 5, method="lower")) if x.size else math.nan
 
@@ -120,17 +116,15 @@ def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, d
     perf = info["performed"]
     reason = out["reason"][p][perf]
     n = int(perf.sum())
-    counts = {
-        e: int((reason == (0 if e == "unfinished" else REASONS.index(e))).sum()) for e in ENDS
-    }
-    ok = reason == REASONS.index("success")
+    counts = {e: int((reason == OUTCOMES.index(e)).sum()) for e in ENDS}
+    ok = reason == OUTCOMES.index("success")
     m = {k: v[perf] for k, v in lane_change_measures(out, p, dt).items()}
     fails, hits = n - counts["success"], counts["collision"]
     crit = {}
     for name in ("ttc", "thw"):
         bound = BOUNDS[f"min_{name}_s"]
         for i, v in enumerate(VEHICLES):
-            crit[f"{name}_crit_{v}"] = _share(out[f"min_{name}"][p][perf][:, i] < bound)
+            crit[f"{name}_crit_{v}"] = _mean(out[f"min_{name}"][p][perf][:, i] < bound)
     return {
         "lane_changes": n,
         **counts,
@@ -147,7 +141,7 @@ def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, d
         # The low tail is what safety is about: 5th percentiles over the lane changes.
         "min_ttc_s": _p5(m["min_ttc_s"]),
         "min_thw_s": _p5(m["min_thw_s"]),
-        **{k: _share(m[k]) for k in NORM_KEYS},
+        **{k: _mean(m[k]) for k in NORM_KEYS},
         **crit,
     }
 
@@ -158,7 +152,7 @@ def collisions(
     """One row per collision (``COLLISION_FIELDS``): the vehicle hit, the ego's speed and
     time into the manoeuvre, the gaps and lag speed at acceptance, whether the lag yields."""
     rows = []
-    code = REASONS.index("collision")
+    code = OUTCOMES.index("collision")
     for p, meta in enumerate(metas):
         for c in np.nonzero(info["performed"] & (out["reason"][p] == code))[0]:
             rows.append(
