@@ -129,6 +129,9 @@ class DDPGConfig:
     td3_policy_delay: int = _f(2, 1, 100, doc="TD3: critic updates per actor/target update")
     mirror: bool = _f(True, doc="reflect half of each batch across the road's axis")
     huber_delta: float = _f(10.0, 0.0, doc="critic loss Huber at this TD error; 0 = squared")
+    symmetric_actor: bool = _f(
+        False, doc="actor odd under the road's reflection: mu(s) = (f(s) - f(Ms)) / 2"
+    )
 
 
 @dataclass(frozen=True)

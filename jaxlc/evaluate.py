@@ -61,7 +61,7 @@ from jaxlc.evaluation.results import (
 )
 from jaxlc.evaluation.safety import NORMS
 from jaxlc.evaluation.stats import StatsError, final_rows
-from jaxlc.policy import widths
+from jaxlc.policy import network
 from jaxlc.sim.env import ACT_DIM
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.study import checkpoint, machine
@@ -281,7 +281,7 @@ def evaluate_checkpoint(
     ``eval/<model dir>_<stem>.json`` (+ ``.csv``) in its run directory (or beside the file).
 
     The config is the run directory's (given, or the file's ``../../``); a lone file gets the
-    paper's env and the network widths it holds."""
+    default env and the network it holds."""
     path = Path(path)
     up = path.resolve().parents
     if run_dir is None and len(up) > 2 and RunDir(up[2]).is_run():
@@ -291,7 +291,10 @@ def evaluate_checkpoint(
         cfg = _run_config(Path(run_dir))
         checkpoint.load(path, expect_shapes=checkpoint.shapes_of(init_actor(cfg)))
     else:
-        cfg = config.load(None, [f"ddpg.hidden={list(widths(path, meta))}"])
+        hidden, symmetric = network(path, meta)
+        cfg = config.load(
+            None, [f"ddpg.hidden={list(hidden)}", f"ddpg.symmetric_actor={str(symmetric).lower()}"]
+        )
     metas = [SCRIPTED, _row_meta(path.resolve(), meta, run_dir and Path(run_dir).resolve())]
     kw = dict(cases=cases, seed=seed, max_steps=max_steps, traced=0)
     out, _, info = evaluate_policies(cfg, [None, params], [1, int(meta.get("k", 1))], **kw)

@@ -90,7 +90,8 @@ def model_meta(cfg: config.Config, grid: train.Grid, i: int) -> dict[str, Any]:
         "seed": grid.seeds[i],
         "label": model_label(cell),
         **cell,
-        "hidden": list(cfg.ddpg.hidden),  # network widths: jaxlc.policy.load_policy
+        "hidden": list(cfg.ddpg.hidden),  # the network: jaxlc.policy.load_policy
+        "symmetric_actor": cfg.ddpg.symmetric_actor,
         "config_hash": cfg.hash(),
     }
 

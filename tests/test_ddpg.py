@@ -13,6 +13,8 @@ import pytest
 from jaxlc.config import DDPGConfig
 from jaxlc.learn import ddpg
 from jaxlc.learn.networks import make_networks
+from jaxlc.sim.observation import MIRROR_SIGNS
+from jaxlc.sim.observation import OBS_DIM as FULL_OBS
 
 OBS_DIM = 5
 # a big final init and tau so that every term of the update moves the params visibly
@@ -111,6 +113,26 @@ def test_flax_modules_match_plain_mlps_and_final_init():
         head = params["params"]["mlp"][f"Dense_{len(CFG.hidden)}"]
         for leaf in (head["kernel"], head["bias"]):
             assert np.abs(leaf).max() <= CFG.final_init and np.abs(leaf).max() > 0
+
+
+def test_symmetric_actor_is_odd_under_the_road_reflection():
+    """ddpg.symmetric_actor: same params as the plain actor, mu(Ms) = -mu(s), and the value is
+    the reference (f(s) - f(Ms)) / 2; a state its own mirror image (nothing lateral) gets 0."""
+    cfg = dataclasses.replace(CFG, symmetric_actor=True)
+    plain, _ = make_networks(CFG)
+    sym, _ = make_networks(cfg)
+    x = np.zeros((1, FULL_OBS), np.float32)
+    params = sym.init(jax.random.key(3), x)
+    assert jax.tree.structure(params) == jax.tree.structure(plain.init(jax.random.key(3), x))
+    params = jax.tree.map(lambda p: p * 40.0, params)  # leave tanh's linear range
+    s = np.random.default_rng(3).normal(size=(16, FULL_OBS)).astype(np.float32)
+    m = s * np.asarray(MIRROR_SIGNS, np.float32)
+    a, a_m = np.asarray(sym.apply(params, s)), np.asarray(sym.apply(params, m))
+    np.testing.assert_array_equal(a_m, -a)
+    _close(a, 0.5 * (_mu(params, s) - _mu(params, m)))
+    assert np.abs(a).max() > 0.1 and np.abs(np.asarray(plain.apply(params, s)) - a).max() > 0.01
+    own_image = np.where(np.asarray(MIRROR_SIGNS) < 0, 0.0, s).astype(np.float32)
+    np.testing.assert_array_equal(np.asarray(sym.apply(params, own_image)), 0.0)
 
 
 @pytest.fixture(scope="module")

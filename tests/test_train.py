@@ -97,10 +97,13 @@ def test_checkpoint_loads_into_identical_params_and_actions(smoke_run, smoke_cfg
     grid = train.make_grid(smoke_cfg)
     assert meta["episode"] == smoke_cfg.train.episodes
     obs = jax.random.normal(jax.random.PRNGKey(0), (7, OBS_DIM))
-    # The checkpoint records its widths; load_policy builds the actor from them alone.
+    # The checkpoint records its network; load_policy builds the actor from that alone.
     assert tuple(meta["hidden"]) == tuple(smoke_cfg.ddpg.hidden) != DDPGConfig().hidden
+    assert meta["symmetric_actor"] == smoke_cfg.ddpg.symmetric_actor
     act_loaded = load_policy(path)[0](obs)
-    act_cfg = actor_fn(params, smoke_cfg.ddpg.hidden)(obs)
+    act_cfg = actor_fn(params, smoke_cfg.ddpg.hidden, smoke_cfg.ddpg.symmetric_actor)(obs)
+    other = actor_fn(params, smoke_cfg.ddpg.hidden, not smoke_cfg.ddpg.symmetric_actor)(obs)
+    assert not np.array_equal(np.asarray(other), np.asarray(act_cfg))
     np.testing.assert_array_equal(np.asarray(act_loaded), np.asarray(act_cfg))
     assert act_loaded.shape == (7, 1) and bool(jnp.all(jnp.abs(act_loaded) <= 1))
     # Saving the loaded params again gives the same bytes back.

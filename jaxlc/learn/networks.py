@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxlc.config import DDPGConfig
+from jaxlc.sim.observation import MIRROR_SIGNS
 
 
 def uniform_pm(scale: float) -> nn.initializers.Initializer:
@@ -45,15 +46,28 @@ class _Trunk(nn.Module):
 
 
 class Actor(nn.Module):
-    """Policy mu(s): ``(..., obs_dim) -> (..., act_dim)`` in [-1, 1] (tanh units)."""
+    """Policy mu(s): ``(..., obs_dim) -> (..., act_dim)`` in [-1, 1] (tanh units).
+
+    With ``mirror`` (the observation's signs under the road's reflection y -> -y) the policy
+    is odd under that reflection by construction: mu(s) = (f(s) - f(Ms)) / 2 with one trunk
+    f, so a left lane change is exactly the mirror image of a right one. Mirrored batches
+    only teach that symmetry, and a policy can still learn a bias on one side (a left lane
+    change that parks beside the target centre while the right one completes); here the
+    bias cancels. The params are the same pytree either way (``ddpg.symmetric_actor``).
+    """
 
     hidden: Sequence[int] = (300, 600)
     act_dim: int = 1
     final_init: float = 3e-3
+    mirror: tuple[float, ...] | None = None
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
-        return jnp.tanh(_Trunk(self.hidden, self.act_dim, self.final_init, name="mlp")(obs))
+        trunk = _Trunk(self.hidden, self.act_dim, self.final_init, name="mlp")
+        if self.mirror is None:
+            return jnp.tanh(trunk(obs))
+        signs = jnp.asarray(self.mirror, obs.dtype)  # (obs_dim,)
+        return 0.5 * (jnp.tanh(trunk(obs)) - jnp.tanh(trunk(obs * signs)))
 
 
 class Critic(nn.Module):
@@ -71,7 +85,8 @@ class Critic(nn.Module):
 def make_networks(cfg: DDPGConfig, act_dim: int = 1) -> tuple[Actor, Critic]:
     """The two modules for a config (modules are static descriptions, cheap to rebuild)."""
     hidden = tuple(cfg.hidden)
+    mirror = MIRROR_SIGNS if cfg.symmetric_actor else None
     return (
-        Actor(hidden=hidden, act_dim=act_dim, final_init=cfg.final_init),
+        Actor(hidden=hidden, act_dim=act_dim, final_init=cfg.final_init, mirror=mirror),
         Critic(hidden=hidden, final_init=cfg.final_init),
     )
