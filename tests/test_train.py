@@ -159,7 +159,9 @@ def test_paper_toml_is_the_papers_method():
     """paper.toml: eq. (4)'s squared error, no mirroring, one update per RL transition; it
     differs from default.toml only in the learning aids and schedule the paper does not use."""
     paper, default = config.load(config.PAPER_CONFIG), config.Config()
-    assert paper.ddpg.huber_delta == 0.0 and not paper.ddpg.mirror
+    assert (
+        paper.ddpg.huber_delta == 0.0 and not paper.ddpg.mirror and not paper.ddpg.symmetric_actor
+    )
     assert paper.ddpg.updates_per_transition == 1
     assert paper.env.gap_min_ttc == 0.0
     changed = {
@@ -168,7 +170,8 @@ def test_paper_toml_is_the_papers_method():
         for f in dataclasses.fields(getattr(default, t.name))
         if getattr(getattr(paper, t.name), f.name) != getattr(getattr(default, t.name), f.name)
     }
-    allowed = {("ddpg", k) for k in ("huber_delta", "mirror", "tau", "updates_per_transition")}
+    aids = ("huber_delta", "mirror", "symmetric_actor", "tau", "updates_per_transition")
+    allowed = {("ddpg", k) for k in aids}
     assert changed <= allowed | {("env", "gap_min_ttc")}, changed
 
 

@@ -1,11 +1,15 @@
-"""Gap acceptance by time-to-collision: how ``env.gap_min_ttc`` changes the lane changes made,
-their collisions and their norms, for the final checkpoints of a run (no retraining).
+"""One config value, several settings, the final checkpoints of a run (no retraining): how the
+value changes the held-out lane changes, their collisions and their norms.
 
-    python benchmarks/gap_ttc_probe.py runs/s0 --ttc 0 3 4 5 --lane-changes 2000
+    python benchmarks/probe.py runs/s0 --key env.gap_min_ttc --values 0 3 4 5 \
+        --lane-changes 2000 --out benchmarks/gap_ttc_probe
+    python benchmarks/probe.py runs/s3 --key ddpg.symmetric_actor --values false true \
+        --out benchmarks/symmetric_probe
 
-For each value: the share of held-out cases that perform a lane change, and per model the
-held-out outcomes (``jaxlc.evaluation.heldout``) on the same key stream. Writes
-``OUT/probe.csv`` and prints it; OUT defaults to ``benchmarks/gap_ttc_probe/``.
+For each value (TOML syntax; validated as the config is): the share of held-out cases that
+perform a lane change, and per model the held-out outcomes (``jaxlc.evaluation.heldout``) on
+the same key stream. Writes ``OUT/probe.csv`` (its first column is named for the key) and
+prints it.
 """
 
 from __future__ import annotations
@@ -14,15 +18,16 @@ import argparse
 import csv
 import dataclasses
 import time
+import tomllib
 from pathlib import Path
 
+from jaxlc import config
 from jaxlc.evaluate import final_checkpoints, load_rows
 from jaxlc.evaluation import heldout
 from jaxlc.evaluation.cases import evaluate_policies, keys_for_lane_changes
 from jaxlc.study import machine
 
 FIELDS = (
-    "gap_min_ttc",
     "label",
     "seed",
     "cases",
@@ -41,15 +46,20 @@ FIELDS = (
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("run_dir", type=Path)
-    ap.add_argument("--ttc", type=float, nargs="+", default=[0.0, 3.0, 4.0, 5.0])
+    ap.add_argument("--key", required=True, help="table.key, e.g. env.gap_min_ttc")
+    ap.add_argument("--values", nargs="+", required=True, help="TOML values, e.g. 0 3 4 5")
     ap.add_argument("--lane-changes", type=int, default=2000)
-    ap.add_argument("--out", type=Path, default=Path(__file__).with_suffix(""))
+    ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
+    table, name = args.key.split(".", 1)
     base, actors, metas = load_rows(args.run_dir, final_checkpoints(args.run_dir))
     rows = []
-    for ttc in args.ttc:
+    for text in args.values:
         t0 = time.time()
-        cfg = dataclasses.replace(base, env=dataclasses.replace(base.env, gap_min_ttc=ttc))
+        value = tomllib.loads(f"v = {text}")["v"]
+        data = dataclasses.asdict(base)
+        data[table][name] = value
+        cfg = config.from_dict(data)  # validated: a bad key or value names itself
         keys = keys_for_lane_changes(cfg, args.lane_changes, seed=0)
         out, _, info = evaluate_policies(
             cfg, [None, *actors], [1] + [m["k"] for m in metas[1:]], keys=keys, traced=0
@@ -58,7 +68,7 @@ def main() -> None:
             r = heldout.model_row(out, info, p, cfg.env.dt)
             rows.append(
                 {
-                    "gap_min_ttc": ttc,
+                    name: text,
                     "label": meta["label"],
                     "seed": meta["seed"],
                     "cases": len(keys),
@@ -66,10 +76,10 @@ def main() -> None:
                     **{k: r[k] for k in FIELDS if k in r},
                 }
             )
-        print(f"gap_min_ttc {ttc}: {time.time() - t0:.0f} s", flush=True)
+        print(f"{args.key} = {text}: {time.time() - t0:.0f} s", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "probe.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, FIELDS, extrasaction="ignore", lineterminator="\n")
+        w = csv.DictWriter(f, (name, *FIELDS), extrasaction="ignore", lineterminator="\n")
         w.writeheader()
         w.writerows(rows)
     print((args.out / "probe.csv").read_text())
