@@ -59,7 +59,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 
 
 def update_products(
-    obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int = 1
+    obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int = 1, symmetric: bool = False
 ) -> list[tuple[int, int, int]]:
     """The matrix products ``(m, k, n)`` (an ``(m, k) @ (k, n)``) of one ``ddpg.update`` of
     one model.
@@ -74,6 +74,9 @@ def update_products(
     - actor on s, critic on (s, mu(s)): forward each; input gradients through every critic
       layer (the first only for the action columns) and every actor layer but the first;
       weight gradients of every actor layer.
+
+    A symmetric actor (``ddpg.symmetric_actor``) runs its trunk twice, on s and on Ms: every
+    actor product above counts twice.
     """
     actor = list(zip((obs_dim, *hidden), (*hidden, act_dim), strict=True))
     critic = list(zip((obs_dim + act_dim, *hidden), (*hidden, 1), strict=True))
@@ -87,23 +90,26 @@ def update_products(
     def igrad(layers: list[tuple[int, int]]) -> list[tuple[int, int, int]]:
         return [(batch, o, i) for i, o in layers]
 
-    target = fwd(actor) + fwd(critic)
+    trunks = 2 if symmetric else 1
+    target = fwd(actor) * trunks + fwd(critic)
     critic_step = fwd(critic) + wgrad(critic) + igrad(critic[1:])
     actor_step = (
-        fwd(actor)
+        fwd(actor) * trunks
         + fwd(critic)
         + igrad(critic[1:])
         + [(batch, hidden[0], act_dim)]  # the first critic layer's action columns
-        + wgrad(actor)
-        + igrad(actor[1:])
+        + (wgrad(actor) + igrad(actor[1:])) * trunks
     )
     return target + critic_step + actor_step
 
 
-def update_flops(obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int = 1) -> int:
+def update_flops(
+    obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int = 1, symmetric: bool = False
+) -> int:
     """Matmul FLOPs of one ``ddpg.update`` of one model: 2 per multiply-add of
     ``update_products``."""
-    return sum(2 * m * k * n for m, k, n in update_products(obs_dim, hidden, batch, act_dim))
+    products = update_products(obs_dim, hidden, batch, act_dim, symmetric)
+    return sum(2 * m * k * n for m, k, n in products)
 
 
 def _timed(fn: Callable[[], object]) -> Callable[[], float]:
@@ -279,7 +285,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     time_grid = _timed(
         grid_update_call(cfg, args.models, args.memories, args.updates, args.devices)
     )
-    products = update_products(OBS_DIM, cfg.hidden, cfg.batch_size)
+    products = update_products(OBS_DIM, cfg.hidden, cfg.batch_size, 1, cfg.symmetric_actor)
     time_kernels = _timed(kernels_call(products, args.models, args.updates))
     time_optimizer = _timed(optimizer_call(cfg, args.models, args.updates))
     shapes = jax.eval_shape(lambda k: ddpg.init_learner(k, OBS_DIM, cfg), jax.random.key(0))
@@ -295,7 +301,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
         stream_s.append(time_stream())
     peak = 2 * args.matmul_n**3 / statistics.median(dot_s) / 1e9
     rate = args.updates / statistics.median(grid_s)
-    flops = update_flops(OBS_DIM, cfg.hidden, cfg.batch_size)
+    flops = update_flops(OBS_DIM, cfg.hidden, cfg.batch_size, 1, cfg.symmetric_actor)
     achieved = rate * args.models * flops / 1e9
     # the decomposition of one grid update's time, ms: its products alone (the ceiling of the
     # share with these kernels), its Adam/target pass alone, and what remains

@@ -130,7 +130,7 @@ class DDPGConfig:
     mirror: bool = _f(True, doc="reflect half of each batch across the road's axis")
     huber_delta: float = _f(10.0, 0.0, doc="critic loss Huber at this TD error; 0 = squared")
     symmetric_actor: bool = _f(
-        False, doc="actor odd under the road's reflection: mu(s) = (f(s) - f(Ms)) / 2"
+        True, doc="actor odd under the road's reflection: mu(s) = (f(s) - f(Ms)) / 2"
     )
 
 

@@ -18,9 +18,16 @@ from jaxlc.sim.observation import OBS_DIM as FULL_OBS
 
 OBS_DIM = 5
 # a big final init and tau so that every term of the update moves the params visibly
-# huber_delta=0: the paper's squared error of eq. (4); the Huber option has its own test
+# huber_delta=0: the paper's squared error of eq. (4); the Huber option and the symmetric
+# actor have their own tests
 CFG = dataclasses.replace(
-    DDPGConfig(), hidden=(4, 3), batch_size=8, final_init=0.5, tau=0.1, huber_delta=0.0
+    DDPGConfig(),
+    hidden=(4, 3),
+    batch_size=8,
+    final_init=0.5,
+    tau=0.1,
+    huber_delta=0.0,
+    symmetric_actor=False,
 )
 HYPER = ddpg.Hyper(jnp.float32(3e-2), jnp.float32(5e-2), jnp.float32(0.2))
 
@@ -289,12 +296,13 @@ def _dot_flops(jaxpr) -> int:
     return total
 
 
-def test_benchmark_counts_the_products_that_the_update_computes():
+@pytest.mark.parametrize("symmetric", [False, True])
+def test_benchmark_counts_the_products_that_the_update_computes(symmetric):
     """The benchmark's FLOP count against the dot_generals in the traced ``ddpg.update`` at
     the paper's sizes. JAX also forms the first critic layer's input gradient for the
     observation columns (the benchmark counts only the action columns, the ones the actor
     needs): 2 x 64 x 300 x 14 FLOPs, 0.2% of the update."""
-    cfg, obs_dim, batch = DDPGConfig(), 14, 64
+    cfg, obs_dim, batch = DDPGConfig(symmetric_actor=symmetric), 14, 64
     learner = jax.eval_shape(lambda k: ddpg.init_learner(k, obs_dim, cfg), jax.random.key(0))
     data = {
         "obs": jnp.zeros((batch, obs_dim)),
@@ -305,7 +313,7 @@ def test_benchmark_counts_the_products_that_the_update_computes():
     }
     traced = jax.make_jaxpr(lambda lrn: ddpg.update(lrn, data, ddpg.Hyper.from_config(cfg), cfg))
     in_update = _dot_flops(traced(learner).jaxpr)
-    counted = _update_bench().update_flops(obs_dim, cfg.hidden, batch)
+    counted = _update_bench().update_flops(obs_dim, cfg.hidden, batch, 1, cfg.symmetric_actor)
     assert in_update - counted == 2 * batch * cfg.hidden[0] * obs_dim
 
 
