@@ -31,9 +31,13 @@ SCRIPT = textwrap.dedent("""
         assert state.episodes.shape == (grid.size,) and metrics["finite"].shape[1] == grid.size
         assert int(state.learner.step.min()) > 0, "updates must have run"
         results[n] = state
+    # XLA picks other kernels for other per-device batch shapes, and 300 scan steps of learning
+    # amplify their rounding (the reflection-odd actor's two trunk passes more than a plain
+    # actor's: up to 3e-5 on values of 1e-2 seen); a model laid on the wrong device, or given
+    # another's data, would differ by the size of the values themselves.
     for n in (3, 4):
         for a, b in zip(jax.tree.leaves(results[1]), jax.tree.leaves(results[n]), strict=True):
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-5)
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-3, atol=1e-4)
     # Evaluation lays its policies over the devices the same way (5 policies: padded to 6).
     from jaxlc.evaluation import cases
     actors = [jax.tree.map(lambda a, i=i: a[i], results[1].learner.actor) for i in range(4)]
