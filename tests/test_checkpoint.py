@@ -250,3 +250,23 @@ def test_interrupted_resave_is_incomplete_not_mismatched(
     with pytest.raises(CheckpointError, match="is incomplete"):
         checkpoint.load(saved)
     assert checkpoint.list_checkpoints(saved.parent) == []
+
+
+def test_a_run_written_before_a_key_keeps_the_behaviour_it_had(tmp_path):
+    """A resolved config spells every key; one without ``symmetric_actor`` or ``gap_min_ttc``
+    ran with a plain actor and no time-to-collision test, whatever today's defaults are."""
+    from jaxlc import config
+    from jaxlc.study.rundir import RunDir
+
+    today = config.Config()
+    assert today.ddpg.symmetric_actor and today.env.gap_min_ttc > 0  # else nothing is tested
+    run = RunDir(tmp_path)
+    run.write_config(today)
+    assert run.load_config() == today
+    lines = run.config.read_text().splitlines()
+    old = [x for x in lines if not x.startswith(("symmetric_actor", "gap_min_ttc"))]
+    assert len(old) == len(lines) - 2
+    run.config.write_text("\n".join(old) + "\n")
+    cfg = run.load_config()
+    assert not cfg.ddpg.symmetric_actor and cfg.env.gap_min_ttc == 0.0
+    assert cfg.ddpg.hidden == today.ddpg.hidden and cfg.train == today.train

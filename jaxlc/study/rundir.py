@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import io
 import json
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,12 @@ import numpy as np
 
 from jaxlc import config
 from jaxlc.study import checkpoint
+
+# Keys added after runs were written, with the value that reproduces how those runs behaved.
+BEFORE_KEY: dict[str, dict[str, Any]] = {
+    "env": {"gap_min_ttc": 0.0},  # added 2026-11-23: before it, no time-to-collision test
+    "ddpg": {"symmetric_actor": False},  # added 2026-11-23: before it, a plain actor
+}
 
 
 @dataclass(frozen=True)
@@ -115,7 +122,17 @@ class RunDir:
         return self.config.is_file()
 
     def load_config(self) -> config.Config:
-        return config.load(self.config)
+        """The resolved config of the run. The sweep writes every key, so a key missing here
+        means the run predates it: it takes the behaviour the run had (``BEFORE_KEY``), not
+        today's default, or an old run's plain actor would be evaluated as a symmetric one."""
+        written = tomllib.loads(self.config.read_text()) if self.config.exists() else {}
+        older = [
+            f"{table}.{key}={json.dumps(value)}"
+            for table, keys in BEFORE_KEY.items()
+            for key, value in keys.items()
+            if key not in written.get(table, {})
+        ]
+        return config.load(self.config, older)
 
     def write_config(self, cfg: config.Config) -> None:
         self.root.mkdir(parents=True, exist_ok=True)
