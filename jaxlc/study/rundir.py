@@ -125,7 +125,10 @@ class RunDir:
         """The resolved config of the run. The sweep writes every key, so a key missing here
         means the run predates it: it takes the behaviour the run had (``BEFORE_KEY``), not
         today's default, or an old run's plain actor would be evaluated as a symmetric one."""
-        written = tomllib.loads(self.config.read_text()) if self.config.exists() else {}
+        try:
+            written = tomllib.loads(self.config.read_text())
+        except (OSError, tomllib.TOMLDecodeError):
+            written = {}  # config.load names the problem in one line
         older = [
             f"{table}.{key}={json.dumps(value)}"
             for table, keys in BEFORE_KEY.items()
