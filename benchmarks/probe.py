@@ -18,7 +18,6 @@ import argparse
 import csv
 import dataclasses
 import time
-import tomllib
 from pathlib import Path
 
 from jaxlc import config
@@ -51,14 +50,13 @@ def main() -> None:
     ap.add_argument("--lane-changes", type=int, default=2000)
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
-    table, name = args.key.split(".", 1)
     base, actors, metas = load_rows(args.run_dir, final_checkpoints(args.run_dir))
     rows = []
     for text in args.values:
         t0 = time.time()
-        value = tomllib.loads(f"v = {text}")["v"]
+        table, name, value = config.parse_override(f"{args.key}={text}")
         data = dataclasses.asdict(base)
-        data[table][name] = value
+        data.setdefault(table, {})[name] = value
         cfg = config.from_dict(data)  # validated: a bad key or value names itself
         keys = keys_for_lane_changes(cfg, args.lane_changes, seed=0)
         out, _, info = evaluate_policies(

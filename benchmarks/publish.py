@@ -12,6 +12,7 @@ check, so a table that no longer matches its evidence fails the suite.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import re
 import sys
@@ -34,10 +35,11 @@ PAPER_SHOWS = {
     "(a)": "Figs. 3d, 4a: ④ converges faster than ⑦; its manoeuvring steps rise earlier",
     "(d)": "Fig. 6, §IV-C: ④ completes 100% of the lane changes of 100 test cases",
 }
-_FORMAT = {"converged": "{:.0f}", "success95": "{:.0f}", "steps_rise": "{:.0f}"}
-_UNITS = {"converged": "ep", "success95": "ep", "steps_rise": "ep"}
+# Measures counted in episodes (written whole, "ep"); the others are written to 3 figures.
+_EPISODES = {"converged", "success95", "steps_rise"}
 
 
+@functools.cache
 def _load(study: Path, name: str) -> dict[str, Any]:
     return json.loads((study / "eval" / name).read_text())
 
@@ -47,8 +49,9 @@ def _tag(claim: str) -> str:
     return claim[: claim.index(")") + 1]
 
 
-def _seeds(study: Path) -> int:
-    return max(int(m["seed"]) for m in _load(study, "convergence.json")["models"]) + 1
+def _seeds(study: Path) -> str:
+    n = max(int(m["seed"]) for m in _load(study, "convergence.json")["models"]) + 1
+    return f"{n} seed{'s' if n > 1 else ''} per cell"
 
 
 def _comparisons(study: Path, claim: dict[str, str]) -> str:
@@ -59,10 +62,10 @@ def _comparisons(study: Path, claim: dict[str, str]) -> str:
     for c in _load(study, "convergence.json")["comparisons"]:
         if c["claim"] != claim["claim"] or c["measure"] not in measures:
             continue
-        fmt = _FORMAT.get(c["measure"], "{:.3g}")
-        unit = _UNITS.get(c["measure"], "")
+        episodes = c["measure"] in _EPISODES
+        fmt = "{:.0f}" if episodes else "{:.3g}"
         x, y = (("never" if v is None else fmt.format(v)) for v in (c["x_mean"], c["y_mean"]))
-        text = f"{c['measure']}: {c['x']} {x} vs {c['y']} {y}{' ' + unit if unit else ''}"
+        text = f"{c['measure']}: {c['x']} {x} vs {c['y']} {y}{' ep' if episodes else ''}"
         if c["seeds"] > 1:
             text += f", P = {c['p']:.2f} [{c['p_lo']:.2f}, {c['p_hi']:.2f}]"
         parts.append(text)
@@ -82,32 +85,21 @@ def _claim_d(study: Path) -> tuple[str, str]:
 
 def verdict_table() -> str:
     """Each paper claim: what the paper shows, paper.toml's and default.toml's figures here,
-    and both verdicts (``jaxlc.evaluation.convergence``, ``jaxlc.evaluation.heldout``). A
-    study not committed yet reads "no committed study" in its column."""
-    have_paper = (PAPER_STUDY / "eval" / "convergence.json").exists()
-    s_default = _seeds(DEFAULT_STUDY)
-    s_paper = f"{_seeds(PAPER_STUDY)} seed(s) per cell" if have_paper else "no committed study"
+    and both verdicts (``jaxlc.evaluation.convergence``, ``jaxlc.evaluation.heldout``)."""
     lines = [
-        f"| claim | the paper shows | `paper.toml` here ({s_paper}) | `default.toml` here "
-        f"({s_default} seeds per cell) | verdict (paper.toml; default.toml) |",
+        f"| claim | the paper shows | `paper.toml` here ({_seeds(PAPER_STUDY)}) | "
+        f"`default.toml` here ({_seeds(DEFAULT_STUDY)}) | verdict (paper.toml; default.toml) |",
         "|---|---|---|---|---|",
     ]
-    none = ("—", "—")
-    paper_claims = (
-        {c["claim"]: c for c in _load(PAPER_STUDY, "convergence.json")["claims"]}
-        if have_paper
-        else {}
-    )
+    paper_claims = {c["claim"]: c for c in _load(PAPER_STUDY, "convergence.json")["claims"]}
     for claim in _load(DEFAULT_STUDY, "convergence.json")["claims"]:
         text = claim["claim"]
-        paper = _comparisons(PAPER_STUDY, claim) if have_paper else none[0]
-        p_verdict = paper_claims[text]["verdict"] if have_paper else none[1]
         lines.append(
-            f"| {text} | {PAPER_SHOWS[_tag(text)]} | {paper} | "
-            f"{_comparisons(DEFAULT_STUDY, claim)} | {p_verdict}; {claim['verdict']} |"
+            f"| {text} | {PAPER_SHOWS[_tag(text)]} | {_comparisons(PAPER_STUDY, claim)} | "
+            f"{_comparisons(DEFAULT_STUDY, claim)} | {paper_claims[text]['verdict']}; "
+            f"{claim['verdict']} |"
         )
-    (p_text, p_verdict) = _claim_d(PAPER_STUDY) if have_paper else none
-    (d_text, d_verdict) = _claim_d(DEFAULT_STUDY)
+    (p_text, p_verdict), (d_text, d_verdict) = _claim_d(PAPER_STUDY), _claim_d(DEFAULT_STUDY)
     claim_d = _load(DEFAULT_STUDY, "heldout.json")["claim_d"]["claim"]
     lines.append(
         f"| {claim_d} | {PAPER_SHOWS['(d)']} | {p_text} | {d_text} | {p_verdict}; {d_verdict} |"

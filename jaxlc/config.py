@@ -316,8 +316,15 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     return table, key, value
 
 
-def load(path: str | Path | None = None, overrides: typing.Sequence[str] = ()) -> Config:
-    """Load ``path`` (default ``configs/default.toml``), apply overrides, validate."""
+def load(
+    path: str | Path | None = None,
+    overrides: typing.Sequence[str] = (),
+    missing: typing.Mapping[str, typing.Mapping[str, Any]] | None = None,
+) -> Config:
+    """Load ``path`` (default ``configs/default.toml``), apply overrides, validate.
+
+    ``missing``: values for keys the file does not spell, in place of the defaults (a run's
+    resolved config spells every key, so there a missing key dates the run)."""
     path = Path(path) if path is not None else DEFAULT_CONFIG
     data: dict[str, Any] = {}
     if path.exists() or path != DEFAULT_CONFIG:
@@ -327,13 +334,21 @@ def load(path: str | Path | None = None, overrides: typing.Sequence[str] = ()) -
             raise ConfigError(f"config file '{path}' does not exist") from None
         except tomllib.TOMLDecodeError as err:
             raise ConfigError(f"config file '{path}' is not valid TOML: {err}") from None
+    for table, keys in (missing or {}).items():
+        for key, value in keys.items():
+            _table(data, table).setdefault(key, value)
     for text in overrides:
         table, key, value = parse_override(text)
-        data.setdefault(table, {})
-        if not isinstance(data[table], dict):
-            raise ConfigError(f"config key '{table}': must be a table")
-        data[table][key] = value
+        _table(data, table)[key] = value
     return from_dict(data)
+
+
+def _table(data: dict[str, Any], table: str) -> dict[str, Any]:
+    """``data[table]``, made if absent; a non-table there is refused."""
+    data.setdefault(table, {})
+    if not isinstance(data[table], dict):
+        raise ConfigError(f"config key '{table}': must be a table")
+    return data[table]
 
 
 def to_toml(cfg: Config) -> str:

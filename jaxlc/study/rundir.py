@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import io
 import json
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -125,17 +124,7 @@ class RunDir:
         """The resolved config of the run. The sweep writes every key, so a key missing here
         means the run predates it: it takes the behaviour the run had (``BEFORE_KEY``), not
         today's default, or an old run's plain actor would be evaluated as a symmetric one."""
-        try:
-            written = tomllib.loads(self.config.read_text())
-        except (OSError, tomllib.TOMLDecodeError):
-            written = {}  # config.load names the problem in one line
-        older = [
-            f"{table}.{key}={json.dumps(value)}"
-            for table, keys in BEFORE_KEY.items()
-            for key, value in keys.items()
-            if key not in written.get(table, {})
-        ]
-        return config.load(self.config, older)
+        return config.load(self.config, missing=BEFORE_KEY)
 
     def write_config(self, cfg: config.Config) -> None:
         self.root.mkdir(parents=True, exist_ok=True)
