@@ -41,6 +41,7 @@ from jaxlc.sim.env import (
     EnvParams,
     EnvState,
     LaneChangeEnv,
+    ego_yaw_rate,
     observation,
     overlaps,
     road_curvature,
@@ -83,13 +84,13 @@ class Outcome:
     r_d: Array
     steps: Array  # int32 RL steps of the manoeuvre
     peak_lat_acc: Array  # max |v * omega|, m/s^2
-    peak_yaw_rate: Array  # max |omega|, rad/s
+    peak_yaw_rate: Array  # max |yaw rate relative to the lane's| (omega when straight), rad/s
     overshoot: Array  # max distance past the target centre line, m (0 if none)
     # The ego at the manoeuvre's last step (NaN without one), so a timeout's cause shows:
     # short of the lane (offset < 0), swinging (large omega) or just outside the success box.
     final_offset: Array  # signed offset to the target centre line toward the target side, m
     final_psi: Array  # heading, rad
-    final_omega: Array  # yaw rate, rad/s
+    final_omega: Array  # yaw rate relative to the lane's (env.ego_yaw_rate), rad/s
     # Safety and comfort over the manoeuvre (jaxlc.evaluation.safety), the start state included.
     peak_lat_jerk: Array  # max |lateral jerk| over a 0.5 s moving average, m/s^3
     min_ttc: Array  # (policies, cases, 3) min time-to-collision to lead, lag, own leader, s
@@ -257,6 +258,8 @@ def _accumulate(
         return jnp.where(live, value, acc)
 
     toward = info["offset"] * side  # signed toward the target side
+    # The yaw rate the success test reads: relative to the lane's (omega on a straight road).
+    yaw = ego_yaw_rate(new.ego, jnp.broadcast_to(road_curvature(new, p), live.shape), p)
     ttc, thw = safety.conflicts(new, p)
     hit = live & (info["reason"] == COLLISION)
     kappa = jnp.broadcast_to(road_curvature(new, p), live.shape)  # (policies, cases)
@@ -271,11 +274,11 @@ def _accumulate(
         r_d=add(out.r_d, info["r_d"]),
         steps=jnp.where(live, info["episode_steps"], out.steps),
         peak_lat_acc=peak(out.peak_lat_acc, jnp.abs(new.ego.v * new.ego.omega)),
-        peak_yaw_rate=peak(out.peak_yaw_rate, jnp.abs(new.ego.omega)),
+        peak_yaw_rate=peak(out.peak_yaw_rate, jnp.abs(yaw)),
         overshoot=peak(out.overshoot, toward),
         final_offset=last(out.final_offset, toward),
         final_psi=last(out.final_psi, new.ego.psi),
-        final_omega=last(out.final_omega, new.ego.omega),
+        final_omega=last(out.final_omega, yaw),
         peak_lat_jerk=peak(out.peak_lat_jerk, jnp.abs(jerk)),
         min_ttc=jnp.where(live[..., None], jnp.minimum(out.min_ttc, ttc), out.min_ttc),
         min_thw=jnp.where(live[..., None], jnp.minimum(out.min_thw, thw), out.min_thw),

@@ -9,6 +9,11 @@ One env is one highway: ``lanes`` lanes of ``road_length`` metres, each with
 lanes, so vehicles of a lane never pass each other and a vehicle's leader is simply the slot
 written before it: no search (see ``_ring_leaders``). The ego is kept apart from the slots.
 
+The road is a band of concentric arcs of curvature kappa (0: straight; a constant, or drawn
+per episode), and everything runs in its frame (``kinematics``): x is s along the road's
+centre line, y across it; a lane's gaps are metres along its own centre line
+(``lane_scales``), and every vehicle follows its lane.
+
 An episode of the ego goes through four phases (``info["phase"]``):
   WAIT   no ego; the next vehicle to enter the middle lane becomes the ego;
   CRUISE the ego follows IDM until it has travelled ``command_distance``;
@@ -145,7 +150,7 @@ def curvature_range(value: float | tuple[float, float]) -> tuple[float, float]:
 class Traffic:
     """Vehicles other than the ego; lane arrays are ``(lanes, slots)``, ring buffers."""
 
-    x: Array  # (lanes, slots) front-bumper position, m
+    x: Array  # (lanes, slots) front bumper, s along the road's centre line, m
     v: Array  # (lanes, slots) speed, m/s
     v0: Array  # (lanes, slots) desired speed, m/s
     active: Array  # (lanes, slots) bool
@@ -159,13 +164,13 @@ class Traffic:
 @flax.struct.dataclass
 class Ego:
     phase: Array  # () int32, WAIT/CRUISE/GAP/RL
-    x: Array  # () front bumper, m
+    x: Array  # () front bumper, s along the road's centre line, m
     y: Array  # () lateral position of the body's centre line, m
     v: Array  # () m/s
     v0: Array  # () desired speed, m/s
     accel: Array  # () last longitudinal acceleration, m/s^2
-    psi: Array  # () heading relative to the road, rad
-    omega: Array  # () yaw rate, rad/s
+    psi: Array  # () heading relative to the lane's direction, rad
+    omega: Array  # () yaw rate (inertial: kappa_d*v holds a lane), rad/s
     held: Array  # () action executed (held for k steps), in [-1, 1]
     target: Array  # () int32 target lane
     steps: Array  # () int32 RL steps done in this manoeuvre
@@ -421,9 +426,9 @@ def traffic_accel(state: EnvState, p: EnvParams) -> Array:
 def ego_accel(state: EnvState, p: EnvParams) -> Array:
     """``()`` IDM acceleration of the ego toward its own-lane leader, "with adaptation" to the
     chosen gap once it looks for one: the lower of the two."""
-    in_rl = state.ego.phase == RL
     eg = state.ego
-    nb, x = target_frame(state.nb, eg, road_curvature(state, p), p)
+    in_rl = eg.phase == RL
+    nb, x = target_frame(state.nb, eg, road_curvature(state, p), p)  # m along the target lane
     a_own = idm_with_params(eg.v, eg.v0, state.leader_gap, state.leader_v, p)
     seek_gap, seek_v = gap.target_leader(nb, x, eg.v, p)
     lead_gap = gap.net_gap(nb.a1_x, x, p.vehicle_length, nb.has_a1)

@@ -33,13 +33,13 @@ GAP_CLIP = (-10.0, 100.0)  # m, net gaps are clipped to this before scaling
 LAYOUT: tuple[Entry, ...] = (
     Entry("v", 30.0, 1.0, "ego speed, m/s"),
     Entry("accel", 3.0, 1.0, "ego longitudinal acceleration, m/s^2"),
-    Entry("psi", 0.1, -1.0, "heading relative to the road, rad"),
-    Entry("omega", 0.1, -1.0, "yaw rate, rad/s"),
+    Entry("psi", 0.1, -1.0, "heading relative to the lane's direction, rad"),
+    Entry("omega", 0.1, -1.0, "yaw rate (kappa_d*v holds a lane of a curve), rad/s"),
     Entry("offset", "offset_obs_scale", -1.0, "signed offset from the target lane's centre, m"),
     Entry("held", 1.0, -1.0, "action being executed (held for k steps), in [-1, 1]"),
     # 0 unless terminal_timeout: a bootstrapped timeout must not be observable (env.observation).
     Entry("time", "manoeuvre_time_limit", 1.0, "manoeuvre time, s"),
-    Entry("curvature", 0.01, -1.0, "road curvature, 1/m"),
+    Entry("curvature", 0.01, -1.0, "the episode's road curvature (centre line), 1/m"),
     Entry("lead_gap", 100.0, 1.0, "net gap to the target lane's leader, m"),
     Entry("lead_dv", 10.0, 1.0, "target lane's leader speed minus ego speed, m/s"),
     Entry("lag_gap", 100.0, 1.0, "net gap to the target lane's follower, m"),
