@@ -20,6 +20,7 @@ import hashlib
 import json
 import math
 import tomllib
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,16 +57,25 @@ class EnvConfig:
     road_length: float = _f(600.0, 50.0, open_lo=True, doc="m")
     lanes: int = _f(3, 2, 8, doc="lanes in the ego's direction; the ego starts on lanes // 2")
     lane_width: float = _f(3.7, 2.0, 6.0, doc="m")
-    curvature: float = _f(0.0, -0.01, 0.01, doc="1/m, a state input")
+    curvature: float | tuple[float, float] = _f(
+        0.0,
+        -0.01,
+        0.01,
+        doc="1/m (> 0 bends toward the higher lanes), a state input: a number (a constant "
+        "road) or [min, max], drawn per episode from U(min, max)",
+    )
     dt: float = _f(0.1, 0.0, 1.0, open_lo=True, doc="s")
     vehicle_length: float = _f(5.0, 1.0, 20.0)
     vehicle_width: float = _f(1.8, 1.0, 3.0)
     entry_speed_min: float = _f(0.0, 0.0, 200.0, doc="km/h")
     entry_speed_max: float = _f(40.0, 0.0, 200.0, doc="km/h")
-    desired_speed_min: float = _f(80.0, 1.0, 250.0, doc="km/h")
-    desired_speed_max: float = _f(120.0, 1.0, 250.0, doc="km/h")
-    inflow_min: float = _f(800.0, 0.0, 4000.0, open_lo=True, doc="veh/h per lane")
-    inflow_max: float = _f(1600.0, 0.0, 4000.0, open_lo=True, doc="veh/h per lane")
+    # Below 10 km/h an ego crawls: at 5 km/h no gap is ever accepted (tests/test_ranges.py).
+    desired_speed_min: float = _f(80.0, 10.0, 250.0, doc="km/h")
+    desired_speed_max: float = _f(120.0, 10.0, 250.0, doc="km/h")
+    # The ego is the next vehicle to enter the middle lane: at 60 veh/h it waits a minute on
+    # average, and far fewer would leave episodes waiting past the decision loop's cap.
+    inflow_min: float = _f(800.0, 60.0, 4000.0, doc="veh/h per lane")
+    inflow_max: float = _f(1600.0, 60.0, 4000.0, doc="veh/h per lane")
     slots_per_lane: int = _f(16, 2, 256, doc="static vehicle slots per lane")
     warmup_time: float = _f(40.0, 0.0, 600.0, doc="s of traffic simulated by reset()")
     # IDM [S]
@@ -229,6 +239,17 @@ def _check_scalar(key: str, value: Any, typ: type, meta: dict[str, Any]) -> Any:
 
 def _check_field(key: str, value: Any, f: dataclasses.Field, hints: dict[str, Any]) -> Any:
     typ = hints[f.name]
+    if isinstance(typ, types.UnionType):  # number | tuple: a constant or a [min, max] range
+        if not isinstance(value, list | tuple):
+            return _check_scalar(key, value, float, f.metadata)
+        if len(value) != 2:
+            raise ConfigError(
+                f"config key '{key}': must be a number or a range [min, max], got {value!r}"
+            )
+        lo, hi = (_check_scalar(key, v, float, f.metadata) for v in value)
+        if lo > hi:
+            raise ConfigError(f"config key '{key}': a range [min, max] needs min <= max")
+        return (lo, hi)
     if typing.get_origin(typ) is tuple:
         elem = typing.get_args(typ)[0]
         if not isinstance(value, list | tuple):
@@ -261,6 +282,11 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError("config key 'env.desired_speed_min': must be <= env.desired_speed_max")
     if e.inflow_min > e.inflow_max:
         raise ConfigError("config key 'env.inflow_min': must be <= env.inflow_max")
+    if e.lane_width > e.border:
+        raise ConfigError(
+            f"config key 'env.lane_width': must be <= env.border ({e.border:g} m): the ego "
+            f"starts one lane width from its target lane and is out of bounds beyond the border"
+        )
     if e.gap_x_limit >= e.road_length:
         raise ConfigError("config key 'env.gap_x_limit': must be < env.road_length")
     if e.command_distance >= e.gap_x_limit:

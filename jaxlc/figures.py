@@ -320,13 +320,38 @@ def _best(result: dict[str, Any]) -> tuple[int, list[int]] | None:
     return m, sorted(rows, key=lambda i: result["rows"][i]["episode"])
 
 
-def _lanes(ax: Any, p: Any, x0: float, x1: float) -> None:
+def _curvature(tr: dict[str, np.ndarray], pi: int, j: int) -> float:
+    """The traced case's road curvature (0 for traces written before roads could bend)."""
+    return float(tr["curvature"][pi, j]) if "curvature" in tr else 0.0
+
+
+def _world(s: Any, y: Any, kappa: float, s0: float, p: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Road-frame points (s along the road's centre line, y across; ``jaxlc.sim.kinematics``)
+    drawn on the bent road: X along the road's tangent at ``s0`` (offset by ``s0``, so the axis
+    still reads as road position), Y across it (= y at ``s0``). The identity when straight."""
+    s, y = np.asarray(s, float), np.asarray(y, float)
+    if kappa == 0.0:
+        return s, y
+    y_ref = 0.5 * p.lanes * p.lane_width
+    radius, theta = 1.0 / kappa, (s - s0) * kappa
+    r = radius - (y - y_ref)  # distance from the bend's centre
+    return s0 + r * np.sin(theta), y_ref + radius - r * np.cos(theta)
+
+
+def _along(kappa: float) -> str:
+    """Fig. 7's x-axis: distance along a straight road, along the start's tangent on a bend."""
+    if kappa == 0.0:
+        return "distance since the manoeuvre began (m)"
+    return f"along the road's tangent where the manoeuvre began (m); curvature {kappa:g} 1/m"
+
+
+def _lanes(ax: Any, p: Any, x0: float, x1: float, kappa: float = 0.0, s0: float = 0.0) -> None:
     w, n = p.lane_width, p.lanes
+    s = np.linspace(x0, x1, 2 if kappa == 0.0 else 200)
     for j in range(n + 1):
         edge = j in (0, n)
         ax.plot(
-            [x0, x1],
-            [j * w, j * w],
+            *_world(s, np.full_like(s, j * w), kappa, s0, p),
             color="k" if edge else "0.5",
             lw=1.2 if edge else 0.8,
             ls="-" if edge else (0, (6, 6)),
@@ -343,14 +368,17 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
     _, prows = _best(result)
     final = prows[-1]
     fig, (a, b) = plt.subplots(2, 1, figsize=(9, 6.5), layout="constrained")
+    # The cases share one road when the config's curvature is a number: draw it bent then.
+    kappas = {_curvature(tr, pi, j) for pi in (0, final) for j in range(len(tr["traced"]))}
+    kappa = kappas.pop() if len(kappas) == 1 else 0.0
     span = 1.0
     for j, case in enumerate(tr["traced"]):
         for pi, style in ((0, dict(color="0.4", ls="--", lw=1)), (final, {})):
             n = int(tr["frames"][pi, j])
             if n < 2:
                 continue
-            x = tr["x"][pi, j, :n] - tr["x"][pi, j, 0]
-            span = max(span, x[-1])
+            x, y = _world(tr["x"][pi, j, :n] - tr["x"][pi, j, 0], tr["y"][pi, j, :n], kappa, 0, p)
+            span = max(span, tr["x"][pi, j, n - 1] - tr["x"][pi, j, 0])
             colour = "tab:red" if tr["side"][j] > 0 else "tab:blue"
             kw = {"color": colour, "lw": 1.6, **style}
             lab = None
@@ -358,12 +386,12 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
                 lab = f"case {case} ({'left' if tr['side'][j] > 0 else 'right'})"
             elif j == 0:
                 lab = "scripted controller"
-            a.plot(x, tr["y"][pi, j, :n], label=lab, **kw)
-    _lanes(a, p, 0, span)
+            a.plot(x, y, label=lab, **kw)
+    _lanes(a, p, 0, span, kappa)
     label = result["rows"][final]["label"]
     a.set(
         title=f"(a) {label}, checkpoint {result['rows'][final]['episode']}",
-        xlabel="distance since the manoeuvre began (m)",
+        xlabel=_along(kappa),
         ylabel="y (m)",
     )
     a.legend(fontsize=7, loc="center right", ncols=2)
@@ -371,24 +399,25 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
     j = int(np.argmax(tr["side"] > 0)) if (tr["side"] > 0).any() else 0
     cmap = plt.get_cmap("viridis")
     span = 1.0
+    kappa = _curvature(tr, final, j)  # one case: one road
     for n_i, pi in enumerate(prows):
         n = int(tr["frames"][pi, j])
         if n < 2:
             continue
-        x = tr["x"][pi, j, :n] - tr["x"][pi, j, 0]
-        span = max(span, x[-1])
+        x, y = _world(tr["x"][pi, j, :n] - tr["x"][pi, j, 0], tr["y"][pi, j, :n], kappa, 0, p)
+        span = max(span, tr["x"][pi, j, n - 1] - tr["x"][pi, j, 0])
         last = pi == final
         b.plot(
             x,
-            tr["y"][pi, j, :n],
+            y,
             color="tab:red" if last else cmap(n_i / max(1, len(prows) - 1)),
             lw=2.2 if last else 1.1,
             label=f"episode {result['rows'][pi]['episode']}",
         )
-    _lanes(b, p, 0, span)
+    _lanes(b, p, 0, span, kappa)
     b.set(
         title=f"(b) case {tr['traced'][j]} as training goes on",
-        xlabel="distance since the manoeuvre began (m)",
+        xlabel=_along(kappa),
         ylabel="y (m)",
     )
     b.legend(fontsize=7, ncols=4, loc="center right")
@@ -398,11 +427,27 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
 
 def draw_scene(ax: Any, tr: dict[str, np.ndarray], pi: int, j: int, f: int, p: Any) -> None:
     """One frame: ego red (with its dotted past path), the gap's lead and lag green, others
-    blue, lane markings; the view follows the ego."""
+    blue, lane markings; the view follows the ego, and a curved road is drawn bent around it
+    (``_world``; every body turned by the road's direction where it is)."""
     L, W, lw = p.vehicle_length, p.vehicle_width, p.lane_width
     ex, ey, psi = tr["x"][pi, j, f], tr["y"][pi, j, f], tr["psi"][pi, j, f]
+    kappa = _curvature(tr, pi, j)
     x0, x1 = ex - SCENE_BEHIND, ex + SCENE_AHEAD
-    _lanes(ax, p, x0, x1)
+    _lanes(ax, p, x0, x1, kappa, ex)
+
+    def body(s: float, y: float, heading: float, colour: str) -> None:  # centre (s, y)
+        cx, cy = _world(s, y, kappa, ex, p)
+        ax.add_patch(
+            Rectangle(
+                (cx - L / 2, cy - W / 2),
+                L,
+                W,
+                angle=np.degrees(heading + kappa * (s - ex)),
+                rotation_point="center",
+                color=colour,
+            )
+        )
+
     target = p.lanes // 2 + int(tr["side"][j])
     xs, act = tr["traffic_x"][pi, j, f], tr["traffic_active"][pi, j, f]
     for lane in range(p.lanes):
@@ -413,28 +458,15 @@ def draw_scene(ax: Any, tr: dict[str, np.ndarray], pi: int, j: int, f: int, p: A
                 tr[h][pi, j, f] and np.isclose(x, tr[k][pi, j, f])
                 for h, k in (("has_lead", "lead_x"), ("has_lag", "lag_x"))
             )
-            ax.add_patch(
-                Rectangle(
-                    (x - L, (lane + 0.5) * lw - W / 2),
-                    L,
-                    W,
-                    color="tab:green" if gap_car else "tab:blue",
-                )
-            )
-    ax.plot(tr["x"][pi, j, : f + 1] - L / 2, tr["y"][pi, j, : f + 1], "r:", lw=1.2)
-    cx, cy = ex - L / 2 * np.cos(psi), ey - L / 2 * np.sin(psi)
-    ax.add_patch(
-        Rectangle(
-            (cx - L / 2, cy - W / 2),
-            L,
-            W,
-            angle=np.degrees(psi),
-            rotation_point="center",
-            color="tab:red",
-        )
-    )
+            body(x - L / 2, (lane + 0.5) * lw, 0.0, "tab:green" if gap_car else "tab:blue")
+    past = _world(tr["x"][pi, j, : f + 1] - L / 2, tr["y"][pi, j, : f + 1], kappa, ex, p)
+    ax.plot(*past, "r:", lw=1.2)
+    body(ex - L / 2 * np.cos(psi), ey - L / 2 * np.sin(psi), psi, "tab:red")
     ax.set_xlim(x0, x1)
-    ax.set_ylim(-0.5, p.lanes * lw + 0.5)
+    edges = [
+        _world(np.array([x0, ex, x1]), np.full(3, y), kappa, ex, p)[1] for y in (0, lw * p.lanes)
+    ]
+    ax.set_ylim(min(e.min() for e in edges) - 0.5, max(e.max() for e in edges) + 0.5)
     ax.set_aspect("equal")
     ax.set_yticks([])
 

@@ -24,7 +24,7 @@ of an episode it starts a fresh road (new warm-up) drawn from the key stream. A 
 with no seed before any seeded one draws the key from ``self.np_random``.
 
 The observation space's bounds are ``jaxlc.sim.observation.bounds`` (why each holds is written
-there): finite for the default curvature 0; with a curvature, psi and offset are unbounded.
+there): finite on straight and curved roads alike (the ego holds its lane until the RL phase).
 """
 
 from __future__ import annotations
@@ -45,7 +45,15 @@ from jax import Array
 from jaxlc.config import Config, EnvConfig
 from jaxlc.sim import observation as obs_layout
 from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, reset_core, step_core
-from jaxlc.sim.env import ACT_DIM, OBS_DIM, EnvParams, EnvState, make
+from jaxlc.sim.env import (
+    ACT_DIM,
+    OBS_DIM,
+    EnvParams,
+    EnvState,
+    make,
+    reference_y,
+    road_curvature,
+)
 from jaxlc.sim.reward import REASONS
 
 ENV_ID = "jaxlc/LaneChange-v0"
@@ -153,8 +161,11 @@ def render_frame(
     """``(H, W, 3)`` uint8 picture of one env's state (host or device arrays), a window of
     ``view_m`` metres of road centred on the ego: lanes, traffic (blue), the ego (red, drawn
     at its heading), the target lane shaded, and a bar along the top that fills up with the
-    manoeuvre time."""
+    manoeuvre time. A curved road is drawn bent (``_bend``): the scene is drawn in the road
+    frame, then mapped onto the arc; the picture is taller by the window's sagitta at the
+    params' sharpest curvature, so every frame of an env has one shape."""
     tr, eg = jax.device_get((state.traffic, state.ego))
+    kappa = float(road_curvature(state, params))
     p = params
     lanes, w, length, width = (
         p.lanes,
@@ -216,11 +227,50 @@ def render_frame(
         across = -xx[None, :] * sn + yy[:, None] * c
         inside = (np.abs(along) <= 0.5 * length) & (np.abs(across) <= 0.5 * width)
         img[r0:r1, c0:c1][inside] = (220, 40, 40)
+    ends = (p.curvature_min, p.curvature_max) if p.curvature_drawn else (p.curvature,)
+    k_max = max(abs(float(k)) for k in ends)
+    if k_max > 0.0:
+        extra = int(np.ceil(view_m**2 * k_max / 8.0 * s))  # sagitta of the window, px
+        ref_row = bar + shoulder + (lanes * w - float(reference_y(p))) * s
+        img = _bend(img, kappa, bar, extra, ref_row, s)
+        h_px = img.shape[0]
     # Manoeuvre-time bar.
     limit = max(1, round(float(p.manoeuvre_time_limit) / float(p.dt)))
     img[:bar] = (30, 30, 30)
     img[:bar, : int(w_px * min(int(eg.steps), limit) / limit)] = (240, 190, 40)
     return img
+
+
+def _bend(
+    img: np.ndarray, kappa: float, top: int, extra: int, ref_row: float, px_per_m: float
+) -> np.ndarray:
+    """The road-frame picture ``img`` (columns: s, rows below ``top``: d, the reference line
+    at row ``ref_row``) mapped onto a road of curvature ``kappa``, ``extra`` rows taller above
+    and below; its centre column stays where it is. Each pixel of the bent picture is the
+    world point (X along the tangent at the window's centre, Y to the left) whose Frenet
+    coordinates are, with R = 1/kappa and the bend's centre at (0, R),
+    s = R*atan2(X/R, (R - Y)/R) and d = R - sign(R)*hypot(X, Y - R); it takes the colour of
+    the nearest pixel of ``img`` (the verge's outside it)."""
+    h, w_px, _ = img.shape
+    verge = np.array((96, 140, 80), np.uint8)  # render_frame's verge
+    rows = np.arange(top, h + 2 * extra) + 0.5
+    cols = np.arange(w_px) + 0.5
+    X = (cols[None, :] - 0.5 * w_px) / px_per_m
+    Y = (ref_row + extra - rows[:, None]) / px_per_m
+    if kappa == 0.0:
+        s_w, d = np.broadcast_to(X, (rows.size, w_px)), np.broadcast_to(Y, (rows.size, w_px))
+    else:
+        R = 1.0 / kappa
+        s_w = R * np.arctan2(X / R, (R - Y) / R)
+        d = R - np.sign(R) * np.hypot(X, Y - R)
+    c = np.round(0.5 * w_px + s_w * px_per_m - 0.5).astype(int)
+    r = np.round(ref_row - d * px_per_m - 0.5).astype(int)
+    ok = (c >= 0) & (c < w_px) & (r >= top) & (r < h)
+    out = np.empty((top + rows.size, w_px, 3), np.uint8)
+    out[:top] = img[:top]
+    out[top:] = verge
+    out[top:][ok] = img[r[ok], c[ok]]
+    return out
 
 
 def _configure(

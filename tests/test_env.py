@@ -146,6 +146,42 @@ def test_constant_yaw_acceleration_matches_closed_form():
     assert float(y) == pytest.approx(y_ref, rel=0.08)
 
 
+@pytest.mark.parametrize("kappa", [0.002, -0.004])
+def test_frenet_step_follows_a_straight_world_line_on_a_curved_road(kappa):
+    """With no yaw rate the ego drives a straight line of the world; on a road bending by
+    kappa (reference circle of radius R = 1/kappa) the line's Frenet coordinates are known
+    in closed form: after a distance l, d = R - sign(R) sqrt(R^2 + l^2), s = R atan(l / R)
+    and the heading relative to the road psi = -atan(l / R). Semi-implicit Euler at a small
+    dt converges to them (a psi' without the exact kappa*s' term would not)."""
+    v, dt, n = 25.0, 5e-3, 1600  # 200 m
+    y_ref = 5.55
+
+    def body(c, _):
+        x, y, psi, omega = c
+        return kinematics.lateral_step(x, y, psi, omega, v, 0.0, kappa, dt, y_ref), None
+
+    zero = jnp.float32(0.0)
+    (x, y, psi, _), _ = jax.lax.scan(body, (zero, jnp.float32(y_ref), zero, zero), None, n)
+    R, length = 1.0 / kappa, v * dt * n
+    d_want = R - np.sign(R) * np.hypot(R, length)
+    assert abs(d_want) > 5.0  # the line leaves the reference by more than a lane
+    assert float(y - y_ref) == pytest.approx(d_want, abs=0.05)
+    assert float(x) == pytest.approx(R * np.arctan(length / R), abs=0.05)
+    assert float(psi) == pytest.approx(-np.arctan(length / R), abs=1e-3)
+
+
+def test_holding_a_line_of_a_curve_takes_its_yaw_rate():
+    """psi = 0 and omega = kappa_d * v keep the ego on its line: d stays, psi stays 0, and the
+    yaw rate relative to the lane's is 0; s advances by v dt / (1 - kappa d)."""
+    kappa, d, v, dt = 0.003, -3.7, 20.0, 0.1
+    omega = float(kinematics.path_curvature(kappa, d)) * v
+    x, y, psi, om = kinematics.lateral_step(0.0, d, 0.0, omega, v, 0.0, kappa, dt)
+    assert float(y) == pytest.approx(d, abs=1e-6) and abs(float(psi)) < 1e-7
+    assert float(x) == pytest.approx(v * dt / (1 - kappa * d), rel=1e-6)
+    assert abs(float(kinematics.relative_yaw_rate(om, psi, v, kappa, y))) < 1e-6
+    assert float(kinematics.relative_yaw_rate(om, psi, v, 0.0, y)) == pytest.approx(omega)
+
+
 # --- IDM -----------------------------------------------------------------------------------
 
 
@@ -173,9 +209,13 @@ def _quiet_state(env, p, key):
     )
 
 
-def test_platoon_settles_to_equilibrium_gap(env_params):
+@pytest.mark.parametrize("kappa", [0.0, 0.005])
+def test_platoon_settles_to_equilibrium_gap(env_params, kappa):
+    """IDM's equilibrium gap holds in metres along the lane, on a curve too: lane 0 lies
+    outside the road's centre line of a left bend (d < 0), so its s runs slower than its
+    metres, by the lane scale 1 - kappa*d."""
     env, p = env_params
-    p = p.replace(road_length=1e5)
+    p = p.replace(road_length=1e5, curvature=jnp.float32(kappa))
     s = _quiet_state(env, p, jax.random.PRNGKey(0))
     n = 5
     x = jnp.zeros_like(s.traffic.x).at[0, :n].set(400.0 - 60.0 * jnp.arange(n))
@@ -197,7 +237,9 @@ def test_platoon_settles_to_equilibrium_gap(env_params):
         return jax.lax.scan(body, s, jax.random.split(jax.random.PRNGKey(1), 3000))[0]
 
     s = run(s)
-    gaps = np.asarray(s.traffic.x[0, : n - 1] - 5.0 - s.traffic.x[0, 1:n])
+    scale = 1.0 - kappa * float(E.lane_offset(0, p))
+    assert (scale > 1.0) == (kappa > 0)
+    gaps = np.asarray((s.traffic.x[0, : n - 1] - s.traffic.x[0, 1:n]) * scale - 5.0)
     want = idm.equilibrium_gap(20.0, 30.0, 1.5, 2.0, 4.0)
     np.testing.assert_allclose(np.asarray(s.traffic.v[0, :n]), 20.0, rtol=1e-3)
     np.testing.assert_allclose(gaps, want, rtol=5e-3)
@@ -463,8 +505,11 @@ def test_offset_observation_scale_changes_units_not_the_controller(env_params, r
     )
 
 
-def test_scripted_controller_completes_lane_changes(env_params, rollout, reset_batch):
+@pytest.mark.parametrize("kappa", [0.0, -0.002, 0.002])
+def test_scripted_controller_completes_lane_changes(env_params, rollout, reset_batch, kappa):
+    """On a straight road and on a 500 m radius bent either way (curvature feed-forward)."""
     env, p = env_params
+    p = p.replace(curvature=jnp.float32(kappa))  # traced: the same compiled rollout
     obs, state = reset_batch(jax.random.split(jax.random.PRNGKey(14), 128), p)
     _, out = rollout(obs, state, jax.random.PRNGKey(15), p, steps=1500, policy="scripted")
     reason, rl = np.asarray(out["reason"]), np.asarray(out["rl"])
@@ -503,9 +548,11 @@ def test_mirror_signs_reflect_the_observation_the_kinematics_and_keep_the_reward
     assert np.any(obs[:, [2, 3, 4, 5, 7]] != 0, axis=0).all()  # every flipped entry is tested
 
     a = jnp.asarray(rng.uniform(-0.5, 0.5, 16), jnp.float32)
-    step = kinematics.lateral_step(eg.x, eg.y, eg.psi, eg.omega, eg.v, a, p.curvature, p.dt)
+    # The road's centre line (the Frenet reference) is the axis of the reflection.
+    mid = E.reference_y(p)
+    step = kinematics.lateral_step(eg.x, eg.y, eg.psi, eg.omega, eg.v, a, p.curvature, p.dt, mid)
     step_m = kinematics.lateral_step(
-        eg.x, width - eg.y, -eg.psi, -eg.omega, eg.v, -a, q.curvature, p.dt
+        eg.x, width - eg.y, -eg.psi, -eg.omega, eg.v, -a, q.curvature, p.dt, mid
     )
     for got, want in zip(step_m, (step[0], width - step[1], -step[2], -step[3]), strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4)
@@ -521,6 +568,59 @@ def test_mirror_signs_reflect_the_observation_the_kinematics_and_keep_the_reward
         reward.end_reason(-offset, -eg.psi, -eg.omega, steps, collided, p),
         reward.end_reason(offset, eg.psi, eg.omega, steps, collided, p),
     )
+
+
+@pytest.mark.parametrize("kappa", [-0.002, 0.004])
+def test_the_ego_keeps_its_lane_on_a_curve_until_the_rl_phase(env_params, kappa):
+    """Before the RL phase the ego holds its lane's line, so the first RL observation is one
+    lane width from the target lane's centre, heading along the lane, turning at the lane's
+    yaw rate, and the observation reports the road's curvature."""
+    from jaxlc.sim.decision import reset_core
+    from jaxlc.sim.observation import INDEX, scale
+
+    _, p = env_params
+    p = p.replace(curvature=jnp.float32(kappa))
+    _, state, out = jax.jit(jax.vmap(lambda k: reset_core(k, p, 3000)))(
+        jax.random.split(jax.random.PRNGKey(31), 16)
+    )
+    assert np.asarray(out["ready"]).all()
+    raw = {n: np.asarray(out["obs"][:, INDEX[n]]) * float(scale(n, p)) for n in INDEX}
+    np.testing.assert_allclose(np.abs(raw["offset"]), float(p.lane_width), rtol=1e-5)
+    np.testing.assert_array_equal(raw["psi"], 0.0)
+    d = np.asarray(state.ego.y) - float(E.reference_y(p))
+    want = kappa / (1 - kappa * d) * np.asarray(state.ego.v)
+    assert np.all(np.abs(want) > 1e-3)  # the ego is moving: its yaw rate is not 0
+    np.testing.assert_allclose(raw["omega"], want, rtol=1e-4)
+    np.testing.assert_allclose(raw["curvature"], kappa, rtol=1e-6)
+
+
+def test_curvature_drawn_per_episode_lies_in_its_range_and_is_observed():
+    """``env.curvature = [min, max]``: each episode draws its road (a leaf of the state only
+    then), the observation reports the draw, and the draws spread over the range."""
+    lo, hi = -0.004, 0.002
+    cfg = config.load(None, ["env.curvature=[-0.004, 0.002]"])
+    env, p = jaxlc.make(cfg)
+    assert p.curvature_drawn and jaxlc.make()[1].curvature_drawn is False
+    assert env.reset(jax.random.PRNGKey(0), jaxlc.make()[1])[1].curvature is None
+    from jaxlc.sim.decision import reset_core, step_core
+
+    @jax.jit
+    @jax.vmap
+    def episodes(key):
+        key, s, out = reset_core(key, p, 3000)
+
+        def body(c, _):  # the scripted controller through several episodes
+            key, s, obs = c
+            key, _, s, o = step_core(key, s, scripted_action(obs, p), p, 3000)
+            return (key, s, o["next_obs"]), (o["next_obs"][7], s.curvature)
+
+        return jax.lax.scan(body, (key, s, out["obs"]), None, 120)[1]
+
+    seen, kappa = (np.asarray(a) for a in episodes(jax.random.split(jax.random.PRNGKey(3), 8)))
+    np.testing.assert_allclose(seen * 0.01, kappa, rtol=1e-5, atol=1e-9)
+    assert kappa.min() >= lo and kappa.max() <= hi
+    assert len(np.unique(kappa)) >= 16  # several episodes per env, each its own road
+    assert kappa.min() < -0.002 and kappa.max() > 0.0
 
 
 def test_step_ends_are_booleans_whether_params_are_traced_or_constants():

@@ -226,13 +226,52 @@ def test_render_draws_the_scene(params):
     assert len(frames) == N_VEC and all(f.shape == frame.shape for f in frames)
 
 
+@pytest.mark.parametrize("kappa", [0.004, -0.004])
+def test_render_bends_a_curved_road_by_its_sagitta(params, kappa):
+    """Drawn on a curve, the road's edge x metres from the window's centre lies off its edge
+    at the centre by the arc's sagitta, x^2 * kappa / 2, toward the bend; the ego is still
+    drawn."""
+    view, px = 120.0, 8.0
+    straight = G.render_frame(_reset_state(params), params, view_m=view, px_per_m=px)
+    curved = params.replace(curvature=kappa)
+    frame = G.render_frame(_reset_state(curved), curved, view_m=view, px_per_m=px)
+    assert frame.shape[1] == straight.shape[1] and frame.shape[0] > straight.shape[0]
+    verge = np.all(frame == (96, 140, 80), axis=-1)
+    x_off = 0.375 * view  # m from the window's centre: a column clear of the window's end
+    cols = (round((0.5 * view - x_off) * px), frame.shape[1] // 2)
+    top_edge, top_centre = (int(np.nonzero(~verge[10:, c])[0].min()) for c in cols)
+    sagitta_px = x_off**2 * abs(kappa) / 2 * px  # 32 px at kappa = 0.004
+    # kappa > 0 bends to the left, up the picture: the road rises away from the centre.
+    assert (top_centre - top_edge) * np.sign(kappa) == pytest.approx(sagitta_px, abs=4)
+    red = (frame[..., 0] > 200) & (frame[..., 1] < 80) & (frame[..., 2] < 80)
+    assert 100 < red.sum() < 1000
+
+
+def _reset_state(params):
+    env = G.LaneChangeGymEnv(params=params)
+    env.reset(seed=5)
+    return env._state
+
+
 def test_observation_bounds_follow_the_params(params):
     low, high = O.bounds(params)
     assert low.shape == high.shape == (14,) and np.all(low < high)
     wider = params.replace(manoeuvre_time_limit=20.0)
     assert O.bounds(wider)[1][3] > high[3]  # omega can grow for longer
     curved = params.replace(curvature=0.002)
-    assert np.isinf(O.bounds(curved)[1][2])  # heading drifts before the RL phase
+    c_low, c_high = O.bounds(curved)
+    assert np.all(np.isfinite(c_high)) and np.all(c_high >= high)  # the ego holds its lane
+    assert c_high[2] > high[2] and c_high[3] > high[3]  # the lane's yaw rate turns the ego
+    curved_env = G.LaneChangeGymEnv(params=curved)
+    obs, _ = curved_env.reset(seed=5)
+    for _ in range(60):  # the scripted controller's lane change stays inside the space
+        assert obs in curved_env.observation_space, obs
+        obs, _, term, trunc, _ = curved_env.step(
+            np.asarray(scripted_action(jnp.asarray(obs), curved), np.float32)
+        )
+        if term or trunc:
+            break
+    assert obs in curved_env.observation_space, obs
     for scale in (1.0, 7.4):  # the offset's bound is in the env's units, whatever they are
         scaled = params.replace(offset_obs_scale=scale)
         env = G.LaneChangeGymEnv(params=scaled)

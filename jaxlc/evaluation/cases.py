@@ -35,7 +35,18 @@ from jaxlc.learn import tree
 from jaxlc.learn.networks import make_networks
 from jaxlc.learn.train import check_devices
 from jaxlc.sim.controller import scripted_action
-from jaxlc.sim.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation, overlaps
+from jaxlc.sim.env import (
+    ACT_DIM,
+    RL,
+    EnvParams,
+    EnvState,
+    LaneChangeEnv,
+    ego_yaw_rate,
+    observation,
+    overlaps,
+    road_curvature,
+    target_gaps,
+)
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.sim.reward import COLLISION
 
@@ -73,13 +84,13 @@ class Outcome:
     r_d: Array
     steps: Array  # int32 RL steps of the manoeuvre
     peak_lat_acc: Array  # max |v * omega|, m/s^2
-    peak_yaw_rate: Array  # max |omega|, rad/s
+    peak_yaw_rate: Array  # max |yaw rate relative to the lane's| (omega when straight), rad/s
     overshoot: Array  # max distance past the target centre line, m (0 if none)
     # The ego at the manoeuvre's last step (NaN without one), so a timeout's cause shows:
     # short of the lane (offset < 0), swinging (large omega) or just outside the success box.
     final_offset: Array  # signed offset to the target centre line toward the target side, m
     final_psi: Array  # heading, rad
-    final_omega: Array  # yaw rate, rad/s
+    final_omega: Array  # yaw rate relative to the lane's (env.ego_yaw_rate), rad/s
     # Safety and comfort over the manoeuvre (jaxlc.evaluation.safety), the start state included.
     peak_lat_jerk: Array  # max |lateral jerk| over a 0.5 s moving average, m/s^3
     min_ttc: Array  # (policies, cases, 3) min time-to-collision to lead, lag, own leader, s
@@ -103,6 +114,7 @@ class Trace:
     lag_x: Array
     has_lead: Array
     has_lag: Array
+    curvature: Array  # (policies, traced) the case's road curvature, 1/m (figures bend it)
 
 
 def case_keys(seed: int, cases: int) -> Array:
@@ -246,9 +258,14 @@ def _accumulate(
         return jnp.where(live, value, acc)
 
     toward = info["offset"] * side  # signed toward the target side
+    # The yaw rate the success test reads: relative to the lane's (omega on a straight road).
+    yaw = ego_yaw_rate(new.ego, jnp.broadcast_to(road_curvature(new, p), live.shape), p)
     ttc, thw = safety.conflicts(new, p)
     hit = live & (info["reason"] == COLLISION)
-    overlap = jax.vmap(jax.vmap(overlaps, (0, 0, None)), (0, 0, None))(new.traffic, new.ego, p)
+    kappa = jnp.broadcast_to(road_curvature(new, p), live.shape)  # (policies, cases)
+    overlap = jax.vmap(jax.vmap(overlaps, (0, 0, None, 0)), (0, 0, None, 0))(
+        new.traffic, new.ego, p, kappa
+    )
     return out.replace(
         reason=jnp.where(live, info["reason"], out.reason),
         ret=add(out.ret, r),
@@ -257,11 +274,11 @@ def _accumulate(
         r_d=add(out.r_d, info["r_d"]),
         steps=jnp.where(live, info["episode_steps"], out.steps),
         peak_lat_acc=peak(out.peak_lat_acc, jnp.abs(new.ego.v * new.ego.omega)),
-        peak_yaw_rate=peak(out.peak_yaw_rate, jnp.abs(new.ego.omega)),
+        peak_yaw_rate=peak(out.peak_yaw_rate, jnp.abs(yaw)),
         overshoot=peak(out.overshoot, toward),
         final_offset=last(out.final_offset, toward),
         final_psi=last(out.final_psi, new.ego.psi),
-        final_omega=last(out.final_omega, new.ego.omega),
+        final_omega=last(out.final_omega, yaw),
         peak_lat_jerk=peak(out.peak_lat_jerk, jnp.abs(jerk)),
         min_ttc=jnp.where(live[..., None], jnp.minimum(out.min_ttc, ttc), out.min_ttc),
         min_thw=jnp.where(live[..., None], jnp.minimum(out.min_thw, thw), out.min_thw),
@@ -281,7 +298,7 @@ def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Call
         bcast = functools.partial(jax.tree.map, lambda a: jnp.broadcast_to(a, (n_pol,) + a.shape))
         state, obs, side = bcast(cs.state), bcast(cs.obs), bcast(cs.side).astype(jnp.float32)
         trace = _empty_trace(n_pol, traced.shape[0], limit + 2, base)
-        trace = _record(trace, 0, state, traced, jnp.ones((n_pol, traced.shape[0]), bool))
+        trace = _record(trace, 0, state, traced, jnp.ones((n_pol, traced.shape[0]), bool), base)
 
         def step_policy(k: Array, keys: Array, s: EnvState, a: Array) -> tuple:
             return jax.vmap(env.step, (0, 0, 0, None))(keys, s, a, base.replace(k=k))
@@ -298,7 +315,7 @@ def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Call
             done = done | (live & ((info["reason"] != 0) | (new.time >= max_steps)))
             # Finished cases freeze, so their last frame is where the manoeuvre ended.
             state, obs = tree.where(live, (new, new_obs), (state, obs))
-            trace = _record(trace, i + 1, state, traced, live[:, traced])
+            trace = _record(trace, i + 1, state, traced, live[:, traced], base)
             return i + 1, state, obs, done, out, trace, hist
 
         def going(c: tuple) -> Array:
@@ -332,12 +349,16 @@ def _empty_trace(n_pol: int, n_traced: int, frames: int, p: EnvParams) -> Trace:
         lag_x=f,
         has_lead=b,
         has_lag=b,
+        curvature=jnp.zeros(shape[:2], jnp.float32),
     )
 
 
-def _record(trace: Trace, i: Array | int, state: EnvState, traced: Array, live: Array) -> Trace:
+def _record(
+    trace: Trace, i: Array | int, state: EnvState, traced: Array, live: Array, p: EnvParams
+) -> Trace:
     """Write frame ``i`` of the traced cases (``live``: ``(policies, traced)``, counts it)."""
     eg, tr, nb = state.ego, state.traffic, state.nb
+    kappa = jnp.broadcast_to(road_curvature(state, p), eg.x.shape)[:, traced]
     values = {
         "x": eg.x,
         "y": eg.y,
@@ -350,7 +371,8 @@ def _record(trace: Trace, i: Array | int, state: EnvState, traced: Array, live: 
         "has_lag": nb.has_b1,
     }
     new = {k: getattr(trace, k).at[:, :, i].set(v[:, traced]) for k, v in values.items()}
-    return trace.replace(**new, frames=trace.frames + live.astype(jnp.int32))
+    frames = trace.frames + live.astype(jnp.int32)
+    return trace.replace(**new, frames=frames, curvature=kappa.astype(jnp.float32))
 
 
 def pick_traced(cases: Cases, n: int) -> np.ndarray:
@@ -427,9 +449,11 @@ def case_info(cs: Cases, cfg: config.Config) -> dict[str, np.ndarray]:
     """``(cases,)`` arrays of what each case was at the manoeuvre's start (the same for every
     policy): performed, side, the ego's speed, the target lane's gaps and the lag's speed at
     acceptance, whether the lag was drawn yielding."""
-    eg, nb, L = cs.state.ego, cs.state.nb, cfg.env.vehicle_length
-    lead = np.where(nb.has_a1, nb.a1_x - L - eg.x, np.nan)
-    lag = np.where(nb.has_b1, eg.x - L - nb.b1_x, np.nan)
+    eg, nb = cs.state.ego, cs.state.nb
+    p = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+    lead_gap, lag_gap = jax.device_get(target_gaps(cs.state, p))  # m along the target lane
+    lead = np.where(nb.has_a1, lead_gap, np.nan)
+    lag = np.where(nb.has_b1, lag_gap, np.nan)
     return {
         "performed": np.asarray(cs.performed),
         "side": np.asarray(cs.side),

@@ -23,6 +23,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
+from jaxlc.sim.env import target_gaps
 from jaxlc.sim.idm import NO_LEADER_GAP
 
 # Each norm: (measure, bound, True when the measure must stay below the bound, source).
@@ -56,9 +57,8 @@ def headway(gap: Array, v_follower: Array, present: Array) -> Array:
 def conflicts(state, p) -> tuple[Array, Array]:
     """``(ttc, thw)``, each ``(..., 3)`` over ``VEHICLES``, of an ``EnvState`` (any batch
     shape; ``p``: EnvParams)."""
-    eg, nb, L = state.ego, state.nb, p.vehicle_length
-    lead_gap = nb.a1_x - L - eg.x
-    lag_gap = eg.x - L - nb.b1_x
+    eg, nb = state.ego, state.nb
+    lead_gap, lag_gap = target_gaps(state, p)  # metres along the target lane
     has_own = state.leader_gap < NO_LEADER_GAP
     t = jnp.stack(
         [

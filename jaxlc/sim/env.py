@@ -9,6 +9,11 @@ One env is one highway: ``lanes`` lanes of ``road_length`` metres, each with
 lanes, so vehicles of a lane never pass each other and a vehicle's leader is simply the slot
 written before it: no search (see ``_ring_leaders``). The ego is kept apart from the slots.
 
+The road is a band of concentric arcs of curvature kappa (0: straight; a constant, or drawn
+per episode), and everything runs in its frame (``kinematics``): x is s along the road's
+centre line, y across it; a lane's gaps are metres along its own centre line
+(``lane_scales``), and every vehicle follows its lane.
+
 An episode of the ego goes through four phases (``info["phase"]``):
   WAIT   no ego; the next vehicle to enter the middle lane becomes the ego;
   CRUISE the ego follows IDM until it has travelled ``command_distance``;
@@ -71,7 +76,13 @@ class EnvParams:
     warmup_steps: int = flax.struct.field(pytree_node=False, default=_WARMUP_STEPS)
     road_length: float = _C.road_length
     lane_width: float = _C.lane_width
-    curvature: float = _C.curvature
+    # The road's curvature (1/m, > 0 bends toward +y): the constant ``curvature``, or, when
+    # ``curvature_drawn`` (static: it adds a leaf to the state), one drawn per episode from
+    # U(curvature_min, curvature_max) as the ego spawns and kept in ``EnvState.curvature``.
+    curvature: float = 0.0
+    curvature_min: float = 0.0
+    curvature_max: float = 0.0
+    curvature_drawn: bool = flax.struct.field(pytree_node=False, default=False)
     dt: float = _C.dt
     vehicle_length: float = _C.vehicle_length
     vehicle_width: float = _C.vehicle_width
@@ -121,14 +132,25 @@ class EnvParams:
         values["inflow_min"] = env.inflow_min / 3600.0
         values["inflow_max"] = env.inflow_max / 3600.0
         values["warmup_steps"] = int(round(env.warmup_time / env.dt))  # as _WARMUP_STEPS
+        lo, hi = curvature_range(env.curvature)
+        values["curvature"] = lo if lo == hi else 0.5 * (lo + hi)
+        values["curvature_min"], values["curvature_max"] = lo, hi
+        values["curvature_drawn"] = lo < hi
         return cls(**values, gamma=gamma, k=k)
+
+
+def curvature_range(value: float | tuple[float, float]) -> tuple[float, float]:
+    """``(min, max)`` of a config's ``env.curvature``: a number (a constant road) or a range."""
+    if isinstance(value, tuple | list):
+        return float(value[0]), float(value[1])
+    return float(value), float(value)
 
 
 @flax.struct.dataclass
 class Traffic:
     """Vehicles other than the ego; lane arrays are ``(lanes, slots)``, ring buffers."""
 
-    x: Array  # (lanes, slots) front-bumper position, m
+    x: Array  # (lanes, slots) front bumper, s along the road's centre line, m
     v: Array  # (lanes, slots) speed, m/s
     v0: Array  # (lanes, slots) desired speed, m/s
     active: Array  # (lanes, slots) bool
@@ -142,13 +164,13 @@ class Traffic:
 @flax.struct.dataclass
 class Ego:
     phase: Array  # () int32, WAIT/CRUISE/GAP/RL
-    x: Array  # () front bumper, m
+    x: Array  # () front bumper, s along the road's centre line, m
     y: Array  # () lateral position of the body's centre line, m
     v: Array  # () m/s
     v0: Array  # () desired speed, m/s
     accel: Array  # () last longitudinal acceleration, m/s^2
-    psi: Array  # () heading relative to the road, rad
-    omega: Array  # () yaw rate, rad/s
+    psi: Array  # () heading relative to the lane's direction, rad
+    omega: Array  # () yaw rate (inertial: kappa_d*v holds a lane), rad/s
     held: Array  # () action executed (held for k steps), in [-1, 1]
     target: Array  # () int32 target lane
     steps: Array  # () int32 RL steps done in this manoeuvre
@@ -165,6 +187,9 @@ class EnvState:
     leader_gap: Array  # () net gap to the ego's leader in its own lane
     leader_v: Array  # () that leader's speed
     time: Array  # () int32 steps since reset
+    # () the episode's road curvature when drawn per episode (``params.curvature_drawn``);
+    # None (no leaf) on a road of constant curvature, whose state is a straight road's.
+    curvature: Array | None = None
 
 
 @dataclass(frozen=True)
@@ -183,12 +208,53 @@ class Box:
         return jnp.all((x >= self.low) & (x <= self.high))
 
 
-def _ring_leaders(tr: Traffic, p: EnvParams) -> tuple[Array, Array]:
+# --- the road frame ---------------------------------------------------------------------
+# Positions are Frenet (``kinematics``): x = s along the road's centre line (the reference
+# line, at y = lanes*W/2), y across it. A lane's net gaps are metres along its own centre
+# line: s times its ``lane_scale`` (exactly 1 on a straight road, so there every product below
+# is the straight road's number to the bit).
+
+
+def road_curvature(state: EnvState, p: EnvParams) -> Array:
+    """``()`` curvature of the road in ``state``: the episode's draw, or the constant."""
+    return jnp.asarray(p.curvature if state.curvature is None else state.curvature)
+
+
+def reference_y(p: EnvParams) -> Array:
+    """y of the road's centre line, the reference line of the Frenet frame."""
+    return 0.5 * p.lanes * p.lane_width
+
+
+def lane_offset(lane: Array, p: EnvParams) -> Array:
+    """Signed offset d of lane ``lane``'s centre line from the reference line (any shape)."""
+    return (lane + 0.5) * p.lane_width - reference_y(p)
+
+
+def lane_scales(kappa: Array, p: EnvParams) -> Array:
+    """``(lanes,)`` metres along each lane's centre line per metre of s."""
+    return kinematics.lane_scale(kappa, lane_offset(jnp.arange(p.lanes), p))
+
+
+def ego_yaw_rate(eg: Ego, kappa: Array, p: EnvParams) -> Array:
+    """``()`` the ego's yaw rate relative to its lane's (``kinematics.relative_yaw_rate``): what
+    the success test and the reward's comfort term read; ``eg.omega`` on a straight road."""
+    return kinematics.relative_yaw_rate(eg.omega, eg.psi, eg.v, kappa, eg.y - reference_y(p))
+
+
+def lane_keeping_yaw_rate(eg: Ego, v: Array, kappa: Array, p: EnvParams) -> Array:
+    """``()`` the yaw rate that holds the ego's line at speed ``v`` (psi = 0): kappa_d*v."""
+    return kinematics.path_curvature(kappa, eg.y - reference_y(p)) * v
+
+
+def _ring_leaders(tr: Traffic, p: EnvParams, scale: Array) -> tuple[Array, Array]:
     """Net gap and speed of each slot's leader: the slot written just before it, when that
-    slot is occupied and ahead (a full ring's oldest slot has the newest behind it)."""
+    slot is occupied and ahead (a full ring's oldest slot has the newest behind it). ``scale``
+    ``(lanes,)`` is ``lane_scales``: the gap is metres along the lane."""
     px, pv, pa = (jnp.roll(a, 1, axis=-1) for a in (tr.x, tr.v, tr.active))
     has = pa & (px > tr.x)
-    return jnp.where(has, px - p.vehicle_length - tr.x, NO_LEADER_GAP), jnp.where(has, pv, tr.v)
+    c = scale[:, None]
+    gap_m = px * c - p.vehicle_length - tr.x * c
+    return jnp.where(has, gap_m, NO_LEADER_GAP), jnp.where(has, pv, tr.v)
 
 
 def _lane_row(a: Array, lane: Array, lanes: int) -> Array:
@@ -204,8 +270,12 @@ def current_lane(eg: Ego, p: EnvParams) -> Array:
     return jnp.clip(jnp.floor(eg.y / p.lane_width), 0, p.lanes - 1).astype(jnp.int32)
 
 
-def _observe_lanes(tr: Traffic, eg: Ego, p: EnvParams) -> tuple[gap.Neighbours, Array, Array]:
-    """Target-lane neighbours and the leader in the ego's current lane (meaningless in WAIT)."""
+def _observe_lanes(
+    tr: Traffic, eg: Ego, p: EnvParams, kappa: Array | None = None
+) -> tuple[gap.Neighbours, Array, Array]:
+    """Target-lane neighbours (positions in s) and the net gap (metres along the lane) and
+    speed of the leader in the ego's current lane (meaningless in WAIT)."""
+    kappa = p.curvature if kappa is None else kappa
     row = lambda a: _lane_row(a, eg.target, p.lanes)  # noqa: E731
     nb = gap.neighbours(row(tr.x), row(tr.v), row(tr.v0), row(tr.active), eg.x)
     cur = current_lane(eg, p)
@@ -214,7 +284,22 @@ def _observe_lanes(tr: Traffic, eg: Ego, p: EnvParams) -> tuple[gap.Neighbours, 
     lx = jnp.min(jnp.where(ahead, cx, gap.FAR))
     lv = jnp.max(jnp.where(ahead & (cx == lx), cv, -gap.FAR))
     has = jnp.any(ahead)
-    return nb, gap.net_gap(lx, eg.x, p.vehicle_length, has), jnp.where(has, lv, eg.v)
+    c = kinematics.lane_scale(kappa, lane_offset(cur, p))
+    return nb, gap.net_gap(lx * c, eg.x * c, p.vehicle_length, has), jnp.where(has, lv, eg.v)
+
+
+def target_frame(nb: gap.Neighbours, eg: Ego, kappa: Array, p: EnvParams):
+    """``(nb, x)``: the target lane's neighbours and the ego's x in metres along the target
+    lane's centre line (``gap``'s functions measure gaps in these)."""
+    c = kinematics.lane_scale(kappa, lane_offset(eg.target, p))
+    return gap.scaled(nb, c), eg.x * c
+
+
+def target_gaps(state: EnvState, p: EnvParams) -> tuple[Array, Array]:
+    """``(lead_gap, lag_gap)``: net gaps (m along the target lane) from the ego to the target
+    lane's lead and lag vehicles; meaningless where ``state.nb.has_a1``/``has_b1`` is False."""
+    nb, x = target_frame(state.nb, state.ego, road_curvature(state, p), p)
+    return nb.a1_x - p.vehicle_length - x, x - p.vehicle_length - nb.b1_x
 
 
 def lateral_offset(eg: Ego, p: EnvParams) -> Array:
@@ -230,7 +315,6 @@ def observation(state: EnvState, p: EnvParams) -> Array:
     """``(OBS_DIM,)`` normalised observation of ``state``: the entries of
     ``jaxlc.sim.observation.LAYOUT``, each raw value divided by its scale."""
     eg, nb = state.ego, state.nb
-    L = p.vehicle_length
 
     def gap_m(g: Array, present: Array) -> Array:
         return jnp.where(present, jnp.clip(g, *GAP_CLIP), GAP_CLIP[1])
@@ -239,6 +323,7 @@ def observation(state: EnvState, p: EnvParams) -> Array:
         return jnp.where(present, v_other - eg.v, 0.0)
 
     has_leader = state.leader_gap < NO_LEADER_GAP
+    lead_gap, lag_gap = target_gaps(state, p)
     raw = {
         "v": eg.v,
         "accel": eg.accel,
@@ -249,10 +334,10 @@ def observation(state: EnvState, p: EnvParams) -> Array:
         # A truncated timeout is bootstrapped, so the time must not be observed: values at
         # time = limit are never learned as current states (Pardo et al., 2018).
         "time": jnp.where(p.terminal_timeout, eg.steps * p.dt, 0.0),
-        "curvature": p.curvature * jnp.ones_like(eg.v),
-        "lead_gap": gap_m(nb.a1_x - L - eg.x, nb.has_a1),
+        "curvature": road_curvature(state, p) * jnp.ones_like(eg.v),
+        "lead_gap": gap_m(lead_gap, nb.has_a1),
         "lead_dv": dv(nb.a1_v, nb.has_a1),
-        "lag_gap": gap_m(eg.x - L - nb.b1_x, nb.has_b1),
+        "lag_gap": gap_m(lag_gap, nb.has_b1),
         "lag_dv": dv(nb.b1_v, nb.has_b1),
         "own_gap": gap_m(state.leader_gap, has_leader),
         "own_dv": dv(state.leader_v, has_leader),
@@ -280,12 +365,15 @@ class Draws(NamedTuple):
     inflow: Array  # (lanes,) inflow of the episode a spawned ego starts
     side: Array  # () left (< 0.5) or right command
     yields: Array  # () whether the lag yields (< p_yield) once the gap is accepted
+    curvature: Array  # () road curvature of the episode a spawned ego starts (if drawn)
 
     @classmethod
     def draw(cls, key: Array, lanes: int) -> Draws:
-        u = jax.random.uniform(key, (4 * lanes + 2,))
+        # The curvature's number comes last: threefry draws are counter-based per element
+        # (jax_threefry_partitionable), so the others are those of a draw without it.
+        u = jax.random.uniform(key, (4 * lanes + 3,))
         headway, entry_v, entry_v0, inflow = jnp.split(u[: 4 * lanes], 4)
-        return cls(headway, entry_v, entry_v0, inflow, u[4 * lanes], u[4 * lanes + 1])
+        return cls(headway, entry_v, entry_v0, inflow, *u[4 * lanes :])
 
 
 class Motion(NamedTuple):
@@ -319,14 +407,16 @@ def traffic_accel(state: EnvState, p: EnvParams) -> Array:
     """``(lanes, slots)`` IDM acceleration of every vehicle (0 for empty slots).
 
     A vehicle's leader is its ring predecessor, or the ego when the ego is ahead and its body
-    overlaps the vehicle's lane (or, for a yielding lag, from the moment the gap is chosen)."""
+    overlaps the vehicle's lane (or, for a yielding lag, from the moment the gap is chosen).
+    Gaps are metres along the vehicle's lane."""
     tr, eg, nb = state.traffic, state.ego, state.nb
     on, in_rl = eg.phase >= CRUISE, eg.phase == RL
-    gap_r, lead_v = _ring_leaders(tr, p)
+    c = lane_scales(road_curvature(state, p), p)  # (lanes,)
+    gap_r, lead_v = _ring_leaders(tr, p, c)
     hx, _ = kinematics.half_extents(eg.psi, p.vehicle_length, p.vehicle_width)
     target = jnp.arange(p.lanes) == eg.target
     yields = (in_rl & eg.yielding) & target[:, None] & nb.b1_mask[None, :]
-    ego_gap = eg.x - 2.0 * hx - tr.x  # (lanes, slots)
+    ego_gap = eg.x * c[:, None] - 2.0 * hx - tr.x * c[:, None]  # (lanes, slots)
     use_ego = on & (eg.x > tr.x) & (ego_lanes(eg, p)[:, None] | yields) & (ego_gap < gap_r)
     gap_r = jnp.where(use_ego, ego_gap, gap_r)
     lead_v = jnp.where(use_ego, eg.v, lead_v)
@@ -336,11 +426,12 @@ def traffic_accel(state: EnvState, p: EnvParams) -> Array:
 def ego_accel(state: EnvState, p: EnvParams) -> Array:
     """``()`` IDM acceleration of the ego toward its own-lane leader, "with adaptation" to the
     chosen gap once it looks for one: the lower of the two."""
-    eg, nb = state.ego, state.nb
+    eg = state.ego
     in_rl = eg.phase == RL
+    nb, x = target_frame(state.nb, eg, road_curvature(state, p), p)  # m along the target lane
     a_own = idm_with_params(eg.v, eg.v0, state.leader_gap, state.leader_v, p)
-    seek_gap, seek_v = gap.target_leader(nb, eg.x, eg.v, p)
-    lead_gap = gap.net_gap(nb.a1_x, eg.x, p.vehicle_length, nb.has_a1)
+    seek_gap, seek_v = gap.target_leader(nb, x, eg.v, p)
+    lead_gap = gap.net_gap(nb.a1_x, x, p.vehicle_length, nb.has_a1)
     adapt_gap = jnp.where(in_rl, lead_gap, seek_gap)
     # With no vehicle to adapt to (gap NO_LEADER_GAP), any finite speed gives a ~ free road.
     adapt_v = jnp.where(adapt_gap >= NO_LEADER_GAP, eg.v, jnp.where(in_rl, nb.a1_v, seek_v))
@@ -348,22 +439,47 @@ def ego_accel(state: EnvState, p: EnvParams) -> Array:
     return jnp.where(eg.phase >= GAP, jnp.minimum(a_own, a_adapt), a_own)
 
 
-def move(tr: Traffic, eg: Ego, acc: Array, a_ego: Array, a_lat: Array, p: EnvParams) -> Motion:
-    """Integrate one dt: trapezoidal positions, speeds never negative; the ego's lateral state
-    by ``kinematics.lateral_step``. Vehicles past the road's end leave it."""
+def move(
+    tr: Traffic,
+    eg: Ego,
+    acc: Array,
+    a_ego: Array,
+    a_lat: Array,
+    p: EnvParams,
+    kappa: Array | None = None,
+) -> Motion:
+    """Integrate one dt: trapezoidal positions along each lane (s advances by the distance
+    over ``lane_scales``), speeds never negative; the ego's lateral state by
+    ``kinematics.lateral_step``. Vehicles past the road's end (s > road_length) leave it.
+
+    Before the RL phase (CRUISE, GAP) the ego holds its lane: psi = 0 and omega = kappa_d*v,
+    so its y stays put on any road (on a straight one both are 0 already). In WAIT the ego is
+    off the road; it coasts as on a straight road, so its numbers stay finite."""
+    kappa = p.curvature if kappa is None else kappa
     dt = p.dt
     v_new = jnp.maximum(tr.v + acc * dt, 0.0)
-    x_new = tr.x + 0.5 * (tr.v + v_new) * dt
+    x_new = tr.x + 0.5 * (tr.v + v_new) * dt / lane_scales(kappa, p)[:, None]
     ev = jnp.maximum(eg.v + a_ego * dt, 0.0)
+    v_ego = 0.5 * (eg.v + ev)
+    k_ego = jnp.where(eg.phase == WAIT, 0.0, kappa)
+    holds = (eg.phase == CRUISE) | (eg.phase == GAP)
+    psi = jnp.where(holds, 0.0, eg.psi)
+    omega = jnp.where(holds, lane_keeping_yaw_rate(eg, v_ego, k_ego, p), eg.omega)
     ex, ey, epsi, eomega = kinematics.lateral_step(
-        eg.x, eg.y, eg.psi, eg.omega, 0.5 * (eg.v + ev), a_lat, p.curvature, dt
+        eg.x, eg.y, psi, omega, v_ego, a_lat, k_ego, dt, reference_y(p)
     )
     active = tr.active & (x_new <= p.road_length)
     return Motion(x_new, v_new, active, ex, ey, ev, epsi, eomega)
 
 
 def inflow(
-    tr: Traffic, m: Motion, occupied: Array, can_spawn: Array, u: Draws, p: EnvParams
+    tr: Traffic,
+    m: Motion,
+    occupied: Array,
+    can_spawn: Array,
+    u: Draws,
+    p: EnvParams,
+    kappa: Array | None = None,
 ) -> tuple[Traffic, Array]:
     """New vehicles at x = 0. Returns ``(traffic, spawned)``, ``spawned`` () bool.
 
@@ -378,6 +494,7 @@ def inflow(
     last_on = jnp.any(at_last & m.active, axis=-1)
     front = jnp.where(last_on, jnp.sum(jnp.where(at_last, m.x, 0.0), axis=-1), gap.FAR)
     front = jnp.where(occupied, jnp.minimum(front, m.ego_x), front)
+    front = front * lane_scales(p.curvature if kappa is None else kappa, p)  # m along the lane
     timer = tr.timer - p.dt
     due = (timer <= 0.0) & (front >= p.idm_s0 + tr.next_v * p.idm_time_headway + p.vehicle_length)
     spawned_lane = due & (lane_ids == origin) & can_spawn
@@ -443,29 +560,35 @@ def ego_phase(
     )
 
 
-def overlaps(traffic: Traffic, ego: Ego, p: EnvParams) -> Array:
+def overlaps(traffic: Traffic, ego: Ego, p: EnvParams, kappa: Array | None = None) -> Array:
     """``(lanes, slots)`` bool: the vehicles whose box the ego's heading-aligned bounding box
-    overlaps (whatever the ego's phase)."""
+    overlaps (whatever the ego's phase); lengthwise in metres along each lane."""
     L, W = p.vehicle_length, p.vehicle_width
+    c = lane_scales(p.curvature if kappa is None else kappa, p)[:, None]
     hx, hy = kinematics.half_extents(ego.psi, L, W)
     lane_y = ((jnp.arange(p.lanes) + 0.5) * p.lane_width)[:, None]
-    overlap = (jnp.abs(ego.x - hx - (traffic.x - 0.5 * L)) < hx + 0.5 * L) & (
+    overlap = (jnp.abs(ego.x * c - hx - (traffic.x * c - 0.5 * L)) < hx + 0.5 * L) & (
         jnp.abs(ego.y - lane_y) < hy + 0.5 * W
     )
     return traffic.active & overlap
 
 
-def collided(traffic: Traffic, ego: Ego, spawned: Array, p: EnvParams) -> Array:
+def collided(
+    traffic: Traffic, ego: Ego, spawned: Array, p: EnvParams, kappa: Array | None = None
+) -> Array:
     """``()`` bool: the ego's box overlaps a vehicle's box (a just spawned ego, at the road's
     start, is not checked)."""
-    return (ego.phase >= CRUISE) & ~spawned & jnp.any(overlaps(traffic, ego, p))
+    return (ego.phase >= CRUISE) & ~spawned & jnp.any(overlaps(traffic, ego, p, kappa))
 
 
-def gap_decision(ego: Ego, nb: gap.Neighbours, p: EnvParams) -> tuple[Array, Array]:
+def gap_decision(
+    ego: Ego, nb: gap.Neighbours, p: EnvParams, kappa: Array | None = None
+) -> tuple[Array, Array]:
     """``(accept, no_gap)``: in GAP, accept the gap beside the ego, or give up once the time or
-    distance limit is reached without one."""
+    distance limit is reached without one (x, the limit, in s)."""
     looking = ego.phase == GAP
-    accept = looking & gap.beside_acceptable(nb, ego.x, ego.v, p)
+    nb_m, x_m = target_frame(nb, ego, p.curvature if kappa is None else kappa, p)
+    accept = looking & gap.beside_acceptable(nb_m, x_m, ego.v, p)
     no_gap = looking & ~accept & ((ego.gap_time >= p.gap_time_limit) | (ego.x >= p.gap_x_limit))
     return accept, no_gap
 
@@ -483,35 +606,43 @@ def _advance(
     """One dt of traffic and ego; returns ``(state, reward, info)`` (no observation)."""
     tr, eg = state.traffic, state.ego
     u = Draws.draw(key, p.lanes)
+    kappa = road_curvature(state, p)
     in_rl = eg.phase == RL
     held = held_action(eg, action, p)
     a_lat = p.max_yaw_acc * held
     a_ego = ego_accel(state, p)
-    m = move(tr, eg, traffic_accel(state, p), a_ego, a_lat, p)
-    traffic, spawned = inflow(tr, m, ego_lanes(eg, p), (eg.phase == WAIT) & spawn, u, p)
+    m = move(tr, eg, traffic_accel(state, p), a_ego, a_lat, p, kappa)
+    occupied = ego_lanes(eg, p)
+    traffic, spawned = inflow(tr, m, occupied, (eg.phase == WAIT) & spawn, u, p, kappa)
     ego = ego_phase(eg, m, a_ego, held, spawned, tr, u, p)
-    nb, leader_gap, leader_v = _observe_lanes(traffic, ego, p)
-    crashed = collided(traffic, ego, spawned, p)
+    if p.curvature_drawn:  # a new episode, a new road (the traffic keeps its s and lanes)
+        kappa = jnp.where(spawned, _between(u.curvature, p.curvature_min, p.curvature_max), kappa)
+    nb, leader_gap, leader_v = _observe_lanes(traffic, ego, p, kappa)
+    crashed = collided(traffic, ego, spawned, p, kappa)
 
     offset = lateral_offset(ego, p)
-    terms = reward.reward_terms(ego.omega, a_lat, offset, crashed, p)
+    # Comfort and success read the yaw rate relative to the lane's (= omega when straight).
+    yaw_rate = ego_yaw_rate(ego, kappa, p)
+    terms = reward.reward_terms(yaw_rate, a_lat, offset, crashed, p)
     r_s, r_e, r_d = (jnp.where(in_rl, r, 0.0) for r in terms)
     r = r_s + r_e + r_d
-    rl_reason = reward.end_reason(offset, ego.psi, ego.omega, ego.steps, crashed, p)
-    accept, no_gap = gap_decision(ego, nb, p)
+    rl_reason = reward.end_reason(offset, ego.psi, yaw_rate, ego.steps, crashed, p)
+    accept, no_gap = gap_decision(ego, nb, p, kappa)
     reason = end_reason(in_rl, rl_reason, crashed, no_gap)
     ended = reason != reward.NONE
 
     ep_return = jnp.where(in_rl, eg.ep_return + r, 0.0)
     ego = ego.replace(
         phase=jnp.where(ended, WAIT, jnp.where(accept, RL, ego.phase)).astype(jnp.int32),
+        # The RL phase starts on the lane's line: no heading, the lane-holding yaw rate.
         psi=jnp.where(accept, 0.0, ego.psi),
-        omega=jnp.where(accept, 0.0, ego.omega),
+        omega=jnp.where(accept, lane_keeping_yaw_rate(ego, ego.v, kappa, p), ego.omega),
         steps=jnp.where(accept, 0, ego.steps).astype(jnp.int32),
         yielding=jnp.where(accept, u.yields < p.p_yield, ego.yielding),
         ep_return=ep_return,
     )
-    state = EnvState(traffic, ego, nb, leader_gap, leader_v, state.time + 1)
+    road = kappa if p.curvature_drawn else None
+    state = EnvState(traffic, ego, nb, leader_gap, leader_v, state.time + 1, road)
     info = {
         "rl_step": in_rl,
         "phase": ego.phase,
@@ -581,8 +712,14 @@ class LaneChangeEnv:
             yielding=jnp.bool_(False),
             ep_return=f0,
         )
-        nb, leader_gap, leader_v = _observe_lanes(traffic, ego, p)
-        state = EnvState(traffic, ego, nb, leader_gap, leader_v, jnp.int32(0))
+        road = None
+        if p.curvature_drawn:  # its own key: a constant road's draws are left as they were
+            u_road = jax.random.uniform(jax.random.fold_in(k_init, 1))
+            road = _between(u_road, p.curvature_min, p.curvature_max)
+        nb, leader_gap, leader_v = _observe_lanes(
+            traffic, ego, p, p.curvature if road is None else road
+        )
+        state = EnvState(traffic, ego, nb, leader_gap, leader_v, jnp.int32(0), road)
 
         def warm(s: EnvState, k: Array) -> tuple[EnvState, None]:
             return _advance(k, s, jnp.zeros(ACT_DIM), p, spawn=False)[0], None

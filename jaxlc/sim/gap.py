@@ -10,6 +10,7 @@ it is long enough to hold the ego with those margins. If the gap beside is not a
 the ego adapts its speed toward the nearest acceptable candidate by taking that gap's lead
 vehicle as an extra IDM leader (A2 ahead, B1 behind, A1 when none is acceptable).
 
+Positions are metres along the lane (``scaled`` converts the road frame's s to them).
 Every function works on one lane row ``(slots,)`` with masked reductions (no sort, no
 gather), so it vectorises over envs under ``vmap``.
 """
@@ -83,6 +84,13 @@ def neighbours(x: Array, v: Array, v0: Array, active: Array, x_ref: Array) -> Ne
         has_b1=jnp.any(behind),
         has_b2=jnp.any(behind2),
     )
+
+
+def scaled(nb: Neighbours, c: Array) -> Neighbours:
+    """``nb`` with its positions multiplied by ``c``: from s along the road's reference line
+    to metres along the lane (``jaxlc.sim.kinematics.lane_scale``); every gap test below
+    takes positions in metres along the lane. ``c`` is 1 on a straight road."""
+    return nb.replace(a1_x=nb.a1_x * c, a2_x=nb.a2_x * c, b1_x=nb.b1_x * c, b2_x=nb.b2_x * c)
 
 
 def net_gap(x_front: Array, x_back: Array, length: Array, present: Array) -> Array:

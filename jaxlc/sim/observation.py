@@ -33,13 +33,13 @@ GAP_CLIP = (-10.0, 100.0)  # m, net gaps are clipped to this before scaling
 LAYOUT: tuple[Entry, ...] = (
     Entry("v", 30.0, 1.0, "ego speed, m/s"),
     Entry("accel", 3.0, 1.0, "ego longitudinal acceleration, m/s^2"),
-    Entry("psi", 0.1, -1.0, "heading relative to the road, rad"),
-    Entry("omega", 0.1, -1.0, "yaw rate, rad/s"),
+    Entry("psi", 0.1, -1.0, "heading relative to the lane's direction, rad"),
+    Entry("omega", 0.1, -1.0, "yaw rate (kappa_d*v holds a lane of a curve), rad/s"),
     Entry("offset", "offset_obs_scale", -1.0, "signed offset from the target lane's centre, m"),
     Entry("held", 1.0, -1.0, "action being executed (held for k steps), in [-1, 1]"),
     # 0 unless terminal_timeout: a bootstrapped timeout must not be observable (env.observation).
     Entry("time", "manoeuvre_time_limit", 1.0, "manoeuvre time, s"),
-    Entry("curvature", 0.01, -1.0, "road curvature, 1/m"),
+    Entry("curvature", 0.01, -1.0, "the episode's road curvature (centre line), 1/m"),
     Entry("lead_gap", 100.0, 1.0, "net gap to the target lane's leader, m"),
     Entry("lead_dv", 10.0, 1.0, "target lane's leader speed minus ego speed, m/s"),
     Entry("lag_gap", 100.0, 1.0, "net gap to the target lane's follower, m"),
@@ -71,20 +71,26 @@ def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     at most ``max_yaw_acc*dt`` per step for at most ``n = round(manoeuvre_time_limit/dt)``
     steps; the offset starts at +-lane_width and moves at most ``v_max*dt`` a step, and a
     manoeuvre ends once it passes ``border``; gaps are clipped to ``GAP_CLIP``. Each bound is
-    widened by 0.1 % (at least 1e-3) for float32 rounding. With a curvature the heading drifts
-    before the RL phase (psi integrates -curvature*v with omega = 0), so psi and offset are
-    then unbounded.
+    widened by 0.1 % (at least 1e-3) for float32 rounding.
+
+    On a curved road the RL phase starts with the lane-holding yaw rate kappa_d*v (|kappa_d| <=
+    K, the largest path curvature within ``border`` of a lane's centre), so |omega| <=
+    K*v_max + A*dt*n, and the yaw rate relative to the lane's (psi's rate) is at most
+    A*dt*k + 2*K*v_max at step k: psi gains 2*K*v_max*n*dt over the straight road's bound.
     """
     p = params
     v_max = max(float(p.entry_speed_max), float(p.desired_speed_max))
     dt = float(p.dt)
     n = round(float(p.manoeuvre_time_limit) / dt)
-    kappa = abs(float(p.curvature))
-    omega = float(p.max_yaw_acc) * dt * n
-    psi = float(p.max_yaw_acc) * dt * dt * n * (n + 1) / 2
+    drawn = bool(getattr(p, "curvature_drawn", False))
+    ends = (p.curvature_min, p.curvature_max) if drawn else (p.curvature,)
+    kappa = max(abs(float(k)) for k in ends)
     offset = max(float(p.lane_width), float(p.border)) + v_max * dt
-    if kappa != 0.0:
-        psi = offset = np.inf
+    d_max = 0.5 * (int(p.lanes) - 1) * float(p.lane_width) + offset  # from the road's centre
+    # Past kappa*d = 1 the lines would cross the bend's centre: no bound (no sane road).
+    k_path = kappa / (1.0 - kappa * d_max) if kappa * d_max < 1.0 else np.inf
+    omega = k_path * v_max + float(p.max_yaw_acc) * dt * n
+    psi = float(p.max_yaw_acc) * dt * dt * n * (n + 1) / 2 + 2.0 * k_path * v_max * n * dt
     raw = {  # name -> (low, high) before scaling
         "v": (0.0, v_max),
         "accel": (-float(p.idm_b_max), float(p.idm_a_max)),
