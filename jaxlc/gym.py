@@ -214,31 +214,40 @@ def render_frame(
         yc = (lane + 0.5) * w
         for x in xs[lane][active[lane]]:
             fill(x - length, x, yc - 0.5 * width, yc + 0.5 * width, (60, 120, 220))
-    # Ego: its rotated box, rasterised over its bounding rectangle.
-    c, sn = np.cos(float(eg.psi)), np.sin(float(eg.psi))
-    cx, cy = float(eg.x) - 0.5 * length * c, float(eg.y) - 0.5 * length * sn
-    half = 0.5 * (length * abs(c) + width * abs(sn)), 0.5 * (length * abs(sn) + width * abs(c))
-    c0, c1 = max(col(cx - half[0]), 0), min(col(cx + half[0]) + 1, w_px)
-    r0, r1 = max(row(cy + half[1]), 0), min(row(cy - half[1]) + 1, h_px)
-    if c0 < c1 and r0 < r1:
-        xx = x0 + (np.arange(c0, c1) + 0.5) / s - cx
-        yy = lanes * w - ((np.arange(r0, r1) + 0.5 - bar - shoulder) / s) - cy
-        along = xx[None, :] * c + yy[:, None] * sn
-        across = -xx[None, :] * sn + yy[:, None] * c
-        inside = (np.abs(along) <= 0.5 * length) & (np.abs(across) <= 0.5 * width)
-        img[r0:r1, c0:c1][inside] = (220, 40, 40)
+    _draw_ego(img, eg, length, width, x0, bar + shoulder + lanes * w * s, s)
     ends = (p.curvature_min, p.curvature_max) if p.curvature_drawn else (p.curvature,)
     k_max = max(abs(float(k)) for k in ends)
     if k_max > 0.0:
         extra = int(np.ceil(view_m**2 * k_max / 8.0 * s))  # sagitta of the window, px
         ref_row = bar + shoulder + (lanes * w - float(reference_y(p))) * s
         img = _bend(img, kappa, bar, extra, ref_row, s)
-        h_px = img.shape[0]
     # Manoeuvre-time bar.
     limit = max(1, round(float(p.manoeuvre_time_limit) / float(p.dt)))
     img[:bar] = (30, 30, 30)
     img[:bar, : int(w_px * min(int(eg.steps), limit) / limit)] = (240, 190, 40)
     return img
+
+
+def _draw_ego(
+    img: np.ndarray, eg, length: float, width: float, x0: float, y0_row: float, s: float
+) -> None:
+    """The ego's rotated box (red), rasterised over its bounding rectangle; world x ``x0`` is
+    column 0 and y = 0 is pixel row ``y0_row`` (y upwards), ``s`` px per metre."""
+    h_px, w_px = img.shape[:2]
+    c, sn = np.cos(float(eg.psi)), np.sin(float(eg.psi))
+    cx, cy = float(eg.x) - 0.5 * length * c, float(eg.y) - 0.5 * length * sn
+    half = 0.5 * (length * abs(c) + width * abs(sn)), 0.5 * (length * abs(sn) + width * abs(c))
+    c0 = max(int(round((cx - half[0] - x0) * s)), 0)
+    c1 = min(int(round((cx + half[0] - x0) * s)) + 1, w_px)
+    r0 = max(int(round(y0_row - (cy + half[1]) * s)), 0)
+    r1 = min(int(round(y0_row - (cy - half[1]) * s)) + 1, h_px)
+    if c0 < c1 and r0 < r1:
+        xx = x0 + (np.arange(c0, c1) + 0.5) / s - cx
+        yy = (y0_row - (np.arange(r0, r1) + 0.5)) / s - cy
+        along = xx[None, :] * c + yy[:, None] * sn
+        across = -xx[None, :] * sn + yy[:, None] * c
+        inside = (np.abs(along) <= 0.5 * length) & (np.abs(across) <= 0.5 * width)
+        img[r0:r1, c0:c1][inside] = (220, 40, 40)
 
 
 def _bend(
