@@ -155,7 +155,7 @@ class TrainConfig:
     max_steps: int = _f(0, 0, doc="scan-step cap per run; 0 = until every model is done")
     save_every_s: float = _f(60.0, 0.0, doc="s between full-state saves (0: every chunk)")
     seeds: int = _f(1, 1, 1024)
-    seed: int = _f(0, 0)
+    seed: int = _f(0, 0, 2**31 - 1, doc="the first seed: a run trains seed, seed + 1, ...")
     anneal_from: float = _f(1.0, 0.0, 1.0, doc="fraction of episodes where annealing starts")
     noise_final: float = _f(1.0, 0.0, 1.0, doc="noise sigma multiplier at the last episode")
     lr_final: float = _f(1.0, 0.0, 1.0, doc="learning-rate multiplier at the last episode")

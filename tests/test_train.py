@@ -64,6 +64,20 @@ def test_grid_is_the_cartesian_product_with_seeds(smoke_cfg):
     assert grid.seeds == (0, 1) * 8
 
 
+def test_a_seed_names_and_draws_the_same_model_whichever_seed_its_run_starts_from():
+    six = config.load(SMOKE, ["train.seeds=6"])
+    last3 = config.load(SMOKE, ["train.seeds=3", "train.seed=3"])
+    g6, g3 = train.make_grid(six), train.make_grid(last3)
+    cells = len(g6.cells)
+    assert g3.seeds == (3, 4, 5) * cells  # the label a summary and a checkpoint path carry
+    k6, k3 = np.asarray(train.model_keys(six, g6)), np.asarray(train.model_keys(last3, g3))
+    np.testing.assert_array_equal(k6[[s >= 3 for s in g6.seeds]], k3)
+    # train.seed = 0 keeps the keys every committed study was trained with.
+    root = jax.random.PRNGKey(0)
+    want = [np.asarray(jax.random.fold_in(root, i % 6)) for i in range(g6.size)]
+    np.testing.assert_array_equal(k6, np.stack(want))
+
+
 def test_sweep_writes_checkpoints_metrics_and_summary(smoke_run, smoke_cfg):
     out, summary = smoke_run
     t = smoke_cfg.train

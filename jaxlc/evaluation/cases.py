@@ -126,8 +126,8 @@ def case_keys(seed: int, cases: int) -> Array:
 
 # Held-out cases fold this tag into their root first, so their keys are a stream of their own,
 # apart from the protocol's (``fold_in(PRNGKey(seed), i)``) and the sweep's (splits of
-# ``PRNGKey(train.seed)``): a key shared by chance is as likely as a hash collision
-# (tests/test_heldout.py finds none among the first 2,000 of seeds 0-2).
+# ``PRNGKey(0)`` with each model's seed folded in): a key shared by chance is as likely as a
+# hash collision (tests/test_heldout.py finds none among the first 2,000 of seeds 0-2).
 HELDOUT_TAG = 0x48454C44  # "HELD"
 
 

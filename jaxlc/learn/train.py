@@ -87,7 +87,7 @@ class Grid:
 
     hyper: ModelHyper
     cells: tuple[dict[str, Any], ...] = flax.struct.field(pytree_node=False)
-    seeds: tuple[int, ...] = flax.struct.field(pytree_node=False)  # seed index per model
+    seeds: tuple[int, ...] = flax.struct.field(pytree_node=False)  # seed per model
     cell_of: tuple[int, ...] = flax.struct.field(pytree_node=False)  # cell index per model
 
     @property
@@ -112,9 +112,12 @@ def grid_cells(cfg: Config) -> tuple[dict[str, Any], ...]:
 
 
 def make_grid(cfg: Config) -> Grid:
-    """The grid's cells (``grid_cells``) times ``train.seeds`` seeds."""
+    """The grid's cells (``grid_cells``) times ``train.seeds`` seeds: ``train.seed``,
+    ``train.seed + 1``, ... So ``train.seed=3 --seeds 3`` trains the last three models of
+    ``--seeds 6``, and a model's seed names it in every table and file."""
     cells = grid_cells(cfg)
-    models = [(c, s) for c in range(len(cells)) for s in range(cfg.train.seeds)]
+    first = cfg.train.seed
+    models = [(c, s) for c in range(len(cells)) for s in range(first, first + cfg.train.seeds)]
 
     def col(name: str, dtype: Any) -> Array:
         return jnp.asarray([cells[c][name] for c, _ in models], dtype)
@@ -137,9 +140,13 @@ def make_grid(cfg: Config) -> Grid:
 
 
 def model_keys(cfg: Config, grid: Grid) -> Array:
-    """``(models,)`` keys: models with the same seed index share initial params and traffic
-    (common random numbers make the grid's comparisons sharper)."""
-    root = jax.random.PRNGKey(cfg.train.seed)
+    """``(models,)`` keys, ``fold_in(PRNGKey(0), seed)``: models with the same seed share
+    initial params and traffic (common random numbers make the grid's comparisons sharper),
+    and a seed trains the same model whichever ``train.seed`` its run started from."""
+    return _seed_keys(jax.random.PRNGKey(0), grid)
+
+
+def _seed_keys(root: Array, grid: Grid) -> Array:
     return jnp.stack([jax.random.fold_in(root, s) for s in grid.seeds])
 
 
@@ -390,14 +397,14 @@ def make_grid_fns(
 
 
 def make_train(cfg: Config) -> Callable[[Array, int], tuple[TrainState, dict[str, Array]]]:
-    """``train(key, steps)``: init every model of the grid from ``key`` (seed index folded in)
-    and run ``steps`` scan steps; one pure, jittable function."""
+    """``train(key, steps)``: init every model of the grid from ``key`` (its seed folded in;
+    ``PRNGKey(0)`` gives the sweep's models) and run ``steps`` scan steps; one pure, jittable
+    function."""
     grid = make_grid(cfg)
     init, step = make_model_fns(cfg)
 
     def train(key: Array, steps: int) -> tuple[TrainState, dict[str, Array]]:
-        keys = jnp.stack([jax.random.fold_in(key, s) for s in grid.seeds])
-        state = jax.vmap(init)(keys, grid.hyper)
+        state = jax.vmap(init)(_seed_keys(key, grid), grid.hyper)
         return jax.lax.scan(lambda s, _: jax.vmap(step)(s, grid.hyper), state, None, length=steps)
 
     return train
