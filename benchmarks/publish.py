@@ -12,6 +12,7 @@ check, so a table that no longer matches its evidence fails the suite.
 from __future__ import annotations
 
 import argparse
+import csv
 import functools
 import json
 import re
@@ -20,12 +21,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from jaxlc import config
+
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 
 # The studies the verdict rests on (configs/paper.toml's, configs/default.toml's).
 PAPER_STUDY = ROOT / "benchmarks" / "study_paper_cpu_s1"
 DEFAULT_STUDY = ROOT / "benchmarks" / "study_symmetric_cpu_s3"
+# configs/roads.toml's study, with both probes of env.curvature (roads- and straight-trained).
+ROADS_STUDY = ROOT / "benchmarks" / "study_roads_cpu_s3"
 
 # What the paper shows for each claim (its text, section IV), keyed by the claim's tag.
 PAPER_SHOWS = {
@@ -50,7 +55,7 @@ def _tag(claim: str) -> str:
 
 
 def _seeds(study: Path) -> str:
-    n = max(int(m["seed"]) for m in _load(study, "convergence.json")["models"]) + 1
+    n = len({m["seed"] for m in _load(study, "convergence.json")["models"]})
     return f"{n} seed{'s' if n > 1 else ''} per cell"
 
 
@@ -125,9 +130,51 @@ def heldout_cells() -> str:
     return "\n".join(lines)
 
 
+def _probe(path: Path) -> list[dict[str, str]]:
+    with path.open() as f:
+        return list(csv.DictReader(f))
+
+
+def roads_table() -> str:
+    """The roads study's policies (``configs/roads.toml``) and the straight-trained default's
+    on the same held-out lane changes of straight and curved roads (``benchmarks/probe.py
+    --key env.curvature``): per-model success range, failures by end, the scripted
+    controller beside them."""
+    lines = [
+        "| road κ (1/m) | policies | models | lane changes per model | success per model "
+        "(min – max) | failures: collision / out of bounds / timeout | scripted controller |",
+        "|---|---|---|---|---|---|---|",
+    ]
+
+    def row(road: str, who: str, mine: list[dict[str, Any]]) -> str:
+        models = [r for r in mine if r["seed"] not in ("", None)]
+        (script,) = [r for r in mine if r["seed"] in ("", None)]
+        n = int(models[0]["lane_changes"])
+        succ = [int(r["success"]) / n for r in models]
+        ends = [sum(int(r[k]) for r in models) for k in ("collision", "out_of_bounds", "timeout")]
+        return (
+            f"| {road} | {who} | {len(models)} | {n:,} | "
+            f"{100 * min(succ):.1f}% – {100 * max(succ):.1f}% | "
+            f"{' / '.join(f'{e:,}' for e in ends)} | "
+            f"{int(script['success']):,} of {int(script['lane_changes']):,} |"
+        )
+
+    drawn = config.load(ROADS_STUDY / "config.toml").env.curvature
+    road = f"drawn from [{drawn[0]:g}, {drawn[1]:g}]".replace("-", "−")
+    lines.append(row(road, "`roads.toml`", _load(ROADS_STUDY, "heldout.json")["rows"]))
+    probes = [("`roads.toml`", "probe_roads"), ("`default.toml` (straight)", "probe_straight")]
+    rows = {name: _probe(ROADS_STUDY / name / "probe.csv") for _, name in probes}
+    for kappa in dict.fromkeys(r["curvature"] for r in rows["probe_roads"]):
+        for who, name in probes:
+            road = "0" if float(kappa) == 0 else f"{float(kappa):+g}".replace("-", "−")
+            lines.append(row(road, who, [r for r in rows[name] if r["curvature"] == kappa]))
+    return "\n".join(lines)
+
+
 BLOCKS: dict[str, Callable[[], str]] = {
     "verdict": verdict_table,
     "heldout-cells": heldout_cells,
+    "roads": roads_table,
 }
 _BLOCK = re.compile(r"(<!-- publish:([\w-]+) -->\n)(.*?)(<!-- /publish:\2 -->)", re.S)
 
