@@ -2,11 +2,15 @@
 asserted, only that each measured the real work and wrote its table."""
 
 import csv
+import importlib.util
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from jaxlc import config
 from jaxlc.study import checkpoint
 
 from .conftest import HANG_GUARD_S
@@ -115,3 +119,35 @@ def test_kink_probe_branches_share_their_traffic(smoke_run, tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     assert "peaks at the policy's own first action" in done.stdout
     assert "in 100% of them; median gain of the best a0 over mu(s*): 0.00" in done.stdout
+
+
+def _load(script: str):
+    spec = importlib.util.spec_from_file_location(script, BENCH / f"{script}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_lane_occupancy_counts_every_lane_and_sees_a_full_ring():
+    occupancy = _load("lane_occupancy").occupancy
+    # Four slots under the densest inflow the config allows: the rings must fill.
+    cfg = config.load(None, ["env.slots_per_lane=4", "env.inflow_min=4000", "env.inflow_max=4000"])
+    hist = occupancy(cfg, envs=4, steps=200, seed=0)
+    assert hist.shape == (5,)
+    assert hist.sum() == 4 * 200 * cfg.env.lanes  # one count per env, lane and step
+    assert hist[4] > 0  # full rings are counted, and no count exceeds the slots (shape)
+
+
+def test_update_ratio_divides_transitions_by_updates_per_phase():
+    ratios = _load("update_ratio").ratios
+    # Model 0: 10 scan steps, 3 transitions and 1 update each; model 1 stops after 4 steps.
+    t = np.array([[3, 6]] * 4 + [[3, 0]] * 6)
+    u = np.array([[1, 2]] * 4 + [[1, 0]] * 6)
+    a, b = ratios(t, u)
+    assert a["scan_steps"] == 10 and b["scan_steps"] == 4
+    assert a["all"] == a["first_10pct"] == a["next_40pct"] == a["second_half"] == 3.0
+    assert b["all"] == b["next_40pct"] == b["second_half"] == 3.0
+    assert np.isnan(b["first_10pct"])  # 10% of 4 steps holds none: no ratio, not 0
+    u[5:, 0] = 3  # more updates in model 0's second half: fewer transitions per update there
+    (a, _) = ratios(t, u)
+    assert a["second_half"] == 1.0 and a["first_10pct"] == 3.0

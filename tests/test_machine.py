@@ -29,7 +29,7 @@ def test_host_devices_divide_the_models_and_stay_near_the_cores(models, cores):
 
 
 def test_paper_grid_on_two_cores_gets_three_host_devices():
-    assert machine.host_devices_for(9, BIG, 2) == 3  # measured fastest (README, "Devices")
+    assert machine.host_devices_for(9, BIG, 2) == 3  # measured fastest (docs/benchmarks.md)
 
 
 def test_host_device_flag_is_left_alone_once_jax_started(monkeypatch):

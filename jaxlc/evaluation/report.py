@@ -33,7 +33,7 @@ FIGURES = (
     ("learning.gif", "Video: lane changes across checkpoints"),
     ("heldout_norms.png", "Held-out lane changes against the safety and comfort norms"),
 )
-HUMAN_DURATION = (3.0, 8.0)  # s, the human range the README's "Results" compares with
+HUMAN_DURATION = (3.0, 8.0)  # s, the human range docs/results.md compares with
 
 
 def _defined(v: Any) -> bool:
