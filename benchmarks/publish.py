@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import csv
 import functools
+import importlib.util
 import json
 import re
 import sys
@@ -119,19 +120,21 @@ def verdict_table() -> str:
     return "\n".join(lines)
 
 
-def heldout_cells() -> str:
-    """Per cell of the default study: held-out success (the seeds' range of Clopper-Pearson
-    intervals under 5 seeds), failures, collisions and its bound, share inside every norm."""
+def heldout_cells(study: Path = DEFAULT_STUDY) -> str:
+    """Per cell of a study (the default's unless given): held-out success (the seeds' range
+    of Clopper-Pearson intervals under 5 seeds), failures and collisions with their one-sided
+    95% bounds, share inside every norm."""
     lines = [
-        "| cell | seeds | lane changes | success | 95% interval | failures | collisions "
+        "| cell | seeds | lane changes | success | 95% interval | failures (bound) | collisions "
         "(bound) | inside every norm |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for c in _load(DEFAULT_STUDY, "heldout.json")["cells"]:
+    for c in _load(study, "heldout.json")["cells"]:
         lines.append(
             f"| {c['label']} | {c['seeds']} | {c['lane_changes']:,} | "
             f"{100 * c['success_mean']:.2f}% | [{100 * c['success_lo']:.2f}, "
-            f"{100 * c['success_hi']:.2f}]% | {c['failures']} | {c['collisions']} "
+            f"{100 * c['success_hi']:.2f}]% | {c['failures']} "
+            f"(< {100 * c['failure_bound']:.2f}%) | {c['collisions']} "
             f"(< {100 * c['collision_bound']:.2f}%) | {100 * c['norm_all']:.1f}% |"
         )
     return "\n".join(lines)
@@ -467,6 +470,125 @@ def sb3_table() -> str:
     return "\n".join(lines)
 
 
+def _script(name: str) -> Any:
+    """A sibling script of this folder as a module (this file also runs from the tests)."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parent / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def study_cells(eval_csv: Path) -> str:
+    """``benchmarks/study_summary.py`` on a study's committed ``eval.csv``: per cell the
+    success at the last checkpoint over seeds, the best checkpoint and the drop to the last,
+    the lane changes' duration, peak lateral acceleration and overshoot."""
+    summary = _script("study_summary")
+    return summary.summary(summary.load(eval_csv)).rstrip("\n")
+
+
+# The GPU study's settings (its folders under study_gpu_8seeds/), against its first row.
+GPU_STUDY = ROOT / "benchmarks" / "study_gpu_8seeds"
+GPU_SETTINGS = (
+    ("default", "`ddpg.huber_delta=0 ddpg.mirror=false` (the morning's default)"),
+    ("tterm", "… `env.terminal_timeout=true`"),
+    ("rs01", "… `env.reward_scale=0.1`"),
+    ("ups2", "… `ddpg.updates_per_step=2`"),
+    ("mirror", "… `ddpg.mirror=true`"),
+    ("mirror_ups2", "… `ddpg.mirror=true ddpg.updates_per_step=2`"),
+    ("huber10", "… `ddpg.huber_delta=10`"),
+    (
+        "mirror_huber",
+        "… `ddpg.huber_delta=10 ddpg.mirror=true` (the default before the odd "
+        "actor and the gap test)",
+    ),
+)
+
+
+def _final_success(folder: Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(success, seed)`` of every model at its last evaluated checkpoint, ``(models,)``."""
+    rows = [r for r in _probe(folder / "eval.csv") if r["model"] != ""]
+    last = max(int(r["episode"]) for r in rows)
+    final = [r for r in rows if int(r["episode"]) == last]
+    return np.array([float(r["success_rate"]) for r in final]), np.array(
+        [int(r["seed"]) for r in final]
+    )
+
+
+def moved_table() -> str:
+    """What moved the learning: per GPU setting its sweep's wall time, the mean evaluated
+    success of its 72 models and the difference from the first row with its 95% interval
+    (``jaxlc.evaluation.stats.difference``), the cells whose own difference interval
+    (``compare/``) lies above / below zero, and the models and one-seed studies at >= 99%."""
+    from jaxlc.evaluation import stats
+
+    def signed(x: float) -> str:
+        return f"{100 * x:+.1f}".replace("-", "−")
+
+    base, _ = _final_success(GPU_STUDY / "default")
+    lines = [
+        f"| setting | sweep wall | success at 5000, mean of {base.size} | difference [95% CI] | "
+        "cells up / down | models ≥ 99% | one-seed studies with a ≥ 99% model |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, label in GPU_SETTINGS:
+        folder = GPU_STUDY / name
+        wall = re.search(r"Wall time (\d+) s", (folder / "sweep.log").read_text())[1]
+        success, seeds = _final_success(folder)
+        best = {s: success[seeds == s].max() for s in np.unique(seeds)}
+        studies = f"{sum(v >= 0.99 for v in best.values())} of {len(best)}"
+        diff = cells = "–"
+        if name != "default":
+            d, lo, hi = stats.difference(base, success)
+            diff = f"{signed(d)} [{signed(lo)}, {signed(hi)}]"
+            rows = _probe(GPU_STUDY / "compare" / f"default_vs_{name}" / "compare.csv")
+            up = sum(float(r["diff_lo"]) > 0 for r in rows)
+            cells = f"{up} / {sum(float(r['diff_hi']) < 0 for r in rows)}"
+        lines.append(
+            f"| {label} | {wall} s | {100 * success.mean():.1f}% | {diff} | {cells} | "
+            f"{int(np.sum(success >= 0.99))} | {studies} |"
+        )
+    return "\n".join(lines)
+
+
+_REPORT_ROW = re.compile(
+    r"^\| (?P<label>[^|]+?) \| (?P<seed>[^|]*?) \| (?P<episode>[^|]+?) \| (?P<performed>\d+)/\d+ "
+    r"\| (?P<rate>[\d.]+)% \| (?P<ret>-?[\d.]+) \| (?P<success>\d+) \|",
+    re.M,
+)
+
+
+def one_seed_table(folder: Path) -> str:
+    """A one-seed study of 2026-11-22 from what it committed (``report.md``'s checkpoint rows,
+    ``summary.md``'s last-100 training success): per model its training success, its
+    evaluation at the last checkpoint, and its best checkpoint."""
+    rows = [m.groupdict() for m in _REPORT_ROW.finditer((folder / "report.md").read_text())]
+    training = dict(
+        re.findall(
+            r"^\| ([^|]+?) \| 0 \| \d+ \| ([\d.]+)% \|", (folder / "summary.md").read_text(), re.M
+        )
+    )
+    lines = [
+        "| model | training: success, last 100 episodes | evaluation at episode 5000: success "
+        "(of lane changes) | average return | best checkpoint: success |",
+        "|---|---|---|---|---|",
+    ]
+    labels = list(dict.fromkeys(r["label"] for r in rows))
+    for label in labels:
+        mine = [r for r in rows if r["label"] == label]
+        last = max(mine, key=lambda r: int(r["episode"]) if r["episode"].isdigit() else 0)
+        evaluated = f"{float(last['rate']):.1f}% ({last['success']}/{last['performed']})"
+        ret = last["ret"].replace("-", "−")
+        if label == "scripted controller":
+            lines.append(f"| {label} | – | {evaluated} | {ret} | – |")
+            continue
+        best = max(mine, key=lambda r: (float(r["rate"]), -int(r["episode"])))
+        lines.append(
+            f"| {label} | {float(training[label]):.0f}% | {evaluated} | {ret} | "
+            f"{float(best['rate']):.1f}% at {best['episode']} |"
+        )
+    return "\n".join(lines)
+
+
 BLOCKS: dict[str, Callable[[], str]] = {
     "verdict": verdict_table,
     "heldout-cells": heldout_cells,
@@ -479,6 +601,14 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "sb3": sb3_table,
     "scripted-noise": scripted_noise_table,
     "time-to-solution": time_to_solution,
+    "plain-actor-cells": lambda: heldout_cells(ROOT / "benchmarks" / "study_heldout_cpu_s3"),
+    "gpu8-cells": lambda: study_cells(GPU_STUDY / "mirror_huber" / "eval.csv"),
+    "squared-s3-cells": lambda: study_cells(
+        ROOT / "benchmarks" / "study_default_s3" / "eval" / "eval.csv"
+    ),
+    "moved": moved_table,
+    "paper-run": lambda: one_seed_table(ROOT / "benchmarks" / "paper_run"),
+    "tuned-run": lambda: one_seed_table(ROOT / "benchmarks" / "tuned_run"),
 }
 _BLOCK = re.compile(r"(<!-- publish:([\w-]+) -->\n)(.*?)(<!-- /publish:\2 -->)", re.S)
 
