@@ -10,21 +10,20 @@ feed-forward); the frames are taken every ``--every`` RL steps from the manoeuvr
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from pathlib import Path
 
 import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import numpy as np
 
-import jaxlc
+from jaxlc import config
 from jaxlc.gym import LaneChangeGymEnv
 from jaxlc.sim.controller import scripted_action
 
 
 def frames(curvature: float, seed: int, every: int, count: int) -> tuple[list[np.ndarray], str]:
-    cfg = dataclasses.replace(jaxlc.make()[1], curvature=curvature)
-    env = LaneChangeGymEnv(params=cfg, render_mode="rgb_array")
+    cfg = config.load(None, [f"env.curvature={curvature!r}"])  # validated: a bad κ names itself
+    env = LaneChangeGymEnv(config=cfg, render_mode="rgb_array")
     obs, _ = env.reset(seed=seed)
     shots, reason = [env.render()], "running"
     for t in range(1, every * (count - 1) + 1):
