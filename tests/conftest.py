@@ -1,6 +1,9 @@
 """Shared fixtures: one smoke sweep per test worker (compiling is the expensive part)."""
 
+import importlib.util
 import os
+from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -10,6 +13,15 @@ SMOKE = config.CONFIG_DIR / "smoke.toml"
 
 # Only stops a hung subprocess; never a speed judgement: a run slower than this is broken.
 HANG_GUARD_S = 3600
+BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+
+
+def load_benchmark(name: str) -> ModuleType:
+    """``benchmarks/NAME.py`` as a module (the benchmarks are scripts, not a package)."""
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def wait_for_line(proc, start: str) -> None:

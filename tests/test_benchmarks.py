@@ -2,7 +2,6 @@
 asserted, only that each measured the real work and wrote its table."""
 
 import csv
-import importlib.util
 import os
 import subprocess
 import sys
@@ -13,7 +12,7 @@ import numpy as np
 from jaxlc import config
 from jaxlc.study import checkpoint
 
-from .conftest import HANG_GUARD_S
+from .conftest import HANG_GUARD_S, load_benchmark
 
 BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
 
@@ -121,15 +120,8 @@ def test_kink_probe_branches_share_their_traffic(smoke_run, tmp_path):
     assert "in 100% of them; median gain of the best a0 over mu(s*): 0.00" in done.stdout
 
 
-def _load(script: str):
-    spec = importlib.util.spec_from_file_location(script, BENCH / f"{script}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_lane_occupancy_counts_every_lane_and_sees_a_full_ring():
-    occupancy = _load("lane_occupancy").occupancy
+    occupancy = load_benchmark("lane_occupancy").occupancy
     # Four slots under the densest inflow the config allows: the rings must fill.
     cfg = config.load(None, ["env.slots_per_lane=4", "env.inflow_min=4000", "env.inflow_max=4000"])
     hist = occupancy(cfg, envs=4, steps=200, seed=0)
@@ -139,7 +131,7 @@ def test_lane_occupancy_counts_every_lane_and_sees_a_full_ring():
 
 
 def test_update_ratio_divides_transitions_by_updates_per_phase():
-    ratios = _load("update_ratio").ratios
+    ratios = load_benchmark("update_ratio").ratios
     # Model 0: 10 scan steps, 3 transitions and 1 update each; model 1 stops after 4 steps.
     t = np.array([[3, 6]] * 4 + [[3, 0]] * 6)
     u = np.array([[1, 2]] * 4 + [[1, 0]] * 6)

@@ -1,9 +1,7 @@
 """DDPG update against a hand-written reference of eqs. (4)-(7); exploration; vmap; benchmark."""
 
 import dataclasses
-import importlib.util
 import math
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -15,6 +13,8 @@ from jaxlc.learn import ddpg
 from jaxlc.learn.networks import make_networks
 from jaxlc.sim.observation import MIRROR_SIGNS
 from jaxlc.sim.observation import OBS_DIM as FULL_OBS
+
+from .conftest import load_benchmark
 
 OBS_DIM = 5
 # a big final init and tau so that every term of the update moves the params visibly
@@ -249,16 +249,8 @@ def test_explore_truncates_noise_and_stays_in_bounds():
     assert np.any(out[2] == 1.0) and np.any(out[2] == -1.0)
 
 
-def _update_bench():
-    path = Path(__file__).resolve().parent.parent / "benchmarks" / "update_throughput.py"
-    spec = importlib.util.spec_from_file_location("update_throughput", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
-    return bench
-
-
 def test_benchmark_tiny_runs(tmp_path):
-    bench = _update_bench()
+    bench = load_benchmark("update_throughput")
     out = tmp_path / "tiny.csv"
     figures = bench.main(["--tiny", "--out", str(out)])
     for name in (
@@ -313,7 +305,9 @@ def test_benchmark_counts_the_products_that_the_update_computes(symmetric):
     }
     traced = jax.make_jaxpr(lambda lrn: ddpg.update(lrn, data, ddpg.Hyper.from_config(cfg), cfg))
     in_update = _dot_flops(traced(learner).jaxpr)
-    counted = _update_bench().update_flops(obs_dim, cfg.hidden, batch, 1, cfg.symmetric_actor)
+    counted = load_benchmark("update_throughput").update_flops(
+        obs_dim, cfg.hidden, batch, 1, cfg.symmetric_actor
+    )
     assert in_update - counted == 2 * batch * cfg.hidden[0] * obs_dim
 
 

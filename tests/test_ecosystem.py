@@ -4,26 +4,17 @@ beats the same learner's untrained (initial) policy on the fixed cases."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
+
+from .conftest import load_benchmark
 
 pytest.importorskip("gymnax", reason="optional: pip install -e '.[ecosystem]'")
 pytest.importorskip("rejax", reason="optional: pip install -e '.[ecosystem]'")
 
-ROOT = Path(__file__).resolve().parent.parent
 ALGOS = ("ppo", "sac")
 # Decisions of a smoke run: at this budget each learner beat its untrained policy by a wide
 # margin on this project's 2-core VM (return -137 and -1136 against -2002 and -1981).
 SMOKE_DECISIONS = 65_536
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("vs_rejax", ROOT / "benchmarks" / "vs_rejax.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +22,7 @@ def rows(tmp_path_factory) -> dict[str, dict]:
     """One run of the benchmark for both learners: imports, the machine's peak and the
     fixed cases' start program are paid once."""
     csv = tmp_path_factory.mktemp("vs_rejax") / "r.csv"
-    out = _bench().main(
+    out = load_benchmark("vs_rejax").main(
         ["--algos", *ALGOS, "--seeds", "1", "--timesteps", str(SMOKE_DECISIONS), "--csv", str(csv)]
     )
     assert csv.is_file() and len(csv.read_text().splitlines()) == 1 + len(ALGOS)

@@ -3,11 +3,9 @@ observation bounds, rendering, and the comparison benchmarks in tiny mode."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import warnings
 from functools import partial
-from pathlib import Path
 
 import gymnasium as gym
 import jax
@@ -24,7 +22,8 @@ from jaxlc.sim.controller import scripted_action
 from jaxlc.sim.env import RL, LaneChangeEnv
 from jaxlc.sim.reward import REASONS
 
-ROOT = Path(__file__).resolve().parent.parent
+from .conftest import load_benchmark
+
 N_VEC = 4  # one batch size for every vector test, so the vmapped program compiles once
 
 
@@ -280,20 +279,13 @@ def test_observation_bounds_follow_the_params(params):
         assert obs in env.observation_space, (obs, env.observation_space.high)
 
 
-def _load_bench(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def _positive(x: float) -> bool:
     return math.isfinite(x) and x > 0
 
 
 def test_vs_highway_env_tiny(tmp_path):
     pytest.importorskip("highway_env", reason="optional: pip install -e '.[bench]'")
-    bench = _load_bench("vs_highway_env")
+    bench = load_benchmark("vs_highway_env")
     out = bench.main(["--tiny", "--csv", str(tmp_path / "hw.csv")])
     assert _positive(out["ratio_single"]) and _positive(out["ratio_best"])
     for row in out["rows"]:
@@ -303,7 +295,7 @@ def test_vs_highway_env_tiny(tmp_path):
 
 def test_vs_sb3_tiny(tmp_path):
     pytest.importorskip("stable_baselines3", reason="optional: pip install -e '.[bench]'")
-    bench = _load_bench("vs_sb3")
+    bench = load_benchmark("vs_sb3")
     out = bench.main(["--tiny", "--csv", str(tmp_path / "sb3.csv")])
     for name in ("sb3", "jaxlc", "jaxlc_grid", "sb3_nine"):
         row = out[name]

@@ -1,22 +1,19 @@
 """The published tables equal what their committed evidence gives (``benchmarks/publish.py``),
 the check notices a table edited by hand, and every file a document links to exists."""
 
-import importlib.util
 import re
 from pathlib import Path
 
 import pytest
 
+from .conftest import load_benchmark
+
 ROOT = Path(__file__).resolve().parent.parent
-PUBLISH = ROOT / "benchmarks" / "publish.py"
 
 
 @pytest.fixture(scope="module")
 def publish():
-    spec = importlib.util.spec_from_file_location("publish", PUBLISH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("publish")
 
 
 def test_every_published_block_matches_its_evidence(publish):
