@@ -70,7 +70,8 @@ def _seeds(study: Path) -> str:
 
 def _comparisons(study: Path, claim: dict[str, str]) -> str:
     """A claim's comparisons in a study on the measures it is decided by: each side's mean over
-    seeds, and P(x better than y) with its interval from 2 seeds on."""
+    seeds and, from 2 seeds on, the paper-side difference with its interval and the margin
+    (``jaxlc.evaluation.convergence``)."""
     parts = []
     measures = claim["measures"].split(", ")
     for c in _load(study, "convergence.json")["comparisons"]:
@@ -80,7 +81,10 @@ def _comparisons(study: Path, claim: dict[str, str]) -> str:
         fmt = "{:.0f}" if episodes else "{:.3g}"
         x, y = (("never" if v is None else fmt.format(v)) for v in (c["x_mean"], c["y_mean"]))
         text = f"{c['measure']}: {c['x']} {x} vs {c['y']} {y}{' ep' if episodes else ''}"
-        if c["seeds"] > 1:
+        if c["seeds"] > 1 and "diff" in c:
+            d, lo, hi, m = (fmt.format(c[k]) for k in ("diff", "diff_lo", "diff_hi", "margin"))
+            text += f", {c['x']} ahead by {d} [{lo}, {hi}] (margin ±{m})"
+        elif c["seeds"] > 1:  # a study evaluated before the margins: P only
             text += f", P = {c['p']:.2f} [{c['p_lo']:.2f}, {c['p_hi']:.2f}]"
         parts.append(text)
     return "; ".join(parts)
@@ -303,6 +307,42 @@ def update_table() -> str:
         "",
         f"Matmul peak around the runs: {_peaks('update_throughput_1dev', 'update_throughput_3dev')}"
         " (the table's own column is the one measured inside each run).",
+    ]
+    return "\n".join(lines)
+
+
+ACTORS = ROOT / "benchmarks" / "bench_actors_cpu_2026-11-25"
+
+
+def actors_table() -> str:
+    """``benchmarks/update_throughput.py actors``: the plain and the reflection-odd actor side
+    by side, each run beside the matmul peaks measured around it."""
+    rows = _csv(ACTORS / "actors.csv")
+    lines = [
+        "| round | actor | MFLOP per model update | grid-updates/s | peak around the update "
+        "(GFLOP/s) | default sweep env-steps/s | its wall s | peak at its end (GFLOP/s) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['round']} | {r['actor']} | {float(r['mflop_per_model_update']):.0f} | "
+            f"{float(r['grid_updates_per_s']):.1f} | {float(r['peak_gflops_before_update']):.0f}"
+            f"–{float(r['peak_gflops_after_update']):.0f} | "
+            f"{float(r['sweep_env_steps_per_s']):,.0f} | {float(r['sweep_wall_s']):.1f} | "
+            f"{float(r['sweep_peak_gflops']):.0f} |"
+        )
+
+    def mean(actor: str, key: str) -> float:
+        return float(np.mean([float(r[key]) for r in rows if r["actor"] == actor]))
+
+    sweep = mean("odd", "sweep_env_steps_per_s") / mean("plain", "sweep_env_steps_per_s")
+    update = mean("odd", "grid_updates_per_s") / mean("plain", "grid_updates_per_s")
+    lines += [
+        "",
+        f"The odd actor, over the rounds: **{sweep:.1%}** of the plain actor's env-steps/s in "
+        f"the default sweep and {update:.1%} of its grid-updates/s, at "
+        f"{mean('odd', 'mflop_per_model_update') / mean('plain', 'mflop_per_model_update'):.2f}"
+        "× its matrix-product FLOPs per update.",
     ]
     return "\n".join(lines)
 
@@ -689,6 +729,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "sim": sim_table,
     "highway": highway_table,
     "update": update_table,
+    "actors": actors_table,
     "devices": devices_table,
     "rejax": rejax_table,
     "sb3": sb3_table,

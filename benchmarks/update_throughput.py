@@ -27,6 +27,11 @@ applies to all of them.
 
 Usage: ``python benchmarks/update_throughput.py [--models 9 --batch 64 --repeats 5]``;
 ``--tiny`` shrinks everything for tests. Writes ``benchmarks/results/update_throughput.csv``.
+
+``python benchmarks/update_throughput.py actors [--rounds 2 --episodes 600]``: the plain and
+the reflection-odd actor side by side (``actors``): MFLOP per model update, grid-updates/s and
+a default sweep's env-steps/s, each beside the matmul peak. Writes
+``benchmarks/results/actors.csv``.
 """
 
 from __future__ import annotations
@@ -34,8 +39,10 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import json
 import os
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -51,6 +58,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
     sys.path.insert(0, str(ROOT))
 
+from jaxlc import config  # noqa: E402
 from jaxlc.config import DDPGConfig  # noqa: E402
 from jaxlc.learn import ddpg, replay  # noqa: E402
 from jaxlc.sim.env import OBS_DIM  # noqa: E402
@@ -246,6 +254,78 @@ def grid_update_call(
     return lambda: run(learners, memory, hyper, keys)
 
 
+def sweep_rate(overrides: Sequence[str], out: Path) -> dict[str, float]:
+    """One default sweep (``python -m jaxlc.sweep``, a fresh process) with ``overrides``:
+    its env-steps/s (compile included, as the sweep reports it) and the matmul peak it
+    measured at its end (``summary.json``)."""
+    cmd = [sys.executable, "-m", "jaxlc.sweep", "--no-progress", "--force", "--out", str(out)]
+    subprocess.run([*cmd, *overrides], check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+    doc = json.loads((out / "summary.json").read_text())
+    return {
+        "env_steps_per_s": doc["env_steps"] / doc["wall_s"],
+        "wall_s": doc["wall_s"],
+        "peak_gflops": doc["matmul_peak_gflops"],
+    }
+
+
+def actors(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
+    """The plain actor against the reflection-odd one (``ddpg.symmetric_actor``), side by
+    side in one run: MFLOP per model update, grid-updates/s of the default's update (nine
+    models, batch 64) and the default sweep's env-steps/s over ``--episodes`` episodes, each
+    with the matmul peak measured next to it. Runs alternate (plain, odd, plain, odd, ...) so
+    both see the same machine state; writes ``--out`` (CSV, one row per run)."""
+    p = argparse.ArgumentParser(description=actors.__doc__.splitlines()[0])
+    p.add_argument("--rounds", type=int, default=2, help="alternating rounds of both actors")
+    p.add_argument("--episodes", type=int, default=600, help="episodes of each default sweep")
+    p.add_argument("--updates", type=int, default=200, help="updates per timed scan")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--matmul-n", type=int, default=2048)
+    p.add_argument("--out", type=Path, default=RESULTS / "actors.csv")
+    args = p.parse_args(argv)
+    base = config.load(ROOT / "configs" / "default.toml").ddpg
+    time_dot = _timed(matmul_call(args.matmul_n))
+
+    def peak() -> float:
+        return 2 * args.matmul_n**3 / statistics.median([time_dot() for _ in range(3)]) / 1e9
+
+    rows: list[dict[str, object]] = []
+    for rnd in range(args.rounds):
+        for odd in (False, True):
+            cfg = dataclasses.replace(base, symmetric_actor=odd)
+            time_grid = _timed(grid_update_call(cfg, 9, (2000, 4000, 8000), args.updates))
+            before = peak()
+            rate = args.updates / statistics.median([time_grid() for _ in range(args.repeats)])
+            after = peak()
+            flops = update_flops(OBS_DIM, cfg.hidden, cfg.batch_size, 1, odd)
+            sweep = sweep_rate(
+                [f"train.episodes={args.episodes}", f"ddpg.symmetric_actor={str(odd).lower()}"],
+                RESULTS / "actors_sweep",
+            )
+            rows.append(
+                {
+                    "round": rnd,
+                    "actor": "odd" if odd else "plain",
+                    "mflop_per_model_update": round(flops / 1e6, 3),
+                    "grid_updates_per_s": round(rate, 2),
+                    "peak_gflops_before_update": round(before, 1),
+                    "peak_gflops_after_update": round(after, 1),
+                    "sweep_episodes": args.episodes,
+                    "sweep_env_steps_per_s": round(sweep["env_steps_per_s"], 1),
+                    "sweep_wall_s": round(sweep["wall_s"], 2),
+                    "sweep_peak_gflops": round(sweep["peak_gflops"], 1),
+                    "loadavg_1min": round(os.getloadavg()[0], 2),
+                }
+            )
+            print(rows[-1], flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with args.out.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"wrote {args.out}")
+    return rows
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--models", type=int, default=9)
@@ -368,4 +448,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    if sys.argv[1:2] == ["actors"]:  # the plain and the odd actor side by side
+        actors(sys.argv[2:])
+    else:
+        main(sys.argv[1:])

@@ -127,6 +127,11 @@ def _checkpoints(run_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
                 f"checkpoint {p} has no {', '.join(missing)} in its JSON, so it was not "
                 "written by python -m jaxlc.sweep; move it out of the run directory"
             )
+    if not found and RunDir(run_dir).state.exists():  # stopped before its first checkpoint
+        raise EvalError(
+            f"no checkpoints in {RunDir(run_dir).checkpoints}: the run stopped before its "
+            f"first; continue it with python -m jaxlc.sweep --resume {run_dir}"
+        )
     if not found:
         raise EvalError(
             f"no checkpoints in {RunDir(run_dir).checkpoints}; train first with "

@@ -19,6 +19,7 @@ Model colours: the paper's for its nine models (model labels start with their ci
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import warnings
@@ -616,11 +617,17 @@ def make_all(run_dir: Path) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = argv if argv is not None else sys.argv[1:]
-    if len(args) != 1:
-        print("usage: python -m jaxlc.figures RUN_DIR", file=sys.stderr)
-        return 2
-    for path in make_all(Path(args[0])):
+    parser = argparse.ArgumentParser(
+        prog="jaxlc-figures",
+        description="Write the paper's figures of a run directory (trained with python -m "
+        "jaxlc.sweep; the evaluation's figures need python -m jaxlc.evaluate first) to "
+        "RUN_DIR/figures/ and print each file written.",
+    )
+    parser.add_argument("run_dir", type=Path, help="run directory of jaxlc.sweep")
+    args = parser.parse_args(argv)  # --help: usage, exit 0; unknown arguments: exit 2
+    if not args.run_dir.is_dir():
+        parser.error(f"run_dir: {args.run_dir} is not a directory")
+    for path in make_all(args.run_dir):
         print(path)
     return 0
 

@@ -19,10 +19,28 @@ final success, which every cell of a good run shares. Per model, from
   a few steps);
 - ``plateau``: the plateau return itself (performance, where "best" is about the end).
 
-Each comparison of the paper is decided by the probability of improvement over pairs of
-seeds with its bootstrap interval (``jaxlc.evaluation.stats.improvement``: rliable's
-definition; fewer episodes is better for the three episode counts, more for ``auc`` and
-``plateau``).
+Each comparison of the paper ("X better than Y" on a measure) is decided on the difference of
+the two cells' means over seeds, signed so that a positive difference is the paper's side
+(fewer episodes for the three episode counts, more ``auc`` or ``plateau``), with its 95%
+bootstrap interval (``jaxlc.evaluation.stats.difference``), against a margin stated before
+any ten-seed study ran (``MARGIN``):
+
+- *no practical difference*: the whole interval lies inside (-margin, +margin);
+- *holds*: the interval lies above zero (the paper's side);
+- *fails*: the interval lies below zero;
+- *undecided*, with the interval's width, otherwise; and always below ``stats.RANGE_BELOW``
+  (5) seeds per cell, where a bootstrap over so few seeds is no evidence.
+
+Why those margins: the paper's Figs. 3 and 4 are curves over the training episodes (x) of a
+return between the run's worst and best values (y). A difference of 2% of either axis is
+about a line's width on a figure of that size: two curves that differ by less cannot show
+the paper's comparison. So the margin is 2% of the axis the measure lives on: for the
+episode counts 2% of the training episodes (100 of 5,000, also the moving-average window
+and the checkpoint interval); for ``auc``, already normalised to the run's return range,
+0.02; for ``plateau``, 2% of the run's return range (the span of the moving averages of
+every model of the run, as ``auc`` is normalised by).
+
+The probability of improvement P(X > Y) (rliable's) is still given beside each difference.
 """
 
 from __future__ import annotations
@@ -40,6 +58,11 @@ PLATEAU = 500
 BAND = 0.1
 MEASURES = ("converged", "success95", "steps_rise", "auc", "plateau")
 LOWER_IS_BETTER = {"converged", "success95", "steps_rise"}
+# The margin of "no practical difference" (module docstring): a share of the axis each
+# measure lives on; the episode counts' axis is the training episodes, ``plateau``'s the run's
+# return range, ``auc``'s the unit range it is normalised to.
+MARGIN = 0.02
+HOLDS, FAILS, SAME = "holds", "fails", "no practical difference"
 # The paper's comparisons (tag pairs "X better than Y") and the sentence each rests on.
 COMPARISONS = (
     (
@@ -120,10 +143,40 @@ def run_measures(episodes: dict[str, np.ndarray]) -> list[dict[str, float]]:
     return rows
 
 
-def comparisons(models: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def margins(episodes: dict[str, np.ndarray]) -> dict[str, float]:
+    """Each measure's margin of "no practical difference" for a run (``MARGIN`` of its
+    axis): episodes for the episode counts, return for ``plateau``, unit for ``auc``."""
+    n = int(np.max(episodes["episodes"]))
+    curves = [moving(episodes["ret"][m, : int(c)]) for m, c in enumerate(episodes["episodes"])]
+    span = max(map(np.max, curves)) - min(map(np.min, curves))
+    out = {m: MARGIN * n for m in LOWER_IS_BETTER}
+    return out | {"auc": MARGIN, "plateau": MARGIN * float(span)}
+
+
+def decide(lo: float, hi: float, margin: float, seeds: int) -> str:
+    """The decision of one comparison from the interval ``[lo, hi]`` of its paper-side
+    difference (module docstring)."""
+    if seeds < stats.RANGE_BELOW or not (math.isfinite(lo) and math.isfinite(hi)):
+        return f"undecided at {seeds} seed{'s' * (seeds != 1)}"
+    if -margin < lo and hi < margin:
+        return SAME
+    if lo > 0:
+        return HOLDS
+    if hi < 0:
+        return FAILS
+    return f"undecided (interval width {hi - lo:.3g}, margin ±{margin:.3g})"
+
+
+def comparisons(
+    models: list[dict[str, Any]], margin: dict[str, float] | None = None
+) -> list[dict[str, Any]]:
     """Each of the paper's comparisons on each measure: ``models`` are rows with ``label``
-    (starting with the paper's tag) and the measures; one row per pair and measure with
-    P(X better than Y), its interval and ``stats.verdict``, where the grid has both cells."""
+    (starting with the paper's tag) and the measures; one row per pair and measure where the
+    grid has both cells, with the paper-side difference of means ``diff`` (its interval
+    ``diff_lo``, ``diff_hi``), the ``margin`` (``margins``; NaN: none given, so nothing is
+    "no practical difference"), the ``verdict`` (``decide``) and P(X better than Y) with its
+    interval."""
+    margin = margin or {}
     by_tag: dict[str, list[dict[str, Any]]] = {}
     for r in models:
         by_tag.setdefault(str(r["label"])[:1], []).append(r)
@@ -138,6 +191,8 @@ def comparisons(models: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 xs = np.asarray([sign * r[m] for r in by_tag[x]])
                 ys = np.asarray([sign * r[m] for r in by_tag[y]])
                 p, lo, hi = stats.improvement([xs], [ys])
+                d, d_lo, d_hi = stats.difference(ys, xs)  # mean(xs) - mean(ys), paper side +
+                room = margin.get(m, math.nan)
                 out.append(
                     {
                         "claim": claim,
@@ -150,36 +205,48 @@ def comparisons(models: list[dict[str, Any]]) -> list[dict[str, Any]]:
                         "p": p,
                         "p_lo": lo,
                         "p_hi": hi,
-                        "verdict": stats.verdict(lo, hi, n),
+                        "diff": d,
+                        "diff_lo": d_lo,
+                        "diff_hi": d_hi,
+                        "margin": room,
+                        "verdict": decide(d_lo, d_hi, room if room == room else 0.0, n),
                     }
                 )
     return out
 
 
 def claim_verdicts(rows: list[dict[str, Any]]) -> list[dict[str, str]]:
-    """One verdict per claim from its key measures (``COMPARISONS``): *supported* when every
-    pair is supported on every key measure, *not supported* when some pair is not supported
-    on one, else undecided at the fewest seeds."""
+    """One verdict per claim from its comparisons on its key measures (``COMPARISONS``):
+    *fails* when one fails; else undecided when one is; else *holds* or *no practical
+    difference* when all agree, and when they mix, which measures hold and which show none."""
     out = []
     for claim, _, keys in COMPARISONS:
         mine = [r for r in rows if r["claim"] == claim and r["measure"] in keys]
         if not mine:
             continue
-        n = min(r["seeds"] for r in mine)
         vs = [r["verdict"] for r in mine]
-        if all(v == "supported" for v in vs):
-            v = "supported"
-        elif any(v == "not supported" for v in vs):
-            v = "not supported"
+        if FAILS in vs:
+            v = FAILS
+        elif any(x.startswith("undecided") for x in vs):
+            n = min(r["seeds"] for r in mine)
+            v = f"undecided at {n} seed{'s' * (n != 1)}"
+        elif len(set(vs)) == 1:
+            v = vs[0]
         else:
-            v = stats.verdict(math.nan, math.nan, n)
+            held = sorted({r["measure"] for r in mine if r["verdict"] == HOLDS})
+            v = f"{HOLDS} on {', '.join(held)}; {SAME} on the rest"
         figures = "; ".join(
-            f"P({r['x']} > {r['y']}) on {r['measure']} = {r['p']:.2f} [{r['p_lo']:.2f}, "
-            f"{r['p_hi']:.2f}]"
+            f"{r['measure']}: {r['x']} ahead of {r['y']} by {_num(r['diff'])} "
+            f"[{_num(r['diff_lo'])}, {_num(r['diff_hi'])}] (margin ±{_num(r['margin'])})"
             for r in mine
         )
         out.append({"claim": claim, "measures": ", ".join(keys), "figures": figures, "verdict": v})
     return out
+
+
+def _num(v: float) -> str:
+    """A figure for a table: 3 significant digits; a dash where it is undefined."""
+    return f"{v:.3g}" if v == v else "–"
 
 
 def study(episodes: dict[str, np.ndarray], models: list[dict[str, Any]]) -> dict[str, Any]:
@@ -188,11 +255,14 @@ def study(episodes: dict[str, np.ndarray], models: list[dict[str, Any]]) -> dict
     keep = ("model", "cell", "seed", "label", "k", "memory")
     per = run_measures(episodes)
     rows = [{**{k: m.get(k) for k in keep}, **per[m["model"]]} for m in models]
-    comps = comparisons(rows)
+    room = margins(episodes)
+    comps = comparisons(rows, room)
     return {
         "window": WINDOW,
         "plateau_episodes": PLATEAU,
         "band": BAND,
+        "margin_share": MARGIN,
+        "margins": room,
         "models": rows,
         "comparisons": comps,
         "claims": claim_verdicts(comps),

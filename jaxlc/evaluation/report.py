@@ -358,13 +358,25 @@ def _collision_tally(doc: dict[str, Any]) -> list[str]:
         "|---|---|---|---|---|---|---|---|",
     ]
     for (who, ylds), hs in sorted(groups.items(), key=lambda kv: -len(kv[1])):
-        med = {k: float(np.nanmedian([h[k] for h in hs])) for k in COLLISION_MEDIANS}
+        med = {k: _median([h[k] for h in hs]) for k in COLLISION_MEDIANS}
         lines.append(
             f"| {who.replace('_', ' ')} | {'yes' if ylds else 'no'} | {len(hs)} | "
             + " | ".join(_f(med[k], ".1f") for k in COLLISION_MEDIANS)
             + " |"
         )
-    return lines + ["", "Every collision: `eval/collisions.csv`.", ""]
+    return lines + [
+        "",
+        "– : no collision of the row had that value (the target lane had no lag vehicle when "
+        "the gap was accepted). Every collision: `eval/collisions.csv`.",
+        "",
+    ]
+
+
+def _median(values: list[Any]) -> float:
+    """Median of the defined values (a record holds None where there was no such vehicle);
+    NaN, printed as a dash, when none is."""
+    kept = [float(v) for v in values if _defined(v)]
+    return float(np.median(kept)) if kept else math.nan
 
 
 COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
@@ -418,8 +430,13 @@ def _convergence_section(run_dir: Path) -> list[str]:
         f"of the last {doc['plateau_episodes']} episodes); `success95`, the first episode with "
         "95% success over the last 100; `steps_rise`, where Fig. 4a's manoeuvre steps reach "
         "half their rise; `auc`, the area under the return curve normalised over the run; "
-        "`plateau`, the final return. P(X > Y): probability that a seed of X beats a seed of Y "
-        "(fewer episodes, more area or return), 95% bootstrap interval over seeds.",
+        '`plateau`, the final return. Each comparison "X better than Y" is decided on how '
+        "far X is ahead of Y (the difference of the cells' means over seeds, positive on the "
+        "paper's side: fewer episodes, more area or return) with its 95% bootstrap interval: "
+        "*holds* above zero, *fails* below, *no practical difference* inside the margin "
+        f"(±{100 * doc.get('margin_share', 0.02):.0f}% of the measure's axis: training "
+        "episodes, the run's return range), undecided otherwise, and always below 5 seeds per "
+        "cell.",
         "",
         "| claim | key measures | this run | verdict |",
         "|---|---|---|---|",

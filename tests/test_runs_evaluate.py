@@ -1,0 +1,158 @@
+"""Every kind of run the sweep writes evaluates to a report, or is refused in one line.
+
+Small runs reach the code paths users meet: a model never trained past its first checkpoint,
+one model of one seed, a grid that is not the paper's, a curved road, TD3, a run stopped
+mid-chunk, and a held-out collision record with no lag vehicle (the ego hit by its own-lane
+follower where the target lane was empty). Each is evaluated with ``python -m jaxlc.evaluate``'s
+``main``; its report must hold no ``nan`` and no traceback. Every console script answers
+``--help`` and refuses an unknown argument with exit status 2.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from jaxlc import config, evaluate, figures, sweep
+from jaxlc.evaluation import report
+from jaxlc.study.rundir import RunDir
+
+from .conftest import HANG_GUARD_S, SMOKE, wait_for_line
+
+ROOT = Path(__file__).resolve().parent.parent
+ARGS = ["--cases", "8", "--chunk", "4", "--lane-changes", "8", "--no-figures"]
+PAPER = config.CONFIG_DIR / "paper.toml"
+# configs/paper.toml at smoke size (its squared loss, its schedule: early collisions)
+PAPER_SMOKE = ["ddpg.hidden=[32,32]", "ddpg.batch_size=16", "train.envs_per_model=4"]
+PAPER_SMOKE += ["train.checkpoint_every=20", "env.warmup_time=10.0", "train.chunk_steps=100"]
+# Each run: overrides of configs/smoke.toml (20 episodes: one checkpoint of each model).
+RUNS = {
+    "paper_smoke": [*PAPER_SMOKE, "train.episodes=20", "grid.k=[1,4]", "grid.memory=[256]"],
+    "one_model_untrained": ["grid.k=[1]", "grid.memory=[256]", "train.episodes=20"],
+    "non_paper_grid": ["grid.k=[1,3]", "grid.memory=[256]", "train.episodes=20"],
+    "curved_td3": [
+        "grid.k=[2]",
+        "grid.memory=[512]",
+        "train.episodes=20",
+        "env.curvature=[-0.004,0.004]",
+        "ddpg.td3=true",
+    ],
+}
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    out = {}
+    for name, overrides in RUNS.items():
+        rd = tmp_path_factory.mktemp(name)
+        base = PAPER if name.startswith("paper") else SMOKE
+        sweep.run_sweep(config.load(base, overrides), rd, force=True, progress=False)
+        out[name] = rd
+    return out
+
+
+def _report_is_clean(run_dir: Path) -> str:
+    text = (run_dir / "report.md").read_text()
+    assert "nan" not in text.replace("nanoseconds", "").lower(), text
+    assert "Traceback" not in text
+    return text
+
+
+@pytest.mark.parametrize("name", list(RUNS))
+def test_every_run_evaluates_to_a_report(runs, name, capsys) -> None:
+    assert evaluate.main([str(runs[name]), *ARGS]) == 0, capsys.readouterr().err
+    text = _report_is_clean(runs[name])
+    rows = json.loads((runs[name] / "eval" / "eval.json").read_text())["rows"]
+    cells = {r["label"] for r in rows if r["model"] is not None}
+    base = PAPER if name.startswith("paper") else SMOKE
+    assert len(cells) == len(config.load(base, RUNS[name]).grid.k)
+    for label in cells:
+        assert label in text
+
+
+def test_a_collision_with_no_lag_vehicle_prints_dashes(runs) -> None:
+    run_dir = runs["one_model_untrained"]
+    if not (run_dir / "eval" / "heldout.json").is_file():
+        assert evaluate.main([str(run_dir), *ARGS]) == 0
+    doc_path = run_dir / "eval" / "heldout.json"
+    doc = json.loads(doc_path.read_text())
+    hit = {
+        "label": doc["rows"][1]["label"],
+        "model": 0,
+        "seed": 0,
+        "episode": 20,
+        "case": 3,
+        "partner": "own_follower",
+        "yielding": False,
+        "hit_speed": 4.0,
+        "time_s": 2.5,
+        "accept_v": 20.0,
+        "accept_lead_gap": 30.0,
+        "accept_lag_gap": None,  # the target lane had no lag vehicle
+        "accept_lag_v": None,
+    }
+    doc["collisions"] = [hit, hit | {"case": 4, "accept_lag_gap": 12.0, "accept_lag_v": 18.0}]
+    doc_path.write_text(json.dumps(doc))
+    lines = report._collision_tally(doc)
+    (row,) = [x for x in lines if x.startswith("| own follower")]
+    # two collisions; the lag gap's median over the one that had a lag, the rest as they are
+    assert row.rstrip(" |").split(" | ")[2:8] == ["2", "4.0", "2.5", "12.0", "18.0", "20.0"]
+    lines = report._collision_tally({"collisions": [hit]})
+    (row,) = [x for x in lines if x.startswith("| own follower")]
+    assert row.split(" | ")[5:7] == ["–", "–"]
+    assert any("no lag vehicle" in x for x in lines)
+
+
+def test_a_run_stopped_mid_chunk_is_refused_in_one_line_or_evaluated(tmp_path, capsys) -> None:
+    out = tmp_path / "stopped"
+    cmd = [sys.executable, "-m", "jaxlc.sweep", "--config", str(SMOKE), "--out", str(out)]
+    cmd += ["--no-progress", "--devices", "1", "train.episodes=20"]
+    env = {**os.environ, sweep.HOLD_ENV: "1"}  # holds after its first save until a signal
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env
+    )
+    wait_for_line(proc, sweep.HOLD_LINE)
+    os.kill(proc.pid, signal.SIGTERM)
+    proc.communicate(timeout=HANG_GUARD_S)
+    assert proc.returncode == 128 + signal.SIGTERM
+    assert not RunDir(out).summary_json.exists()
+    status = evaluate.main([str(out), *ARGS])
+    err = capsys.readouterr().err.strip()
+    if status == 0:
+        _report_is_clean(out)
+    else:
+        assert status == 2 and len(err.splitlines()) == 1 and "--resume" in err, err
+
+
+def _scripts() -> dict[str, str]:
+    doc = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    return doc["project"]["scripts"]
+
+
+@pytest.mark.parametrize("script", list(_scripts()))
+def test_every_console_script_answers_help_and_refuses_unknown_arguments(script) -> None:
+    module = _scripts()[script].split(":")[0]
+    run = [sys.executable, "-c", f"import sys, {module} as m; sys.exit(m.main())"]
+    ok = subprocess.run([*run, "--help"], capture_output=True, text=True, timeout=HANG_GUARD_S)
+    assert ok.returncode == 0 and "usage:" in ok.stdout, ok.stderr
+    bad = subprocess.run(
+        [*run, "runs/none", "--no-such-option"],
+        capture_output=True,
+        text=True,
+        timeout=HANG_GUARD_S,
+    )
+    assert bad.returncode == 2 and "--no-such-option" in bad.stderr, bad.stderr
+
+
+def test_figures_of_a_missing_run_directory_exit_2(tmp_path, capsys) -> None:
+    with pytest.raises(SystemExit) as stop:
+        figures.main([str(tmp_path / "absent")])
+    assert stop.value.code == 2
+    assert "is not a directory" in capsys.readouterr().err
