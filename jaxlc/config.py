@@ -133,7 +133,9 @@ class DDPGConfig:
     updates_per_transition: int = _f(
         0, 0, 8, doc="updates per RL transition (the paper: 1); 0 uses updates_per_step"
     )
-    td3: bool = _f(False, doc="TD3 instead of DDPG (an option, never the paper's default)")
+    learner: str = _f(
+        "ddpg", doc="the learner (jaxlc.learn.learners): 'ddpg' (the paper's) or 'td3'"
+    )
     td3_target_noise: float = _f(0.2, 0.0, 2.0, doc="TD3 target smoothing sigma, tanh units")
     td3_target_clip: float = _f(0.5, 0.0, 2.0, doc="TD3 target smoothing noise clip")
     td3_policy_delay: int = _f(2, 1, 100, doc="TD3: critic updates per actor/target update")
@@ -197,6 +199,10 @@ class Config:
         return hashlib.sha256(blob).hexdigest()[:12]
 
 
+# The values a text key takes (the learners are jaxlc.learn.learners.LEARNERS; this module
+# imports no other jaxlc module, and tests/test_ddpg.py checks that the two lists agree).
+CHOICES: dict[str, tuple[str, ...]] = {"ddpg.learner": ("ddpg", "td3")}
+
 _TABLES: dict[str, type] = {
     "env": EnvConfig,
     "ddpg": DDPGConfig,
@@ -216,6 +222,13 @@ def _allowed(meta: dict[str, Any]) -> str:
 
 
 def _check_scalar(key: str, value: Any, typ: type, meta: dict[str, Any]) -> Any:
+    if typ is str:
+        allowed = CHOICES[key]
+        if value not in allowed:
+            raise ConfigError(
+                f"config key '{key}': must be one of {', '.join(map(repr, allowed))}, got {value!r}"
+            )
+        return value
     if typ is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"config key '{key}': must be true or false, got {value!r}")
@@ -322,9 +335,24 @@ def from_dict(data: dict[str, Any]) -> Config:
             raise ConfigError(f"unknown config table '[{table}]'; allowed: {', '.join(_TABLES)}")
         if not isinstance(values, dict):
             raise ConfigError(f"config key '{table}': must be a table")
+    data = _legacy(data)
     cfg = Config(**{t: _build(t, data.get(t, {})) for t in _TABLES})
     _cross_checks(cfg)
     return cfg
+
+
+def _legacy(data: dict[str, Any]) -> dict[str, Any]:
+    """Keys that runs were written with and that another key now holds: ``ddpg.td3`` (a bool,
+    until ``ddpg.learner``) reads as ``learner = "td3"`` when true, as nothing when false."""
+    d = data.get("ddpg", {})
+    if "td3" not in d:
+        return data
+    d = dict(d)
+    if _check_scalar("ddpg.td3", d.pop("td3"), bool, {}) and d.get("learner", "td3") == "td3":
+        d["learner"] = "td3"
+    elif "learner" not in d:
+        d["learner"] = "ddpg"
+    return {**data, "ddpg": d}
 
 
 def parse_override(text: str) -> tuple[str, str, Any]:
@@ -385,6 +413,8 @@ def to_toml(cfg: Config) -> str:
             return "true" if v else "false"
         if isinstance(v, list):
             return "[" + ", ".join(fmt(x) for x in v) + "]"
+        if isinstance(v, str):
+            return json.dumps(v)  # a TOML basic string
         return repr(v)
 
     lines = []

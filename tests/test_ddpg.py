@@ -2,14 +2,16 @@
 
 import dataclasses
 import math
+import tomllib
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxlc import config
 from jaxlc.config import DDPGConfig
-from jaxlc.learn import ddpg
+from jaxlc.learn import ddpg, learners
 from jaxlc.learn.networks import make_networks
 from jaxlc.sim.observation import MIRROR_SIGNS
 from jaxlc.sim.observation import OBS_DIM as FULL_OBS
@@ -313,14 +315,29 @@ def test_benchmark_counts_the_products_that_the_update_computes(symmetric):
 
 # ---- TD3, the option -------------------------------------------------------------------
 
-TD3 = dataclasses.replace(CFG, td3=True, td3_target_noise=0.0, td3_policy_delay=2)
+TD3 = dataclasses.replace(CFG, learner="td3", td3_target_noise=0.0, td3_policy_delay=2)
 
 
 @pytest.fixture(scope="module")
 def td3_fns():
-    init = jax.jit(lambda key: ddpg.init_learner(key, OBS_DIM, TD3))
-    update = jax.jit(lambda lrn, b, h, k: ddpg.update(lrn, b, h, TD3, key=k))
+    algo = learners.of(TD3)
+    init = jax.jit(lambda key: algo.init_learner(key, OBS_DIM, TD3))
+    update = jax.jit(lambda lrn, b, h, k: algo.update(lrn, b, h, TD3, key=k))
     return init, update
+
+
+def test_the_config_accepts_exactly_the_learners_there_are() -> None:
+    assert config.CHOICES["ddpg.learner"] == tuple(learners.LEARNERS)
+    for name, module in learners.LEARNERS.items():
+        for attr in ("Hyper", "Learner", "init_learner", "update", "explore"):
+            assert callable(getattr(module, attr)), f"{name} lacks {attr}"
+    with pytest.raises(config.ConfigError, match="ddpg.learner': must be one of 'ddpg', 'td3'"):
+        config.load(None, ["ddpg.learner='sac'"])
+    # runs written before the key: ddpg.td3 = true reads as the TD3 learner
+    assert config.from_dict({"ddpg": {"td3": True}}).ddpg.learner == "td3"
+    assert config.from_dict({"ddpg": {"td3": False}}).ddpg.learner == "ddpg"
+    cfg = config.load(None, ["ddpg.learner='td3'"])
+    assert config.from_dict(tomllib.loads(config.to_toml(cfg))).ddpg.learner == "td3"
 
 
 def test_td3_regresses_twins_on_the_smaller_target_and_delays_the_actor(td3_fns):

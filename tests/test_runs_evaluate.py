@@ -42,7 +42,7 @@ RUNS = {
         "grid.memory=[512]",
         "train.episodes=20",
         "env.curvature=[-0.004,0.004]",
-        "ddpg.td3=true",
+        "ddpg.learner='td3'",
     ],
 }
 

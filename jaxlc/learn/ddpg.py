@@ -18,7 +18,6 @@ import jax.numpy as jnp
 import optax
 
 from jaxlc.config import DDPGConfig
-from jaxlc.learn import tree
 from jaxlc.learn.networks import make_networks
 
 Params = dict
@@ -65,10 +64,11 @@ def init_learner(key: jax.Array, obs_dim: int, cfg: DDPGConfig, act_dim: int = 1
     obs = jnp.zeros((1, obs_dim), jnp.float32)
     act = jnp.zeros((1, act_dim), jnp.float32)
     actor_params = actor.init(k_actor, obs)
-    if cfg.td3:  # twin critics: every critic leaf gets a leading axis of 2
-        critic_params = jax.vmap(lambda k: critic.init(k, obs, act))(jax.random.split(k_critic))
-    else:
-        critic_params = critic.init(k_critic, obs, act)
+    return fresh(actor_params, critic.init(k_critic, obs, act))
+
+
+def fresh(actor_params: Params, critic_params: Params) -> Learner:
+    """A learner from initial params: targets equal to them, zeroed Adam moments."""
     return Learner(
         actor=actor_params,
         critic=critic_params,
@@ -94,6 +94,15 @@ def optimizer_step(
     return params, opt, target
 
 
+def critic_error(q: jax.Array, y: jax.Array, cfg: DDPGConfig) -> jax.Array:
+    """Per-sample critic loss: eq. (4)'s squared TD error, replaced beyond
+    ``cfg.huber_delta`` by the Huber loss's linear branch (the default; 0 keeps the square:
+    README, "Decisions") so that outlying TD errors (the cliff of eq. (11)) pull boundedly."""
+    if cfg.huber_delta > 0:
+        return 2.0 * optax.losses.huber_loss(q, y, delta=cfg.huber_delta)  # = (y - q)^2 inside
+    return jnp.square(y - q)
+
+
 def update(
     learner: Learner,
     batch: dict[str, jax.Array],
@@ -103,71 +112,48 @@ def update(
 ) -> tuple[Learner, dict[str, jax.Array]]:
     """One DDPG update from a batch (keys and shapes as ``replay.sample`` returns them).
 
-    Critic: minimise eq. (4), y = r + gamma (1 - terminated) Q'(s', mu'(s')), with its
-    squared error replaced beyond ``cfg.huber_delta`` by the Huber loss's linear branch (the
-    default; 0 keeps the square: README, "Decisions"); actor: ascend eq. (5); targets: eqs.
-    (6)/(7) after the Adam steps. Metrics: critic_loss, actor_loss
-    (= -mean Q(s, mu(s))), mean_q (= mean Q(s, a)), each ``()``.
+    Critic: minimise eq. (4), y = r + gamma (1 - terminated) Q'(s', mu'(s')), per sample
+    ``critic_error``; actor: ascend eq. (5); targets: eqs. (6)/(7) after the Adam steps.
+    Metrics: critic_loss, actor_loss (= -mean Q(s, mu(s))), mean_q (= mean Q(s, a)), each
+    ``()``. ``key`` is unused (DDPG's update draws nothing); the learner interface passes it.
 
     Both gradients use the params from before this step, as reference implementations do
     (OpenAI baselines' DDPG), so the critic and actor passes are independent and XLA can
     overlap them. The actor's gradient differentiates only the actor's params: the critic's
     weight gradients are never formed on that pass.
-
-    With ``cfg.td3`` (an option, never the default) it is TD3 (Fujimoto et al. 2018): twin
-    critics regress on the smaller target Q, the target action is smoothed with clipped noise
-    drawn from ``key``, and the actor and both targets move only every ``td3_policy_delay``-th
-    update; the critic loss is the sum of the twins' losses.
     """
+    del key
     actor, critic = make_networks(cfg, batch["action"].shape[-1])
     obs, act, next_obs = batch["obs"], batch["action"], batch["next_obs"]
-    # TD3's twin critics: (2, batch) Q values from params with a leading axis of 2
-    q_all = jax.vmap(critic.apply, (0, None, None)) if cfg.td3 else critic.apply
 
     next_act = actor.apply(learner.actor_target, next_obs)
-    if cfg.td3:
-        if key is None:
-            raise ValueError("ddpg.update: TD3 needs a key for its target-action noise")
-        noise = cfg.td3_target_noise * jax.random.normal(key, next_act.shape, next_act.dtype)
-        clip = cfg.td3_target_clip
-        next_act = jnp.clip(next_act + jnp.clip(noise, -clip, clip), -1.0, 1.0)
-        next_q = jnp.min(q_all(learner.critic_target, next_obs, next_act), axis=0)
-    else:
-        next_q = critic.apply(learner.critic_target, next_obs, next_act)
+    next_q = critic.apply(learner.critic_target, next_obs, next_act)
     y = batch["reward"] + cfg.gamma * (1.0 - batch["terminated"]) * next_q  # (batch,)
 
     def critic_loss(params: Params) -> tuple[jax.Array, jax.Array]:
-        q = q_all(params, obs, act)  # (batch,), or (2, batch) for TD3
-        if cfg.huber_delta > 0:  # outlying TD errors (the cliff of eq. (11)) pull boundedly
-            per = 2.0 * optax.losses.huber_loss(q, y, delta=cfg.huber_delta)  # = (y - q)^2 inside
-        else:
-            per = jnp.square(y - q)
-        return jnp.sum(jnp.mean(per, axis=-1)), q
-
-    # The actor ascends Q (TD3: the first twin's).
-    first_critic = jax.tree.map(lambda x: x[0], learner.critic) if cfg.td3 else learner.critic
+        q = critic.apply(params, obs, act)  # (batch,)
+        return jnp.sum(jnp.mean(critic_error(q, y, cfg), axis=-1)), q
 
     def actor_loss(params: Params) -> jax.Array:
-        return -jnp.mean(critic.apply(first_critic, obs, actor.apply(params, obs)))
+        return -jnp.mean(critic.apply(learner.critic, obs, actor.apply(params, obs)))
 
     (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(learner.critic)
     a_loss, a_grads = jax.value_and_grad(actor_loss)(learner.actor)
+    new = apply_gradients(learner, c_grads, a_grads, hyper, cfg.tau)
+    return new, {"critic_loss": c_loss, "actor_loss": a_loss, "mean_q": jnp.mean(q)}
+
+
+def apply_gradients(
+    learner: Learner, c_grads: Params, a_grads: Params, hyper: Hyper, tau: float
+) -> Learner:
+    """Both networks' ``optimizer_step`` (critic first) and the update count advanced."""
     critic_p, critic_opt, critic_t = optimizer_step(
-        learner.critic, c_grads, learner.critic_opt, hyper.critic_lr, learner.critic_target, cfg.tau
+        learner.critic, c_grads, learner.critic_opt, hyper.critic_lr, learner.critic_target, tau
     )
     actor_p, actor_opt, actor_t = optimizer_step(
-        learner.actor, a_grads, learner.actor_opt, hyper.actor_lr, learner.actor_target, cfg.tau
+        learner.actor, a_grads, learner.actor_opt, hyper.actor_lr, learner.actor_target, tau
     )
-    if cfg.td3:
-        delayed = learner.step % cfg.td3_policy_delay == 0
-        actor_p, actor_opt, actor_t = tree.where(
-            delayed,
-            (actor_p, actor_opt, actor_t),
-            (learner.actor, learner.actor_opt, learner.actor_target),
-        )
-        critic_t = tree.where(delayed, critic_t, learner.critic_target)
-    new = Learner(actor_p, critic_p, actor_t, critic_t, actor_opt, critic_opt, learner.step + 1)
-    return new, {"critic_loss": c_loss, "actor_loss": a_loss, "mean_q": jnp.mean(q)}
+    return Learner(actor_p, critic_p, actor_t, critic_t, actor_opt, critic_opt, learner.step + 1)
 
 
 def explore(

@@ -31,7 +31,7 @@ from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
 from jaxlc.config import Config, ConfigError, DDPGConfig, TrainConfig
-from jaxlc.learn import ddpg, replay, tree
+from jaxlc.learn import ddpg, learners, replay, tree
 from jaxlc.learn.networks import make_networks
 from jaxlc.sim.env import ACT_DIM, EnvParams, EnvState, LaneChangeEnv
 from jaxlc.sim.observation import MIRROR_SIGNS, OBS_DIM
@@ -193,7 +193,7 @@ def init_model(key: Array, hyper: ModelHyper, cfg: Config) -> TrainState:
     k_learn, k_env, k_run = jax.random.split(key, 3)
     keys = jax.random.split(k_env, t.envs_per_model)
     obs, env_state = jax.vmap(LaneChangeEnv().reset, (0, None))(keys, base)
-    learner = ddpg.init_learner(k_learn, OBS_DIM, d, ACT_DIM)
+    learner = learners.of(d).init_learner(k_learn, OBS_DIM, d, ACT_DIM)
     return TrainState(
         learner=learner,
         memory=replay.init(max(cfg.grid.memory), OBS_DIM, ACT_DIM, hyper.capacity),
@@ -225,9 +225,11 @@ def _learn(
     Otherwise that many per RL transition of this step (``transitions``, the model's envs
     together), the paper's one update per environment step of its single env."""
 
+    algo = learners.of(d)
+
     def one_update(learner: ddpg.Learner, k: Array):
         batch = replay.sample(memory, k, d.batch_size, MIRROR_SIGNS if d.mirror else None)
-        return ddpg.update(learner, batch, h, d, key=jax.random.fold_in(k, 1))
+        return algo.update(learner, batch, h, d, key=jax.random.fold_in(k, 1))
 
     if d.updates_per_transition == 0:
         keys = jax.random.split(key, d.updates_per_step)
@@ -288,7 +290,7 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
 
         # Act in every env; only RL-phase steps are transitions.
         mu = actor_net.apply(ts.learner.actor, ts.obs)  # (envs, 1)
-        action = ddpg.explore(k_noise, mu, h.noise_sigma, d.noise_clip)
+        action = learners.of(d).explore(k_noise, mu, h.noise_sigma, d.noise_clip)
         obs, env_state, reward, term, trunc, info = jax.vmap(env.step, (0, 0, 0, None))(
             jax.random.split(k_env, n_envs), ts.env, action, base.replace(k=hyper.k)
         )
