@@ -187,8 +187,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--model", help="model index or label (e.g. 3, ④, 'k=1 D=4000'); default 0")
     ap.add_argument("--episode", type=int, help="checkpoint episode (default: the model's last)")
     ap.add_argument("--format", choices=FORMATS, default="onnx")
-    ap.add_argument("--out", type=Path, required=True, help="file to write, e.g. policy.onnx")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        help="file to write (default: policy.onnx, or policy.stablehlo with --format stablehlo)",
+    )
     args = ap.parse_args(argv)
+    args.out = args.out or Path(f"policy.{args.format}")
     try:
         out, side = export(args.run_dir, args.out, args.model, args.episode, args.format)
     except (ExportError, checkpoint.CheckpointError) as err:

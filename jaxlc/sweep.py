@@ -53,6 +53,7 @@ from jaxlc.sim.env import ACT_DIM, OBS_DIM
 from jaxlc.sim.reward import REASONS, SUCCESS
 from jaxlc.study import checkpoint, lock, machine
 from jaxlc.study.rundir import RunDir
+from jaxlc.study.summary import summary_markdown
 from jaxlc.study.tracking import TensorBoard
 
 # The paper's Table 1 numbers the models by (k, memory size).
@@ -154,30 +155,6 @@ def summarise(
             }
         )
     return rows
-
-
-def summary_markdown(summary: dict[str, Any], last: int = 100) -> str:
-    """The summary as markdown: one line of speed, with the machine that gave it, and a table."""
-    rows, wall_s, env_steps = summary["models"], summary["wall_s"], summary["env_steps"]
-    lines = [
-        f"Wall time {wall_s:.0f} s, {env_steps:,} env-steps ({env_steps / wall_s:,.0f}/s), "
-        f"{sum(r['episodes'] for r in rows):,} episodes "
-        f"({sum(r['episodes'] for r in rows) / wall_s:.1f}/s), on {summary['devices']} "
-        f"{summary['device']} device(s); float32 matmul peak of this machine "
-        f"{summary['matmul_peak_gflops']:.0f} GFLOP/s.",
-        "",
-        f"| model | seed | episodes | success (last {last}) | return (last {last}) | "
-        f"manoeuvre steps | out of bounds / collision / timeout |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for r in rows:
-        e = r["ends_last"]
-        lines.append(
-            f"| {r['label']} | {r['seed']} | {r['episodes']} | {r['success_rate_last']:.1%} | "
-            f"{r['return_last']:.1f} | {r['steps_last']:.1f} | "
-            f"{e['out_of_bounds']} / {e['collision']} / {e['timeout']} |"
-        )
-    return "\n".join(lines) + "\n"
 
 
 # --- the run directory ----------------------------------------------------------------------

@@ -25,6 +25,7 @@ TOP = 5
 TOP_LEVEL = {
     "jaxlc",
     "jaxlc.evaluate",
+    "jaxlc.export",
     "jaxlc.figures",
     "jaxlc.gym",
     "jaxlc.gymnax_env",

@@ -65,10 +65,22 @@ def _report_is_clean(run_dir: Path) -> str:
     return text
 
 
+def _verdict_claims() -> list[str]:
+    """The claims of README.md's verdict table, in order."""
+    readme = (ROOT / "README.md").read_text()
+    block = readme.split("<!-- publish:verdict -->")[1].split("<!-- /publish:verdict -->")[0]
+    return [line.split(" | ")[0][2:] for line in block.splitlines() if line.startswith("| (")]
+
+
 @pytest.mark.parametrize("name", list(RUNS))
 def test_every_run_evaluates_to_a_report(runs, name, capsys) -> None:
     assert evaluate.main([str(runs[name]), *ARGS]) == 0, capsys.readouterr().err
     text = _report_is_clean(runs[name])
+    # one section on the paper's claims, naming the claims of README.md's verdict
+    assert text.count("claims") and text.count("## The paper's claims\n") == 1
+    section = text.split("## The paper's claims\n")[1].split("\n## ")[0]
+    named = [line.split(" | ")[0][2:] for line in section.splitlines() if line.startswith("| (")]
+    assert sorted(named) == sorted(_verdict_claims())
     rows = json.loads((runs[name] / "eval" / "eval.json").read_text())["rows"]
     cells = {r["label"] for r in rows if r["model"] is not None}
     base = PAPER if name.startswith("paper") else SMOKE

@@ -220,9 +220,14 @@ def claim_verdicts(rows: list[dict[str, Any]]) -> list[dict[str, str]]:
     *fails* when one fails; else undecided when one is; else *holds* or *no practical
     difference* when all agree, and when they mix, which measures hold and which show none."""
     out = []
-    for claim, _, keys in COMPARISONS:
+    for claim, pairs, keys in COMPARISONS:
         mine = [r for r in rows if r["claim"] == claim and r["measure"] in keys]
-        if not mine:
+        if not mine:  # the claim is still named, so every report lists the same claims
+            tags = "".join(dict.fromkeys(t for pair in pairs for t in pair))
+            figures = f"the grid lacks a cell of {tags}"
+            out.append(
+                {"claim": claim, "measures": ", ".join(keys), "figures": figures, "verdict": "n/a"}
+            )
             continue
         vs = [r["verdict"] for r in mine]
         if FAILS in vs:

@@ -163,30 +163,23 @@ def _ci(est: float, lo: float, hi: float, fmt: str, scale: float = 1.0) -> str:
     return text
 
 
-def _seed_section(rows: list[dict[str, Any]], held: dict[str, Any] | None = None) -> list[str]:
-    """The paper's claims with verdicts from intervals over seeds, the cells' means and
-    IQMs, and the probability that each cell improves on each other."""
+def _seed_section(rows: list[dict[str, Any]]) -> list[str]:
+    """Each cell's success and return at its last evaluated checkpoint over seeds (means and
+    IQMs with intervals), and the probability that each cell improves on each other."""
     cells = stats.cells_of(rows)
     if not cells:
         return []
     n = stats.fewest_seeds(cells)
     note = stats.seeds_note(cells)
     lines = [
-        "## The paper's claims over seeds",
+        "## Success over seeds",
         "",
         f"{len(cells)} grid cells, {n} seed{'s' * (n != 1)} in the smallest; each model at its "
         "last evaluated checkpoint. Brackets: 95% bootstrap intervals over seeds (resampled "
-        "within each cell; `jaxlc.evaluation.stats`, where the verdict rules are).",
+        "within each cell; `jaxlc.evaluation.stats`).",
     ]
-    if note and n < 2:
-        lines += ["", f"**Note: {note}**; every verdict is undecided (train with `--seeds N`)."]
-    elif note:
-        lines += ["", f"**Note: {note}.**"]
-    lines += ["", "| claim | paper | this run | verdict |", "|---|---|---|---|"]
-    for c in stats.claims(cells):
-        if c["claim"].startswith("(d)") and held is not None:  # decided on the held-out bound
-            c = {**held["claim_d"], "claim": c["claim"] + " (held-out)"}
-        lines.append(f"| {c['claim']} | {c['paper']} | {c['figures']} | **{c['verdict']}** |")
+    if note:
+        lines += ["", f"**Note: {note}** (train with `--seeds N`)."]
     lines += [
         "",
         "| cell | seeds | success rate, mean | success rate, IQM | avg return, mean | "
@@ -413,36 +406,62 @@ def _heldout_section(doc: dict[str, Any] | None) -> list[str]:
     ]
 
 
-def _convergence_section(run_dir: Path) -> list[str]:
-    """The paper's comparisons decided on learning speed (``jaxlc.evaluation.convergence``)."""
+def _claim_d(rows: list[dict[str, Any]], held: dict[str, Any] | None) -> dict[str, str] | None:
+    """Claim (d) as the README's verdict decides it: on the held-out lane changes
+    (``heldout.claim_d``); a run evaluated without them, on the protocol's cases over seeds
+    (``stats.claims``)."""
+    if held is not None:
+        return {**held["claim_d"], "measures": "held-out failures"}
+    cells = stats.cells_of(rows)
+    d = (
+        next((c for c in stats.claims(cells) if c["claim"].startswith("(d)")), None)
+        if cells
+        else None
+    )
+    return None if d is None else {**d, "measures": "protocol success over seeds"}
+
+
+def _claims_section(
+    run_dir: Path, rows: list[dict[str, Any]], held: dict[str, Any] | None
+) -> list[str]:
+    """The paper's claims (its section IV), the same as README.md's verdict: (a)-(c) on
+    learning speed (``jaxlc.evaluation.convergence``), (d) on the final checkpoint."""
     path = RunDir(run_dir).convergence
-    if not path.is_file():
+    doc = json.loads(path.read_text()) if path.is_file() else None
+    d = _claim_d(rows, held)
+    if doc is None and d is None:
         return []
-    doc = json.loads(path.read_text())
-    lines = [
-        "## The paper's claims on learning speed",
-        "",
-        "The paper argues (a)–(c) from its training curves (Figs. 3, 4), so they are decided "
-        "here on measures of each model's training curves (noise on; "
-        "`jaxlc.evaluation.convergence`): "
-        f"`converged`, the episode from which the return's {doc['window']}-episode moving "
-        f"average stays within {100 * doc['band']:.0f}% of its rise from its plateau (the mean "
-        f"of the last {doc['plateau_episodes']} episodes); `success95`, the first episode with "
-        "95% success over the last 100; `steps_rise`, where Fig. 4a's manoeuvre steps reach "
-        "half their rise; `auc`, the area under the return curve normalised over the run; "
-        '`plateau`, the final return. Each comparison "X better than Y" is decided on how '
-        "far X is ahead of Y (the difference of the cells' means over seeds, positive on the "
-        "paper's side: fewer episodes, more area or return) with its 95% bootstrap interval: "
-        "*holds* above zero, *fails* below, *no practical difference* inside the margin "
-        f"(±{100 * doc.get('margin_share', 0.02):.0f}% of the measure's axis: training "
-        "episodes, the run's return range), undecided otherwise, and always below 5 seeds per "
-        "cell.",
-        "",
-        "| claim | key measures | this run | verdict |",
-        "|---|---|---|---|",
-    ]
-    for c in doc["claims"]:
+    lines = ["## The paper's claims", ""]
+    if doc is None:
+        lines += [
+            "(a)–(c) need the training curves (`metrics/episodes.npz`), which this run lacks.",
+            "",
+        ]
+        doc = {"claims": [], "models": []}
+    else:
+        lines += [
+            "The paper argues (a)–(c) from its training curves (Figs. 3, 4), so they are decided "
+            "here on measures of each model's training curves (noise on; "
+            "`jaxlc.evaluation.convergence`): "
+            f"`converged`, the episode from which the return's {doc['window']}-episode moving "
+            f"average stays within {100 * doc['band']:.0f}% of its rise from its plateau (the mean "
+            f"of the last {doc['plateau_episodes']} episodes); `success95`, the first episode with "
+            "95% success over the last 100; `steps_rise`, where Fig. 4a's manoeuvre steps reach "
+            "half their rise; `auc`, the area under the return curve normalised over the run; "
+            '`plateau`, the final return. Each comparison "X better than Y" is decided on how '
+            "far X is ahead of Y (the difference of the cells' means over seeds, positive on the "
+            "paper's side: fewer episodes, more area or return) with its 95% bootstrap interval: "
+            "*holds* above zero, *fails* below, *no practical difference* inside the margin "
+            f"(±{100 * doc.get('margin_share', 0.02):.0f}% of the measure's axis: training "
+            "episodes, the run's return range), undecided otherwise, and always below 5 seeds per "
+            "cell.",
+            "",
+        ]
+    lines += ["| claim | key measures | this run | verdict |", "|---|---|---|---|"]
+    for c in [*doc["claims"], *([d] if d else [])]:
         lines.append(f"| {c['claim']} | {c['measures']} | {c['figures']} | **{c['verdict']}** |")
+    if not doc["models"]:
+        return lines + [""]
     lines += ["", "| model | seed | " + " | ".join(MEASURE_NAMES) + " |"]
     lines.append("|---" * (2 + len(MEASURE_NAMES)) + "|")
     for m in doc["models"]:
@@ -488,10 +507,10 @@ def build_report(run_dir: Path) -> str:
         *best_lines,
         *_timeout_line(result, best),
         "",
+        *_claims_section(run_dir, rows, held),
         *_heldout_section(held),
-        *_seed_section(rows, held),
-        *_convergence_section(run_dir),
-        "## The paper's claims beside this run",
+        *_seed_section(rows),
+        "## The paper's other figures beside this run",
         "",
         *_claims(result, best),
         "",
