@@ -20,7 +20,7 @@ def test_the_licence_is_apache_2_everywhere():
     text = (ROOT / "LICENSE").read_text()
     assert text.split()[:4] == ["Apache", "License", "Version", "2.0,"]
     assert "END OF TERMS AND CONDITIONS" in text  # the whole licence, not a stub
-    assert PYPROJECT["license"] == {"text": "Apache-2.0"}
+    assert PYPROJECT["license"] == "Apache-2.0"  # an SPDX expression (PEP 639)
 
 
 def test_the_citation_cites_this_version_and_the_paper():

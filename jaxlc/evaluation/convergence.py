@@ -235,6 +235,9 @@ def claim_verdicts(rows: list[dict[str, Any]]) -> list[dict[str, str]]:
         elif any(x.startswith("undecided") for x in vs):
             n = min(r["seeds"] for r in mine)
             v = f"undecided at {n} seed{'s' * (n != 1)}"
+            if n >= stats.RANGE_BELOW:  # the intervals that stayed too wide, and how wide
+                wide = [r for r in mine if r["verdict"].startswith("undecided")]
+                v += " (" + "; ".join(_width(r) for r in wide) + ")"
         elif len(set(vs)) == 1:
             v = vs[0]
         else:
@@ -247,6 +250,12 @@ def claim_verdicts(rows: list[dict[str, Any]]) -> list[dict[str, str]]:
         )
         out.append({"claim": claim, "measures": ", ".join(keys), "figures": figures, "verdict": v})
     return out
+
+
+def _width(r: dict[str, Any]) -> str:
+    """How wide an undecided comparison's interval stayed, beside its margin."""
+    width = _num(r["diff_hi"] - r["diff_lo"])
+    return f"{r['measure']} {r['x']}−{r['y']}: interval {width} wide, margin ±{_num(r['margin'])}"
 
 
 def _num(v: float) -> str:
