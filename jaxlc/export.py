@@ -70,7 +70,7 @@ def pick_checkpoint(
             f"python -m jaxlc.sweep --out {run_dir}"
         )
     want = "0" if model is None else model.strip()
-    if want.isdigit():
+    if want.isascii() and want.isdecimal():  # an index; "④".isdigit() is True in Python
         mine = [(p, m) for p, m in found if m["model"] == int(want)]
     else:
         label = [(p, m) for p, m in found if want in (m["label"], m["label"].split(" ")[0])]

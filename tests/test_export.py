@@ -131,6 +131,7 @@ def test_the_sidecar_says_what_the_graph_takes_and_gives(exported) -> None:
         (["--model", "99"], "no model '99'"),
         (["--episode", "7"], "no checkpoint at episode 7; saved:"),
         (["--model", "k=9 D=1"], "the models: 0 ("),
+        (["--model", "④"], "no model '④'"),  # a paper tag the smoke grid lacks
     ],
 )
 def test_bad_input_is_one_line_exit_2(exported, tmp_path, capsys, args, says) -> None:
