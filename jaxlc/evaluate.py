@@ -84,10 +84,6 @@ def _run_config(run_dir: Path) -> config.Config:
     return RunDir(run_dir).load_config()
 
 
-def _sidecar(path: Path) -> dict[str, Any]:
-    return json.loads(path.with_suffix(".json").read_text(encoding="utf-8"))
-
-
 def select_checkpoints(
     run_dir: Path, episodes: Sequence[int] | None = None, model: int | None = None
 ) -> list[tuple[Path, dict[str, Any]]]:
@@ -95,7 +91,7 @@ def select_checkpoints(
 
     ``episodes=None``: ``default_episodes`` of the run's checkpoint spacing up to each
     model's last checkpoint."""
-    found = _checkpoints(run_dir)
+    found = RunDir(run_dir).saved_checkpoints()
     if model is not None:
         found = [(p, m) for p, m in found if m.get("model") == model]
         if not found:
@@ -113,31 +109,6 @@ def select_checkpoints(
     want = {i: set(default_episodes(every, e)) for i, e in _last_episodes(found).items()}
     chosen = [(p, m) for p, m in found if m["episode"] in want[m["model"]]]
     return chosen or found
-
-
-def _checkpoints(run_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
-    """``(path, meta)`` of every checkpoint of ``run_dir``, their metadata checked."""
-    if not run_dir.is_dir():
-        raise EvalError(f"run directory {run_dir} does not exist; check the path")
-    found = [(p, _sidecar(p)) for p in checkpoint.list_checkpoints(run_dir)]
-    for p, m in found:
-        missing = [k for k in ("model", "episode", "k") if not isinstance(m.get(k), int)]
-        if missing:
-            raise EvalError(
-                f"checkpoint {p} has no {', '.join(missing)} in its JSON, so it was not "
-                "written by python -m jaxlc.sweep; move it out of the run directory"
-            )
-    if not found and RunDir(run_dir).state.exists():  # stopped before its first checkpoint
-        raise EvalError(
-            f"no checkpoints in {RunDir(run_dir).checkpoints}: the run stopped before its "
-            f"first; continue it with python -m jaxlc.sweep --resume {run_dir}"
-        )
-    if not found:
-        raise EvalError(
-            f"no checkpoints in {RunDir(run_dir).checkpoints}; train first with "
-            f"python -m jaxlc.sweep --out {run_dir}"
-        )
-    return found
 
 
 def _last_episodes(found: list[tuple[Path, dict[str, Any]]]) -> dict[int, int]:
@@ -201,7 +172,7 @@ def final_checkpoints(
     run_dir: Path, episodes: Sequence[int] | None = None
 ) -> list[tuple[Path, dict[str, Any]]]:
     """Each model's last checkpoint, and those of ``episodes`` too, by model then episode."""
-    found = _checkpoints(Path(run_dir))
+    found = RunDir(run_dir).saved_checkpoints()
     last, want = _last_episodes(found), set(episodes or ())
     return [(p, m) for p, m in found if m["episode"] in want | {last[m["model"]]}]
 

@@ -57,18 +57,9 @@ def pick_checkpoint(
 ) -> tuple[Path, dict[str, Any]]:
     """The checkpoint of ``model`` (its index, its label, or the label's first word such as
     ``④``; default model 0) at ``episode`` (default its last). Raises ``ExportError`` naming
-    what is missing and the choices."""
-    if not run_dir.is_dir():
-        raise ExportError(f"run directory {run_dir} does not exist")
-    found = [
-        (p, json.loads(p.with_suffix(".json").read_text()))
-        for p in checkpoint.list_checkpoints(run_dir)
-    ]
-    if not found:
-        raise ExportError(
-            f"no checkpoints in {RunDir(run_dir).checkpoints}; train first with "
-            f"python -m jaxlc.sweep --out {run_dir}"
-        )
+    what is missing and the choices (``CheckpointError`` where the run has no checkpoints:
+    ``RunDir.saved_checkpoints``)."""
+    found = RunDir(run_dir).saved_checkpoints()
     want = "0" if model is None else model.strip()
     if want.isascii() and want.isdecimal():  # an index; "④".isdigit() is True in Python
         mine = [(p, m) for p, m in found if m["model"] == int(want)]

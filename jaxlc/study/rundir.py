@@ -120,6 +120,38 @@ class RunDir:
     def is_run(self) -> bool:
         return self.config.is_file()
 
+    def saved_checkpoints(self) -> list[tuple[Path, dict[str, Any]]]:
+        """``(path, meta)`` of every checkpoint the sweep saved here (``list_checkpoints``'
+        order), each with the model, episode and k it must record; else ``CheckpointError``
+        in one line saying what is missing (the directory, a sweep's metadata, or every
+        checkpoint: train, or resume a run stopped before its first)."""
+        if not self.root.is_dir():
+            raise checkpoint.CheckpointError(
+                f"run directory {self.root} does not exist; check the path"
+            )
+        found = [
+            (p, json.loads(p.with_suffix(".json").read_text(encoding="utf-8")))
+            for p in checkpoint.list_checkpoints(self.root)
+        ]
+        for p, m in found:
+            missing = [k for k in ("model", "episode", "k") if not isinstance(m.get(k), int)]
+            if missing:
+                raise checkpoint.CheckpointError(
+                    f"checkpoint {p} has no {', '.join(missing)} in its JSON, so it was not "
+                    "written by python -m jaxlc.sweep; move it out of the run directory"
+                )
+        if not found and self.state.exists():
+            raise checkpoint.CheckpointError(
+                f"no checkpoints in {self.checkpoints}: the run stopped before its first; "
+                f"continue it with python -m jaxlc.sweep --resume {self.root}"
+            )
+        if not found:
+            raise checkpoint.CheckpointError(
+                f"no checkpoints in {self.checkpoints}; train first with "
+                f"python -m jaxlc.sweep --out {self.root}"
+            )
+        return found
+
     def load_config(self) -> config.Config:
         """The resolved config of the run. The sweep writes every key, so a key missing here
         means the run predates it: it takes the behaviour the run had (``BEFORE_KEY``), not
