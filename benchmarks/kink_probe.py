@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from jaxlc import config  # noqa: E402
 from jaxlc.policy import actor_fn  # noqa: E402
-from jaxlc.sim import env  # noqa: E402
+from jaxlc.sim import env, road  # noqa: E402
 from jaxlc.sim.reward import NONE  # noqa: E402
 from jaxlc.study import checkpoint  # noqa: E402
 
@@ -111,7 +111,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
         "peak_at_own_action": float(at_own.mean()),
         "median_gain": float(np.median(gain)),
         "median_best_offset": float(np.median(np.asarray(offsets)[best])),
-        "median_abs_offset_m": float(np.median(np.abs(np.asarray(env.lateral_offset(s_c.ego, p))))),
+        "median_abs_offset_m": float(
+            np.median(np.abs(np.asarray(road.lateral_offset(s_c.ego, p))))
+        ),
     }
     print(
         f"{out['stalled_states']} of {args.envs} envs stalled {args.at:g} s into a manoeuvre "

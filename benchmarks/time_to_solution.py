@@ -65,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
         state, _ = run(state, t.chunk_steps)
         env_steps += t.chunk_steps * t.envs_per_model * grid.size
         host = jax.device_get({"episodes": state.episodes, "log": state.log})
-        log = {k: np.asarray(v) for k, v in host["log"].__dict__.items()}
+        log = {k: np.asarray(v) for k, v in host["log"].columns().items()}
         rows = sweep.summarise(cfg, grid, log, host["episodes"], last=args.last)
         ready = [r for r in rows if r["episodes"] >= args.last]
         best = max(ready, key=lambda r: r["success_rate_last"], default=None)

@@ -104,7 +104,7 @@ def evaluate(cfg: config.Config, name: str, algo: Any, policies: list[Any]) -> l
         scripted=jnp.zeros(n, bool),
     )
     out, _ = jax.device_get(rollout(pol, cs, jnp.zeros(1, jnp.int32)))
-    return results.summarise({k: np.asarray(v) for k, v in vars(out).items()}, cfg.env.dt)
+    return results.summarise({k: np.asarray(v) for k, v in cases.columns(out).items()}, cfg.env.dt)
 
 
 def run(name: str, seeds: int, timesteps: int, cfg: config.Config) -> dict[str, Any]:

@@ -113,6 +113,11 @@ class EnvConfig:
     w3: float = _f(0.075, 0.0)
     w4: float = _f(1.0, 0.0)
     reward_scale: float = _f(1.0, 0.0, open_lo=True, doc="multiplies every reward term")
+    reward_terms: tuple[str, ...] = _f(
+        ["r_s", "r_e", "r_d"],
+        doc="the reward's terms by name, summed: the paper's r_s, r_e, r_d (jaxlc.sim.reward) "
+        "and any registered with jaxlc.sim.reward.register",
+    )
     offset_obs_scale: float = _f(3.7, 0.0, 100.0, open_lo=True, doc="m per unit of obs dd")
 
 
@@ -222,6 +227,12 @@ def _allowed(meta: dict[str, Any]) -> str:
 
 
 def _check_scalar(key: str, value: Any, typ: type, meta: dict[str, Any]) -> Any:
+    if typ is str and key not in CHOICES:  # a name another layer resolves (a reward term)
+        if not (isinstance(value, str) and value.isidentifier()):
+            raise ConfigError(
+                f"config key '{key}': must be a name (letters, digits, _), got {value!r}"
+            )
+        return value
     if typ is str:
         allowed = CHOICES[key]
         if value not in allowed:
@@ -289,6 +300,8 @@ def _build(table: str, values: dict[str, Any]) -> Any:
 
 def _cross_checks(cfg: Config) -> None:
     e, d, g = cfg.env, cfg.ddpg, cfg.grid
+    if not e.reward_terms or len(set(e.reward_terms)) != len(e.reward_terms):
+        raise ConfigError("config key 'env.reward_terms': must name one term or more, each once")
     if e.entry_speed_min > e.entry_speed_max:
         raise ConfigError("config key 'env.entry_speed_min': must be <= env.entry_speed_max")
     if e.desired_speed_min > e.desired_speed_max:

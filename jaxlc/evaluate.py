@@ -56,6 +56,7 @@ from jaxlc.evaluation.results import (
     SCRIPTED,
     EvalError,
     defined,
+    eval_fields,
     format_table,
     summarise,
 )
@@ -159,7 +160,7 @@ def evaluate_run(
         cfg, [None, *actors], [1] + [m["k"] for m in metas[1:]], devices=devices, **kw
     )
     result = _result(cfg, out, info, metas, kw)
-    _write(rd.eval, "eval", result)
+    _write(rd.eval, "eval", result, cfg)
     write_seed_stats(rd.eval, result["rows"])
     ids = _policy_ids(metas)
     rd.save_npz(rd.cases, {**out, **ids, **info})
@@ -276,7 +277,7 @@ def evaluate_checkpoint(
     out, _, info = evaluate_policies(cfg, [None, params], [1, int(meta.get("k", 1))], **kw)
     result = _result(cfg, out, info, metas, kw)
     eval_dir = RunDir(run_dir).eval if run_dir else path.parent / "eval"
-    _write(eval_dir, f"{path.parent.name}_{path.stem}", result)
+    _write(eval_dir, f"{path.parent.name}_{path.stem}", result, cfg)
     return result
 
 
@@ -288,7 +289,8 @@ def _result(
     kw: dict[str, Any],
 ) -> dict[str, Any]:
     """The content of eval.json: the setting, the cases, one row per policy."""
-    rows = [{**m, **r} for m, r in zip(metas, summarise(out, cfg.env.dt), strict=True)]
+    rows = summarise(out, cfg.env.dt, cfg.env.reward_terms)
+    rows = [{**m, **r} for m, r in zip(metas, rows, strict=True)]
     # The run up to the gap is the same for every policy, so these counts are the cases'.
     early = out["reason"][0][~info["performed"]]
     return {
@@ -310,9 +312,10 @@ def _result(
     }
 
 
-def _write(out_dir: Path, name: str, result: dict[str, Any]) -> None:
+def _write(out_dir: Path, name: str, result: dict[str, Any], cfg: config.Config) -> None:
     _write_json(out_dir / f"{name}.json", result)
-    checkpoint.write_text_atomic(out_dir / f"{name}.csv", _csv(result["rows"]))
+    fields = eval_fields(cfg.env.reward_terms)
+    checkpoint.write_text_atomic(out_dir / f"{name}.csv", _csv(result["rows"], fields))
 
 
 def _write_json(path: Path, doc: dict[str, Any]) -> None:

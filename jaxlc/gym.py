@@ -44,17 +44,11 @@ from jax import Array
 
 from jaxlc.config import Config, EnvConfig
 from jaxlc.sim import observation as obs_layout
+from jaxlc.sim import reward
 from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, reset_core, step_core
-from jaxlc.sim.env import (
-    ACT_DIM,
-    OBS_DIM,
-    EnvParams,
-    EnvState,
-    make,
-    reference_y,
-    road_curvature,
-)
+from jaxlc.sim.env import ACT_DIM, OBS_DIM, EnvParams, EnvState, make
 from jaxlc.sim.reward import REASONS
+from jaxlc.sim.road import reference_y, road_curvature
 
 ENV_ID = "jaxlc/LaneChange-v0"
 
@@ -62,7 +56,7 @@ ENV_ID = "jaxlc/LaneChange-v0"
 # Everything the host reads after a call travels as ONE float32 vector: fetching ~18 separate
 # scalars costs more than the simulator step itself. Integers here stay far below 2**24, so
 # float32 holds them exactly.
-_STEP_FIELDS = (
+_STEP_HEAD = (
     ("obs", OBS_DIM),
     ("next_obs", OBS_DIM),
     ("reward", 1),
@@ -70,9 +64,8 @@ _STEP_FIELDS = (
     ("truncated", 1),
     ("rl_step", 1),
     ("reason_code", 1),
-    ("r_s", 1),
-    ("r_e", 1),
-    ("r_d", 1),
+)
+_STEP_TAIL = (
     ("episode_return", 1),
     ("episode_steps", 1),
     ("offset", 1),
@@ -82,6 +75,13 @@ _STEP_FIELDS = (
     ("skipped_episodes", 1),
     ("target_lane", 1),
 )
+
+
+def _step_fields(params: EnvParams) -> tuple[tuple[str, int], ...]:
+    """What a step returns: the head, each of ``params``' reward terms, the tail."""
+    return (*_STEP_HEAD, *((n, 1) for n in reward.names(params)), *_STEP_TAIL)
+
+
 _RESET_FIELDS = (
     ("obs", OBS_DIM),
     ("ready", 1),
@@ -113,6 +113,8 @@ def _unpack(flat: np.ndarray, fields: tuple[tuple[str, int], ...]) -> dict[str, 
 
 
 class _Programs(NamedTuple):
+    fields: tuple[tuple[str, int], ...]  # a step's packed outputs (``_step_fields``)
+    info: tuple[str, ...]  # a step's info entries (``_step_info``)
     reset: Any  # key -> (key, state, packed)
     step: Any  # (key, state, action) -> (key, [terminal state,] next state, packed)
     vreset: Any  # batched reset
@@ -128,22 +130,26 @@ def _programs(params: EnvParams, max_steps: int, keep_terminal: bool) -> _Progra
     step produced (only rendering needs it; the extra outputs cost ~15 % of a call).
     """
 
+    fields = _step_fields(params)
+
     def reset(key: Array) -> tuple[Array, EnvState, Array]:
         key, state, out = reset_core(key, params, max_steps)
         return key, state, _pack(out, _RESET_FIELDS)
 
     def step(key: Array, state: EnvState, action: Array) -> tuple[Any, ...]:
         key, after, nxt, out = step_core(key, state, action, params, max_steps)
-        packed = _pack(out, _STEP_FIELDS)
+        packed = _pack(out, fields)
         return (key, after, nxt, packed) if keep_terminal else (key, nxt, packed)
 
     def vstep(key: Array, state: EnvState, action: Array) -> tuple[Array, EnvState, Array]:
         key, _, nxt, out = step_core(key, state, action, params, max_steps)
-        return key, nxt, _pack(out, _STEP_FIELDS)
+        return key, nxt, _pack(out, fields)
 
     # Under vmap the while_loop runs until every env is ready again; envs already ready keep
     # their carry (key included), so each env's key stream is the one it has when stepped alone.
     return _Programs(
+        fields=fields,
+        info=_step_info(params),
         reset=jax.jit(reset),
         step=jax.jit(step),
         vreset=jax.jit(jax.vmap(reset)),
@@ -307,15 +313,11 @@ def _reason_names(codes: np.ndarray) -> np.ndarray:
     return np.asarray(REASONS)[codes]
 
 
-_STEP_INFO = (
-    "r_s",
-    "r_e",
-    "r_d",
-    "episode_return",
-    "episode_steps",
-    "offset",
-    "action",
-)
+def _step_info(params: EnvParams) -> tuple[str, ...]:
+    """A step's info entries: each reward term of ``params``, then the manoeuvre's."""
+    return (*reward.names(params), "episode_return", "episode_steps", "offset", "action")
+
+
 _RESET_INFO = ("skipped_steps", "skipped_episodes", "target_lane")
 _NEXT_INFO = ("ready", *_RESET_INFO)
 
@@ -334,7 +336,8 @@ class LaneChangeGymEnv(gymnasium.Env[np.ndarray, np.ndarray]):
         max_skip_steps: cap on the env-steps one fast-forward may run.
 
     ``step`` info: ``reason`` (name from ``jaxlc.sim.reward.REASONS``, "none" while the manoeuvre
-    goes on), ``reason_code``, the reward terms ``r_s``/``r_e``/``r_d`` of eqs. (8)-(10),
+    goes on), ``reason_code``, each reward term by name (``r_s``/``r_e``/``r_d``, eqs. (8)-(10),
+    and any other of ``env.reward_terms``),
     ``episode_return``/``episode_steps`` of the manoeuvre so far, ``offset`` (m from the target
     lane's centre) and ``action`` (the executed, held action). ``reset`` info:
     ``skipped_steps``/``skipped_episodes`` run by the fast-forward and ``target_lane``.
@@ -388,7 +391,7 @@ class LaneChangeGymEnv(gymnasium.Env[np.ndarray, np.ndarray]):
             )
         a = np.asarray(action, np.float32).reshape(ACT_DIM)
         self._key, *states, packed = self._programs.step(self._key, self._state, a)
-        out = _unpack(np.asarray(packed), _STEP_FIELDS)
+        out = _unpack(np.asarray(packed), self._programs.fields)
         terminated, truncated = bool(out["terminated"]), bool(out["truncated"])
         nxt = states[-1]
         if terminated or truncated:
@@ -400,7 +403,7 @@ class LaneChangeGymEnv(gymnasium.Env[np.ndarray, np.ndarray]):
             self._state = nxt
         code = int(out["reason_code"])
         info: dict[str, Any] = {"reason": REASONS[code], "reason_code": code}
-        for name in _STEP_INFO:
+        for name in self._programs.info:
             info[name] = out[name].item()
         return out["obs"], float(out["reward"]), terminated, truncated, info
 
@@ -479,11 +482,11 @@ class LaneChangeVectorEnv(VectorEnv):
             raise gymnasium.error.ResetNeeded("call reset() before step()")
         a = np.asarray(actions, np.float32).reshape(self.num_envs, ACT_DIM)
         self._keys, self._state, packed = self._programs.vstep(self._keys, self._state, a)
-        out = _unpack(np.asarray(packed), _STEP_FIELDS)
+        out = _unpack(np.asarray(packed), self._programs.fields)
         self._check_ready(out["ready"])
         codes = out["reason_code"]
         infos: dict[str, Any] = {"reason": _reason_names(codes), "reason_code": codes}
-        for name in (*_STEP_INFO, *_RESET_INFO):
+        for name in (*self._programs.info, *_RESET_INFO):
             infos[name] = out[name]
         infos["final_obs"] = out["obs"]
         infos["_final_obs"] = out["terminated"] | out["truncated"]

@@ -52,6 +52,7 @@ from jaxlc.sim import observation as obs_layout
 from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, fast_forward, reset_core
 from jaxlc.sim.env import ACT_DIM, EnvParams, EnvState, LaneChangeEnv, make, observation
 from jaxlc.sim.observation import OBS_DIM
+from jaxlc.sim.reward import names as reward_names
 
 _SIM = LaneChangeEnv()
 
@@ -106,9 +107,7 @@ class LaneChangeGymnax(environment.Environment):
         info = {
             "reason": out["reason"],
             "discount": 1.0 - terminated.astype(jnp.float32),
-            "r_s": out["r_s"],
-            "r_e": out["r_e"],
-            "r_d": out["r_d"],
+            **{n: out[n] for n in reward_names(params.sim)},  # each reward term
             "episode_return": out["episode_return"],
             "episode_steps": out["episode_steps"],
         }

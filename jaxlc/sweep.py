@@ -348,6 +348,9 @@ def _load_state(rd: RunDir, target: train.TrainState) -> tuple[Any, dict]:
     empty_host = {"env_steps": 0, "wall_s": 0.0, "metrics": {}}
     try:
         raw = flax.serialization.msgpack_restore(rd.state.read_bytes())
+        log = raw["state"]["log"]
+        if "terms" not in log:  # saved before the log kept its reward terms by name
+            log["terms"] = {n: log.pop(n) for n in ("r_s", "r_e", "r_d")}
         state = flax.serialization.from_state_dict(target, raw["state"])
     except Exception as err:  # noqa: BLE001 - any decoding failure means the same to a user
         raise checkpoint.CheckpointError(
@@ -516,8 +519,10 @@ def _train(
                     _hold_for_a_signal(stop)
             rate = chunk_env_steps / (time.perf_counter() - t_chunk)
             bar.update(np.minimum(counters["episodes"], t.episodes), metrics, rate)
-            if tracker is not None:  # only the two log fields the curves read cross over
-                log = to_host({"ret": state.log.ret, "reason": state.log.reason})
+            if tracker is not None:  # only the log fields the curves read cross over
+                log = to_host(
+                    {"ret": state.log.ret, "reason": state.log.reason, "terms": state.log.terms}
+                )
                 steps = book.env_steps // grid.size
                 tracker.chunk(steps, log, counters["episodes"], metrics, rate)
     finally:
@@ -557,7 +562,7 @@ def _finish(
     """Save the final state; write metrics and summary (process 0); return the summary."""
     host = book.dump()  # once: the saved state and the summary share its wall time
     _save_state(rd, state, host)
-    log = {k: np.asarray(v) for k, v in to_host(state.log).__dict__.items()}
+    log = {k: np.asarray(v) for k, v in to_host(state.log).columns().items()}
     lead = jax.process_index() == 0
     summary = {
         "wall_s": float(host["wall_s"]),

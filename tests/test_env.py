@@ -11,6 +11,8 @@ import jaxlc
 from jaxlc import config
 from jaxlc.sim import env as E
 from jaxlc.sim import gap, idm, kinematics, reward
+from jaxlc.sim import observation as O
+from jaxlc.sim import road as R
 from jaxlc.sim.controller import scripted_action
 
 
@@ -237,7 +239,7 @@ def test_platoon_settles_to_equilibrium_gap(env_params, kappa):
         return jax.lax.scan(body, s, jax.random.split(jax.random.PRNGKey(1), 3000))[0]
 
     s = run(s)
-    scale = 1.0 - kappa * float(E.lane_offset(0, p))
+    scale = 1.0 - kappa * float(R.lane_offset(0, p))
     assert (scale > 1.0) == (kappa > 0)
     gaps = np.asarray((s.traffic.x[0, : n - 1] - s.traffic.x[0, 1:n]) * scale - 5.0)
     want = idm.equilibrium_gap(20.0, 30.0, 1.5, 2.0, 4.0)
@@ -353,7 +355,7 @@ def _lag_scene(env, p, yielding):
         yielding=jnp.bool_(yielding),
     )
     s = s.replace(traffic=tr, ego=ego)
-    nb, lg, lv = E._observe_lanes(tr, ego, p)
+    nb, lg, lv = O.observe_lanes(tr, ego, p)
     return s.replace(nb=nb, leader_gap=lg, leader_v=lv)
 
 
@@ -398,8 +400,8 @@ def test_own_lane_leader_is_in_the_lane_that_holds_the_egos_centre(
     ego = s.ego.replace(
         phase=jnp.int32(E.RL), x=jnp.float32(200.0), y=jnp.float32(y), target=jnp.int32(0)
     )
-    assert int(E.current_lane(ego, p)) == lane_of_centre
-    _, leader_gap, leader_v = E._observe_lanes(tr, ego, p)
+    assert int(R.current_lane(ego, p)) == lane_of_centre
+    _, leader_gap, leader_v = O.observe_lanes(tr, ego, p)
     assert float(leader_gap) == pytest.approx(leader_x - p.vehicle_length - 200.0)
     obs = E.observation(s.replace(traffic=tr, ego=ego, leader_gap=leader_gap, leader_v=leader_v), p)
     assert float(obs[12]) == pytest.approx((leader_x - p.vehicle_length - 200.0) / 100.0)
@@ -494,7 +496,7 @@ def test_offset_observation_scale_changes_units_not_the_controller(env_params, r
     obs, state = reset_batch(keys, p)
     q = p.replace(offset_obs_scale=1.0)
     obs_q = jax.vmap(E.observation, (0, None))(state, q)
-    metres = jax.vmap(E.lateral_offset, (0, None))(state.ego, p)
+    metres = jax.vmap(R.lateral_offset, (0, None))(state.ego, p)
     np.testing.assert_allclose(obs[:, 4] * p.offset_obs_scale, metres, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(obs_q[:, 4], metres, rtol=1e-6, atol=1e-6)
     np.testing.assert_array_equal(np.delete(obs_q, 4, 1), np.delete(obs, 4, 1))
@@ -549,7 +551,7 @@ def test_mirror_signs_reflect_the_observation_the_kinematics_and_keep_the_reward
 
     a = jnp.asarray(rng.uniform(-0.5, 0.5, 16), jnp.float32)
     # The road's centre line (the Frenet reference) is the axis of the reflection.
-    mid = E.reference_y(p)
+    mid = R.reference_y(p)
     step = kinematics.lateral_step(eg.x, eg.y, eg.psi, eg.omega, eg.v, a, p.curvature, p.dt, mid)
     step_m = kinematics.lateral_step(
         eg.x, width - eg.y, -eg.psi, -eg.omega, eg.v, -a, q.curvature, p.dt, mid
@@ -587,7 +589,7 @@ def test_the_ego_keeps_its_lane_on_a_curve_until_the_rl_phase(env_params, kappa)
     raw = {n: np.asarray(out["obs"][:, INDEX[n]]) * float(scale(n, p)) for n in INDEX}
     np.testing.assert_allclose(np.abs(raw["offset"]), float(p.lane_width), rtol=1e-5)
     np.testing.assert_array_equal(raw["psi"], 0.0)
-    d = np.asarray(state.ego.y) - float(E.reference_y(p))
+    d = np.asarray(state.ego.y) - float(R.reference_y(p))
     want = kappa / (1 - kappa * d) * np.asarray(state.ego.v)
     assert np.all(np.abs(want) > 1e-3)  # the ego is moving: its yaw rate is not 0
     np.testing.assert_allclose(raw["omega"], want, rtol=1e-4)

@@ -134,7 +134,7 @@ def test_the_import_graph_sees_every_form_of_import():
     """The checks above are only as good as the graph: known edges of each form are in it."""
     graph = _graph()
     assert "jaxlc.sim.env" in graph["jaxlc"]  # from jaxlc.sim.env import ...
-    assert "jaxlc.sim.gap" in graph["jaxlc.sim.env"]  # from jaxlc.sim import gap
+    assert "jaxlc.sim.reward" in graph["jaxlc.sim.env"]  # from jaxlc.sim import reward
     assert "jaxlc.config" in graph["jaxlc.sim.env"]  # from jaxlc import config (in a function)
     assert "jaxlc.sim.env" in graph["jaxlc.learn.train"]
     assert "jaxlc.learn.tree" in graph["jaxlc.evaluation.cases"]

@@ -34,21 +34,13 @@ from jaxlc.evaluation.results import EvalError
 from jaxlc.learn import tree
 from jaxlc.learn.networks import make_networks
 from jaxlc.learn.train import check_devices
+from jaxlc.sim.collision import overlaps
 from jaxlc.sim.controller import scripted_action
-from jaxlc.sim.env import (
-    ACT_DIM,
-    RL,
-    EnvParams,
-    EnvState,
-    LaneChangeEnv,
-    ego_yaw_rate,
-    observation,
-    overlaps,
-    road_curvature,
-    target_gaps,
-)
-from jaxlc.sim.observation import OBS_DIM
+from jaxlc.sim.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv
+from jaxlc.sim.observation import OBS_DIM, observation, target_gaps
 from jaxlc.sim.reward import COLLISION
+from jaxlc.sim.reward import names as reward_names
+from jaxlc.sim.road import ego_yaw_rate, road_curvature
 
 
 @flax.struct.dataclass
@@ -79,9 +71,7 @@ class Outcome:
     reason: Array  # int32 outcome index (OUTCOMES)
     performed: Array  # bool
     ret: Array  # total return
-    r_s: Array
-    r_e: Array
-    r_d: Array
+    terms: dict[str, Array]  # each reward term's sum over the manoeuvre, by name
     steps: Array  # int32 RL steps of the manoeuvre
     peak_lat_acc: Array  # max |v * omega|, m/s^2
     peak_yaw_rate: Array  # max |yaw rate relative to the lane's| (omega when straight), rad/s
@@ -98,6 +88,8 @@ class Outcome:
     # The collision, if any: the vehicle hit (index of safety.PARTNERS) and the ego's speed.
     partner: Array  # int32
     hit_speed: Array  # m/s (NaN without a collision)
+    # The terms' order (a pytree's dict comes back with its keys sorted).
+    names: tuple[str, ...] = flax.struct.field(pytree_node=False, default=())
 
 
 @flax.struct.dataclass
@@ -217,9 +209,7 @@ def _empty_outcome(cs: Cases, n_pol: int, p: EnvParams) -> Outcome:
         reason=jnp.broadcast_to(cs.reason, pc),
         performed=jnp.broadcast_to(cs.performed, pc),
         ret=f0,
-        r_s=f0,
-        r_e=f0,
-        r_d=f0,
+        terms={n: f0 for n in reward_names(p)},
         steps=i0,
         peak_lat_acc=f0,
         peak_yaw_rate=f0,
@@ -232,6 +222,7 @@ def _empty_outcome(cs: Cases, n_pol: int, p: EnvParams) -> Outcome:
         min_thw=jnp.broadcast_to(thw, pc + (3,)),
         partner=i0,
         hit_speed=nan,
+        names=reward_names(p),
     )
 
 
@@ -269,9 +260,7 @@ def _accumulate(
     return out.replace(
         reason=jnp.where(live, info["reason"], out.reason),
         ret=add(out.ret, r),
-        r_s=add(out.r_s, info["r_s"]),
-        r_e=add(out.r_e, info["r_e"]),
-        r_d=add(out.r_d, info["r_d"]),
+        terms={n: add(v, info[n]) for n, v in out.terms.items()},
         steps=jnp.where(live, info["episode_steps"], out.steps),
         peak_lat_acc=peak(out.peak_lat_acc, jnp.abs(new.ego.v * new.ego.omega)),
         peak_yaw_rate=peak(out.peak_yaw_rate, jnp.abs(yaw)),
@@ -465,9 +454,21 @@ def case_info(cs: Cases, cfg: config.Config) -> dict[str, np.ndarray]:
     }
 
 
+def columns(x: Any) -> dict[str, Any]:
+    """An ``Outcome``/``Trace``'s arrays by name; the reward terms' among them, by theirs, in
+    their order."""
+    out: dict[str, Any] = {}
+    for k, v in vars(x).items():
+        if k == "names":
+            continue
+        out.update({n: v[n] for n in x.names} if isinstance(v, dict) else {k: v})
+    return out
+
+
 def _concat(parts: list[Any]) -> dict[str, np.ndarray]:
     """Chunks of an ``Outcome``/``Trace`` -> one dict of arrays along the policy axis."""
-    return {k: np.concatenate([vars(x)[k] for x in parts]) for k in vars(parts[0])}
+    cols = [columns(x) for x in parts]
+    return {k: np.concatenate([c[k] for c in cols]) for k in cols[0]}
 
 
 def evaluate_act(
@@ -490,4 +491,4 @@ def evaluate_act(
     cs = start(case_keys(seed, cases) if keys is None else keys)
     one = Policies(actor=jnp.zeros(1), k=jnp.asarray([k], jnp.int32), scripted=jnp.zeros(1, bool))
     out, _ = jax.device_get(rollout(one, cs, jnp.zeros(1, jnp.int32)))
-    return {name: np.asarray(v) for name, v in vars(out).items()}
+    return {name: np.asarray(v) for name, v in columns(out).items()}

@@ -3,39 +3,51 @@
 One module that the evaluation (``jaxlc.evaluate``), the figures and the report all read, so
 none of them imports another for a definition. A *row* is one policy's result on the fixed
 cases: its identity (``META_KEYS``), outcome counts (``OUTCOMES``, adding up to the cases) and
-``MEASURES``.
+its ``measures`` (one per reward term of the run among them).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from jaxlc.evaluation.stats import CELL_AXES, final_rows
-from jaxlc.sim.reward import REASONS
+from jaxlc.sim.reward import PAPER, REASONS
 
 OUTCOMES = ("unfinished",) + REASONS[1:]  # index = reason code; 0: hit the step cap
-MEASURES = (
-    "success_rate",
-    "avg_return",
-    "duration_s",
-    "peak_lat_acc",
-    "peak_yaw_rate",
-    "overshoot_m",
-    "r_s",
-    "r_e",
-    "r_d",
-    "timeout_offset_m",
-    "timeout_heading",
-    "timeout_yaw_rate",
-)
-EVAL_FIELDS = (
-    ("label", "model", "cell", "seed", "k", "memory", "episode", "cases", "performed")
-    + OUTCOMES
-    + MEASURES
-)
+PAPER_TERMS = tuple(t.name for t in PAPER)  # the default env.reward_terms
+
+
+def measures(terms: Sequence[str] = PAPER_TERMS) -> tuple[str, ...]:
+    """A row's measures; each reward term (``env.reward_terms``) is one, by its name."""
+    return (
+        "success_rate",
+        "avg_return",
+        "duration_s",
+        "peak_lat_acc",
+        "peak_yaw_rate",
+        "overshoot_m",
+        *terms,
+        "timeout_offset_m",
+        "timeout_heading",
+        "timeout_yaw_rate",
+    )
+
+
+def eval_fields(terms: Sequence[str] = PAPER_TERMS) -> tuple[str, ...]:
+    """The columns of ``eval.csv`` for a run whose reward has ``terms``."""
+    return (
+        ("label", "model", "cell", "seed", "k", "memory", "episode", "cases", "performed")
+        + OUTCOMES
+        + measures(terms)
+    )
+
+
+MEASURES = measures()
+EVAL_FIELDS = eval_fields()
 
 
 class EvalError(Exception):
@@ -59,7 +71,9 @@ def _median_abs(values: np.ndarray) -> float:
     return float(np.median(np.abs(values))) if values.size else math.nan
 
 
-def summarise(out: dict[str, np.ndarray], dt: float) -> list[dict[str, Any]]:
+def summarise(
+    out: dict[str, np.ndarray], dt: float, terms: Sequence[str] = PAPER_TERMS
+) -> list[dict[str, Any]]:
     """One row per policy: outcome counts (they add up to the cases) and the measures.
 
     Return and reward terms average over the cases that performed a lane change; duration,
@@ -85,7 +99,7 @@ def summarise(out: dict[str, np.ndarray], dt: float) -> list[dict[str, Any]]:
                 "peak_lat_acc": _mean(out["peak_lat_acc"][p][ok]),
                 "peak_yaw_rate": _mean(out["peak_yaw_rate"][p][ok]),
                 "overshoot_m": _mean(out["overshoot"][p][ok]),
-                **{t: _mean(out[t][p][performed]) for t in ("r_s", "r_e", "r_d")},
+                **{t: _mean(out[t][p][performed]) for t in terms},
                 "timeout_offset_m": _median_abs(out["final_offset"][p][late]),
                 "timeout_heading": _median_abs(out["final_psi"][p][late]),
                 "timeout_yaw_rate": _median_abs(out["final_omega"][p][late]),

@@ -23,8 +23,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.sim.env import target_gaps
 from jaxlc.sim.idm import NO_LEADER_GAP
+from jaxlc.sim.observation import target_gaps
 
 # Each norm: (measure, bound, True when the measure must stay below the bound, source).
 NORMS = (

@@ -36,6 +36,7 @@ from jaxlc.learn.networks import make_networks
 from jaxlc.sim.env import ACT_DIM, EnvParams, EnvState, LaneChangeEnv
 from jaxlc.sim.observation import MIRROR_SIGNS, OBS_DIM
 from jaxlc.sim.reward import SUCCESS
+from jaxlc.sim.reward import names as reward_names
 
 # Fewest env-steps one episode can take: the ego must drive command_distance (80 m) from the
 # entrance at no more than its entry speed plus IDM acceleration; 50 steps (5 s) is below that.
@@ -58,10 +59,18 @@ class EpisodeLog:
     ret: Array  # total reward
     steps: Array  # manoeuvre steps (int32)
     reason: Array  # jaxlc.sim.reward reason code (int32)
-    r_s: Array  # sum of eq. (8) terms
-    r_e: Array  # sum of eq. (9) terms
-    r_d: Array  # sum of eq. (10)/(11) terms
+    terms: dict[str, Array]  # each reward term's sum over the episode, by name (env.reward_terms)
     at_step: Array  # scan step at which it ended (int32)
+    # The terms' order (a pytree's dict comes back with its keys sorted).
+    names: tuple[str, ...] = flax.struct.field(pytree_node=False, default=())
+
+    def columns(self) -> dict[str, Array]:
+        """Every column by name, the terms' in their order: what ``metrics/episodes.npz``
+        holds."""
+        terms = {n: self.terms[n] for n in self.names}
+        return {"ret": self.ret, "steps": self.steps, "reason": self.reason, **terms} | {
+            "at_step": self.at_step
+        }
 
 
 @flax.struct.dataclass
@@ -72,7 +81,7 @@ class TrainState:
     memory: replay.Replay
     env: EnvState  # (envs,)
     obs: Array  # (envs, OBS_DIM)
-    terms: Array  # (envs, 3) running sums of r_s, r_e, r_d of the current manoeuvre
+    terms: Array  # (envs, reward terms) running sums of the current manoeuvre's terms
     key: Array
     step: Array  # () int32 scan steps done
     episodes: Array  # () int32 RL episodes finished
@@ -150,9 +159,11 @@ def _seed_keys(root: Array, grid: Grid) -> Array:
     return jnp.stack([jax.random.fold_in(root, s) for s in grid.seeds])
 
 
-def _empty_log(n: int) -> EpisodeLog:
+def _empty_log(n: int, terms: tuple[str, ...]) -> EpisodeLog:
     f, i = jnp.zeros((n,), jnp.float32), jnp.zeros((n,), jnp.int32)
-    return EpisodeLog(ret=f, steps=i, reason=i, r_s=f, r_e=f, r_d=f, at_step=i)
+    return EpisodeLog(
+        ret=f, steps=i, reason=i, terms={t: f for t in terms}, at_step=i, names=tuple(terms)
+    )
 
 
 def _log_add(log: EpisodeLog, start: Array, ended: Array, rows: dict[str, Array]) -> EpisodeLog:
@@ -160,14 +171,12 @@ def _log_add(log: EpisodeLog, start: Array, ended: Array, rows: dict[str, Array]
     end are dropped (a model's last step may finish more episodes than it needs)."""
     take = ended.astype(jnp.int32)
     slot = jnp.where(ended, start + jnp.cumsum(take) - take, log.ret.shape[0])
-    return log.replace(
-        **{
-            name: getattr(log, name)
-            .at[slot]
-            .set(value.astype(getattr(log, name).dtype), mode="drop")
-            for name, value in rows.items()
-        }
-    )
+
+    def put(column: Array, value: Array) -> Array:
+        return column.at[slot].set(value.astype(column.dtype), mode="drop")
+
+    terms = {n: put(log.terms[n], rows.pop(n)) for n in log.terms}
+    return log.replace(terms=terms, **{n: put(getattr(log, n), v) for n, v in rows.items()})
 
 
 def anneal(h: ddpg.Hyper, episodes: Array, t: TrainConfig) -> ddpg.Hyper:
@@ -199,11 +208,11 @@ def init_model(key: Array, hyper: ModelHyper, cfg: Config) -> TrainState:
         memory=replay.init(max(cfg.grid.memory), OBS_DIM, ACT_DIM, hyper.capacity),
         env=env_state,
         obs=obs,
-        terms=jnp.zeros((t.envs_per_model, 3), jnp.float32),
+        terms=jnp.zeros((t.envs_per_model, len(base.reward_terms)), jnp.float32),
         key=k_run,
         step=jnp.int32(0),
         episodes=jnp.int32(0),
-        log=_empty_log(t.episodes),
+        log=_empty_log(t.episodes, reward_names(base)),
         snap_actor=learner.actor,
         snap_episode=jnp.int32(0),
     )
@@ -305,15 +314,14 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
         learner, losses, updates = _learn(ts.learner, memory, k_update, h, d, updating, transitions)
 
         # Episode bookkeeping; the snapshot slot keeps the actor of the last checkpoint passed.
-        terms = ts.terms + jnp.stack([info["r_s"], info["r_e"], info["r_d"]], -1)  # (envs, 3)
+        names = reward_names(base)
+        terms = ts.terms + jnp.stack([info[n] for n in names], -1)  # (envs, reward terms)
         ended = rl & (term | trunc) & learning
         rows = {
             "ret": info["episode_return"],
             "steps": info["episode_steps"],
             "reason": info["reason"],
-            "r_s": terms[:, 0],
-            "r_e": terms[:, 1],
-            "r_d": terms[:, 2],
+            **{n: terms[:, i] for i, n in enumerate(names)},
             "at_step": jnp.full((n_envs,), ts.step),
         }
         episodes = ts.episodes + ended.sum(dtype=jnp.int32)

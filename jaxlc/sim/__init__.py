@@ -5,8 +5,9 @@ Out: ``LaneChangeEnv`` (``reset`` / ``step``), its state and observation layout,
 and its reason codes, the one-decision-per-step core the gym and gymnax wrappers share, and
 the scripted controller.
 
-Modules: ``env`` (the highway step), ``idm``, ``gap``, ``kinematics``, ``reward``,
-``observation``, ``decision``, ``controller``.
+Modules: ``env`` (the highway step), ``state``, ``road``, ``traffic``, ``ego``, ``motion``,
+``collision``, ``observation``, ``reward``, ``idm``, ``gap``, ``kinematics``, ``decision``,
+``controller``.
 
 Imports: ``jaxlc.config`` only; no other layer (``tests/test_layout.py`` checks it).
 """

@@ -22,6 +22,7 @@ from jax import Array
 
 from jaxlc.sim.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
 from jaxlc.sim.reward import NONE
+from jaxlc.sim.reward import names as reward_names
 
 # Env-steps the fast-forward may run before giving up: ~33 simulated minutes, far beyond the
 # ~30 s one episode takes (an ego needs ~15-25 s to reach the command point, then at most 5 s
@@ -86,8 +87,8 @@ def step_core(
     ``(key, state_after_step, next_state, out)``: ``state_after_step`` is the state the
     step produced (terminal when the manoeuvre ended), ``next_state`` the one to act in next
     (the same state when the manoeuvre goes on). ``out`` holds the step's ``obs``, ``reward``,
-    ``terminated``, ``truncated``, info terms, and ``next_obs``/``ready``/``skipped_*``/
-    ``target_lane`` of ``next_state``.
+    ``terminated``, ``truncated``, each reward term by name, and ``next_obs``/``ready``/
+    ``skipped_*``/``target_lane`` of ``next_state``.
     """
     key, k = jax.random.split(key)
     obs, after, reward, terminated, truncated, info = _ENV.step(k, state, action, params)
@@ -99,9 +100,7 @@ def step_core(
         "truncated": truncated,
         "rl_step": info["rl_step"],
         "reason_code": info["reason"],
-        "r_s": info["r_s"],
-        "r_e": info["r_e"],
-        "r_d": info["r_d"],
+        **{n: info[n] for n in reward_names(params)},  # each reward term
         "episode_return": info["episode_return"],
         "episode_steps": info["episode_steps"],
         "offset": info["offset"],

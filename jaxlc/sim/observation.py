@@ -1,6 +1,6 @@
-"""The observation's layout: one table of what each entry is, how it is scaled and how it
-reflects, read by the simulator (``env.observation``), the scripted controller, the gym bounds
-and the mirror augmentation alike.
+"""The observation: one table of what each entry is, how it is scaled and how it reflects,
+read by the simulator (``observation`` below), the scripted controller, the gym bounds and the
+mirror augmentation alike; and the function that computes it from a state.
 
 Entry ``i`` of the ``(OBS_DIM,)`` observation is ``raw_i / scale_i``; a scale named by a string
 is that ``EnvParams`` field (it can differ between models). Gaps are net (bumper to bumper),
@@ -13,12 +13,23 @@ clipped to ``GAP_CLIP`` m; a missing vehicle reads gap 100 m and dv 0, dv = v_ot
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
+import jax.numpy as jnp
 import numpy as np
+from jax import Array
 
-# Params are any object with EnvParams' fields (jaxlc.sim.env imports this module, not back).
-EnvParams = Any
+from jaxlc.sim import gap, kinematics
+from jaxlc.sim.idm import NO_LEADER_GAP
+from jaxlc.sim.road import (
+    current_lane,
+    lane_offset,
+    lane_row,
+    lateral_offset,
+    road_curvature,
+    target_frame,
+)
+from jaxlc.sim.state import Ego, EnvParams, EnvState, Traffic
 
 
 class Entry(NamedTuple):
@@ -37,7 +48,7 @@ LAYOUT: tuple[Entry, ...] = (
     Entry("omega", 0.1, -1.0, "yaw rate (kappa_d*v holds a lane of a curve), rad/s"),
     Entry("offset", "offset_obs_scale", -1.0, "signed offset from the target lane's centre, m"),
     Entry("held", 1.0, -1.0, "action being executed (held for k steps), in [-1, 1]"),
-    # 0 unless terminal_timeout: a bootstrapped timeout must not be observable (env.observation).
+    # 0 unless terminal_timeout: a bootstrapped timeout must not be observable (``observation``).
     Entry("time", "manoeuvre_time_limit", 1.0, "manoeuvre time, s"),
     Entry("curvature", 0.01, -1.0, "the episode's road curvature (centre line), 1/m"),
     Entry("lead_gap", 100.0, 1.0, "net gap to the target lane's leader, m"),
@@ -110,3 +121,63 @@ def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     high = np.array([raw[e.name][1] for e in LAYOUT]) / div
     pad = 1e-3 * np.maximum(1.0, np.abs(np.where(np.isfinite(high), high, 0.0)))
     return (low - pad).astype(np.float32), (high + pad).astype(np.float32)
+
+
+def observe_lanes(
+    tr: Traffic, eg: Ego, p: EnvParams, kappa: Array | None = None
+) -> tuple[gap.Neighbours, Array, Array]:
+    """Target-lane neighbours (positions in s) and the net gap (metres along the lane) and
+    speed of the leader in the ego's current lane (meaningless in WAIT)."""
+    kappa = p.curvature if kappa is None else kappa
+    row = lambda a: lane_row(a, eg.target, p.lanes)  # noqa: E731
+    nb = gap.neighbours(row(tr.x), row(tr.v), row(tr.v0), row(tr.active), eg.x)
+    cur = current_lane(eg, p)
+    cx, cv = lane_row(tr.x, cur, p.lanes), lane_row(tr.v, cur, p.lanes)  # (slots,)
+    ahead = lane_row(tr.active, cur, p.lanes) & (cx > eg.x)
+    lx = jnp.min(jnp.where(ahead, cx, gap.FAR))
+    lv = jnp.max(jnp.where(ahead & (cx == lx), cv, -gap.FAR))
+    has = jnp.any(ahead)
+    c = kinematics.lane_scale(kappa, lane_offset(cur, p))
+    return nb, gap.net_gap(lx * c, eg.x * c, p.vehicle_length, has), jnp.where(has, lv, eg.v)
+
+
+def target_gaps(state: EnvState, p: EnvParams) -> tuple[Array, Array]:
+    """``(lead_gap, lag_gap)``: net gaps (m along the target lane) from the ego to the target
+    lane's lead and lag vehicles; meaningless where ``state.nb.has_a1``/``has_b1`` is False."""
+    nb, x = target_frame(state.nb, state.ego, road_curvature(state, p), p)
+    return nb.a1_x - p.vehicle_length - x, x - p.vehicle_length - nb.b1_x
+
+
+def observation(state: EnvState, p: EnvParams) -> Array:
+    """``(OBS_DIM,)`` normalised observation of ``state``: the entries of ``LAYOUT``, each raw
+    value divided by its scale."""
+    eg, nb = state.ego, state.nb
+
+    def gap_m(g: Array, present: Array) -> Array:
+        return jnp.where(present, jnp.clip(g, *GAP_CLIP), GAP_CLIP[1])
+
+    def dv(v_other: Array, present: Array) -> Array:
+        return jnp.where(present, v_other - eg.v, 0.0)
+
+    has_leader = state.leader_gap < NO_LEADER_GAP
+    lead_gap, lag_gap = target_gaps(state, p)
+    raw = {
+        "v": eg.v,
+        "accel": eg.accel,
+        "psi": eg.psi,
+        "omega": eg.omega,
+        "offset": lateral_offset(eg, p),
+        "held": eg.held,
+        # A truncated timeout is bootstrapped, so the time must not be observed: values at
+        # time = limit are never learned as current states (Pardo et al., 2018).
+        "time": jnp.where(p.terminal_timeout, eg.steps * p.dt, 0.0),
+        "curvature": road_curvature(state, p) * jnp.ones_like(eg.v),
+        "lead_gap": gap_m(lead_gap, nb.has_a1),
+        "lead_dv": dv(nb.a1_v, nb.has_a1),
+        "lag_gap": gap_m(lag_gap, nb.has_b1),
+        "lag_dv": dv(nb.b1_v, nb.has_b1),
+        "own_gap": gap_m(state.leader_gap, has_leader),
+        "own_dv": dv(state.leader_v, has_leader),
+    }
+    obs = jnp.stack([raw[e.name] / scale(e.name, p) for e in LAYOUT])
+    return obs.astype(jnp.float32)

@@ -8,13 +8,118 @@
 
 omega (rad/s) and the lateral offset dd (m) are those after the step, a_lat (rad/s^2) the
 executed yaw acceleration. A collision ends the episode with the out-of-bounds penalty at
-|dd| = max(|dd|, D). Every term is returned on its own so it can be logged.
+|dd| = max(|dd|, D).
+
+The reward is the sum of its terms, each a ``Term`` (name, the config keys that weight it, a
+function of the step's ``Inputs``): the paper's three are ``PAPER``. The config's
+``env.reward_terms`` names the terms a run uses; a term of your own is ``register``-ed under a
+new name and named there. Every output that shows the reward term by term (the env's
+``info``, training metrics, evaluation tables, the gym and gymnax infos, TensorBoard) iterates
+over ``params.reward_terms``, so a registered term appears in each of them.
+
+    def lane_centre(x: reward.Inputs, p) -> jax.Array:
+        return -0.1 * jnp.abs(x.offset)
+
+    reward.register(reward.Term("r_centre", (), lane_centre))
+    cfg = config.load(overrides=['env.reward_terms=["r_s", "r_e", "r_d", "r_centre"]'])
 """
 
 from __future__ import annotations
 
+import functools
+import operator
+from collections.abc import Callable, Iterable
+from typing import Any, NamedTuple
+
 import jax.numpy as jnp
 from jax import Array
+
+
+class Inputs(NamedTuple):
+    """What a reward term reads after one RL step (each ``()``)."""
+
+    yaw_rate: Array  # rad/s, relative to the lane's (omega on a straight road)
+    a_lat: Array  # rad/s^2, the yaw acceleration executed this step
+    offset: Array  # m, signed offset from the target lane's centre line
+    collided: Array  # bool
+    ego: Any = None  # jaxlc.sim.state.Ego after the step (speed, acceleration, heading)
+    nb: Any = None  # jaxlc.sim.gap.Neighbours: the target lane's vehicles after the step
+
+
+class Term(NamedTuple):
+    """One reward term; ``fn(inputs, params)`` is its value for one RL step before
+    ``reward_scale``, ``weights`` the ``[env]`` keys it reads (documentation and tests)."""
+
+    name: str  # its key in info, metrics, evaluation tables and TensorBoard
+    weights: tuple[str, ...]
+    fn: Callable[[Inputs, Any], Array]
+
+
+def smoothness(x: Inputs, p) -> Array:
+    """Eq. (8)."""
+    return -p.w1 * jnp.abs(x.yaw_rate) - p.w2 * jnp.abs(x.a_lat)
+
+
+def elapsed(x: Inputs, p) -> Array:
+    """Eq. (9)."""
+    return -p.w3 * p.dt * jnp.ones_like(x.yaw_rate)
+
+
+def deviation(x: Inputs, p) -> Array:
+    """Eqs. (10)-(11); a collision costs the out-of-bounds penalty at max(|dd|, D)."""
+    dev = jnp.abs(x.offset)
+    beyond = -p.w4 * jnp.maximum(dev, p.border) * 10.0 / (1.0 - p.gamma)
+    return jnp.where(x.collided | (dev > p.border), beyond, -p.w4 * dev)
+
+
+PAPER: tuple[Term, ...] = (
+    Term("r_s", ("w1", "w2"), smoothness),
+    Term("r_e", ("w3",), elapsed),
+    Term("r_d", ("w4", "border"), deviation),
+)
+# Terms by name: the paper's, and those registered. Filled at import (the paper's) and by
+# ``register`` before a run is configured, as gymnasium registers its envs.
+_REGISTRY: dict[str, Term] = {t.name: t for t in PAPER}
+
+
+def register(term: Term) -> Term:
+    """Make ``term`` nameable in ``env.reward_terms``; a name already taken by another
+    function is refused (``ValueError``). Returns the term."""
+    known = _REGISTRY.get(term.name)
+    if known is not None and known != term:
+        raise ValueError(f"reward term {term.name!r} is registered already: choose another name")
+    if term.name in ("reward", "ret", "steps", "reason", "at_step"):
+        raise ValueError(f"reward term name {term.name!r} is taken by a metric")
+    _REGISTRY[term.name] = term
+    return term
+
+
+def lookup(names: Iterable[str]) -> tuple[Term, ...]:
+    """The terms named (``KeyError`` naming the unknown and the known ones)."""
+    names = tuple(names)
+    unknown = [n for n in names if n not in _REGISTRY]
+    if unknown:
+        raise KeyError(
+            f"unknown reward term(s) {unknown}: known are {sorted(_REGISTRY)} "
+            "(a term of your own: jaxlc.sim.reward.register)"
+        )
+    return tuple(_REGISTRY[n] for n in names)
+
+
+def names(p) -> tuple[str, ...]:
+    """The names of ``p``'s reward terms, in their order."""
+    return tuple(t.name for t in p.reward_terms)
+
+
+def terms(x: Inputs, p) -> dict[str, Array]:
+    """``{name: value}`` of ``p.reward_terms`` for one RL step, each times ``reward_scale``."""
+    return {t.name: p.reward_scale * t.fn(x, p) for t in p.reward_terms}
+
+
+def total(values: dict[str, Array]) -> Array:
+    """The reward: the terms' sum, left to right (no 0.0 added: -0.0 stays -0.0)."""
+    return functools.reduce(operator.add, values.values())
+
 
 # Why an episode ended (info["reason"]).
 NONE, SUCCESS, OUT_OF_BOUNDS, COLLISION, TIMEOUT, NO_GAP = 0, 1, 2, 3, 4, 5
@@ -24,13 +129,10 @@ REASONS = ("none", "success", "out_of_bounds", "collision", "timeout", "no_gap")
 def reward_terms(
     omega: Array, a_lat: Array, offset: Array, collided: Array, p
 ) -> tuple[Array, Array, Array]:
-    """``(r_s, r_e, r_d)`` for one RL step (``p``: EnvParams; all scaled by reward_scale)."""
-    r_s = -p.w1 * jnp.abs(omega) - p.w2 * jnp.abs(a_lat)
-    r_e = -p.w3 * p.dt * jnp.ones_like(omega)
-    dev = jnp.abs(offset)
-    beyond = -p.w4 * jnp.maximum(dev, p.border) * 10.0 / (1.0 - p.gamma)
-    r_d = jnp.where(collided | (dev > p.border), beyond, -p.w4 * dev)
-    return p.reward_scale * r_s, p.reward_scale * r_e, p.reward_scale * r_d
+    """``(r_s, r_e, r_d)``, the paper's terms for one RL step (``p``: EnvParams; all scaled by
+    reward_scale), whatever terms ``p`` names."""
+    x = Inputs(omega, a_lat, offset, collided)
+    return tuple(p.reward_scale * t.fn(x, p) for t in PAPER)
 
 
 def end_reason(

@@ -8,11 +8,13 @@ at every chunk boundary by the lead process, with tensorboardX (no TensorFlow ne
     train/critic_loss       mean critic loss over the chunk's updating steps
     train/mean_q            mean Q of the chunk's batches
     train/episodes          finished episodes
+    reward/NAME_last100     each reward term's mean over those episodes (env.reward_terms)
     speed/env_steps_per_s   the whole grid's env-steps/s over the chunk
 
 The x axis is the model's env-steps. Each model's hyperparameters (its grid cell and seed)
 are its run's text and hparams entry. The numbers are those of ``RUN_DIR/metrics/``:
-``episodes.npz`` (returns, reasons) and ``steps.npz`` (losses), read at the chunk's end.
+``episodes.npz`` (returns, reasons, reward terms) and ``steps.npz`` (losses), read at the
+chunk's end.
 """
 
 from __future__ import annotations
@@ -56,7 +58,8 @@ class TensorBoard:
         rate: float,
     ) -> None:
         """Write one point per curve. ``env_steps``: each model's so far; ``log``: the
-        models' episode logs ``(models, max_episodes)``; ``episodes (models,)`` finished;
+        models' episode logs ``(models, max_episodes)`` (``log["terms"]``: each reward term's, by
+        name); ``episodes (models,)`` finished;
         ``metrics``: the chunk's step metrics ``(steps, models)``; ``rate``: env-steps/s."""
         for i, w in enumerate(self.writers):
             n = int(min(episodes[i], log["ret"].shape[1]))
@@ -65,6 +68,8 @@ class TensorBoard:
                 w.add_scalar("train/return_last100", float(log["ret"][i, lo:n].mean()), env_steps)
                 ok = float((log["reason"][i, lo:n] == SUCCESS).mean())
                 w.add_scalar("train/success_last100", ok, env_steps)
+                for name, col in log.get("terms", {}).items():
+                    w.add_scalar(f"reward/{name}_last100", float(col[i, lo:n].mean()), env_steps)
             for name in ("critic_loss", "mean_q"):
                 v = metrics[name][:, i]
                 if np.isfinite(v).any():

@@ -1,0 +1,105 @@
+"""The ego: its action, its longitudinal acceleration, its phases and the gap decision.
+
+An episode of the ego goes through four phases (``state.PHASES``):
+  WAIT   no ego; the next vehicle to enter the middle lane becomes the ego;
+  CRUISE the ego follows IDM until it has travelled ``command_distance``;
+  GAP    a left or right command is issued; gap selection looks for an acceptable gap
+         (``gap.py``), adapting the ego's speed, for at most ``gap_time_limit`` s;
+  RL     the action steers the ego (yaw acceleration) until success, out of bounds,
+         collision or timeout.
+The ego's longitudinal motion is ``ego_accel`` in every phase; its lateral motion is the held
+action's yaw acceleration (``held_action``), integrated by ``motion.move``.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+
+from jaxlc.sim import gap
+from jaxlc.sim.idm import NO_LEADER_GAP, idm_with_params
+from jaxlc.sim.motion import Motion
+from jaxlc.sim.road import origin_y, road_curvature, target_frame
+from jaxlc.sim.state import CRUISE, GAP, RL, Draws, Ego, EnvParams, EnvState, Traffic
+
+
+def clean_action(action: Array) -> Array:
+    """Any action, NaN and inf included, becomes a finite value in [-1, 1]."""
+    a = jnp.reshape(action, (-1,))[0].astype(jnp.float32)
+    return jnp.clip(jnp.nan_to_num(a, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
+
+
+def held_action(ego: Ego, action: Array, p: EnvParams) -> Array:
+    """``()`` action executed this step: refreshed every k-th RL step, held in between [P],
+    0 outside the RL phase."""
+    in_rl = ego.phase == RL
+    refresh = in_rl & (ego.steps % p.k == 0)
+    return jnp.where(refresh, clean_action(action), jnp.where(in_rl, ego.held, 0.0))
+
+
+def ego_accel(state: EnvState, p: EnvParams) -> Array:
+    """``()`` IDM acceleration of the ego toward its own-lane leader, "with adaptation" to the
+    chosen gap once it looks for one: the lower of the two."""
+    eg = state.ego
+    in_rl = eg.phase == RL
+    nb, x = target_frame(state.nb, eg, road_curvature(state, p), p)  # m along the target lane
+    a_own = idm_with_params(eg.v, eg.v0, state.leader_gap, state.leader_v, p)
+    seek_gap, seek_v = gap.target_leader(nb, x, eg.v, p)
+    lead_gap = gap.net_gap(nb.a1_x, x, p.vehicle_length, nb.has_a1)
+    adapt_gap = jnp.where(in_rl, lead_gap, seek_gap)
+    # With no vehicle to adapt to (gap NO_LEADER_GAP), any finite speed gives a ~ free road.
+    adapt_v = jnp.where(adapt_gap >= NO_LEADER_GAP, eg.v, jnp.where(in_rl, nb.a1_v, seek_v))
+    a_adapt = idm_with_params(eg.v, eg.v0, adapt_gap, adapt_v, p)
+    return jnp.where(eg.phase >= GAP, jnp.minimum(a_own, a_adapt), a_own)
+
+
+def ego_phase(
+    eg: Ego,
+    m: Motion,
+    a_ego: Array,
+    held: Array,
+    spawned: Array,
+    tr: Traffic,
+    u: Draws,
+    p: EnvParams,
+) -> Ego:
+    """The ego after the move: a spawned ego starts CRUISE at x = 0 in the middle lane with the
+    entrant's speeds (``tr``, the traffic before inflow); a cruising ego that has travelled
+    ``command_distance`` gets a left or right command (toward the road when the lane beside is
+    missing) and enters GAP. RL steps and gap-search time are counted here."""
+    origin = p.lanes // 2
+    in_rl = eg.phase == RL
+    phase = jnp.where(spawned, CRUISE, eg.phase)
+    ex = jnp.where(spawned, 0.0, m.ego_x)
+    command = (phase == CRUISE) & (ex >= p.command_distance)
+    side = jnp.where(u.side < 0.5, 1, -1)
+    target = origin + side
+    target = jnp.where((target < 0) | (target >= p.lanes), origin - side, target)
+    return Ego(
+        phase=jnp.where(command, GAP, phase),
+        x=ex,
+        y=jnp.where(spawned, origin_y(p), m.ego_y),
+        v=jnp.where(spawned, tr.next_v[origin], m.ego_v),
+        v0=jnp.where(spawned, tr.next_v0[origin], eg.v0),
+        accel=jnp.where(spawned, 0.0, a_ego),
+        psi=jnp.where(spawned, 0.0, m.ego_psi),
+        omega=jnp.where(spawned, 0.0, m.ego_omega),
+        held=held,
+        target=jnp.where(command, target, eg.target).astype(jnp.int32),
+        steps=eg.steps + in_rl,
+        gap_time=jnp.where(command, 0.0, eg.gap_time + p.dt * (eg.phase == GAP)),
+        yielding=eg.yielding,
+        ep_return=eg.ep_return,
+    )
+
+
+def gap_decision(
+    ego: Ego, nb: gap.Neighbours, p: EnvParams, kappa: Array | None = None
+) -> tuple[Array, Array]:
+    """``(accept, no_gap)``: in GAP, accept the gap beside the ego, or give up once the time or
+    distance limit is reached without one (x, the limit, in s)."""
+    looking = ego.phase == GAP
+    nb_m, x_m = target_frame(nb, ego, p.curvature if kappa is None else kappa, p)
+    accept = looking & gap.beside_acceptable(nb_m, x_m, ego.v, p)
+    no_gap = looking & ~accept & ((ego.gap_time >= p.gap_time_limit) | (ego.x >= p.gap_x_limit))
+    return accept, no_gap
