@@ -36,7 +36,7 @@ DOCS = (README, ROOT / "docs" / "results.md", ROOT / "docs" / "benchmarks.md")
 # The studies the verdict rests on (configs/paper.toml's, configs/default.toml's).
 PAPER_STUDY = ROOT / "benchmarks" / "study_paper_cpu_s1"
 DEFAULT_STUDY = ROOT / "benchmarks" / "study_symmetric_cpu_s3"  # three seeds per cell
-VERDICT_STUDY = ROOT / "benchmarks" / "study_default_cpu_s5"  # the verdict's default column
+VERDICT_STUDY = ROOT / "benchmarks" / "study_default_cpu_s10"  # the verdict's default column
 # configs/roads.toml's study, with both probes of env.curvature (roads- and straight-trained).
 ROADS_STUDY = ROOT / "benchmarks" / "study_roads_cpu_s3"
 # The benchmark session every speed figure of docs/benchmarks.md comes from.
@@ -726,7 +726,7 @@ def targets_table() -> str:
 BLOCKS: dict[str, Callable[[], str]] = {
     "verdict": verdict_table,
     "heldout-cells": heldout_cells,
-    "heldout-cells-s5": lambda: heldout_cells(VERDICT_STUDY),
+    "heldout-cells-s10": lambda: heldout_cells(VERDICT_STUDY),
     "roads": roads_table,
     "sim": sim_table,
     "highway": highway_table,

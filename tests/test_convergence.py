@@ -89,6 +89,8 @@ def test_margins_are_two_percent_of_each_axis() -> None:
     assert m["converged"] == m["steps_rise"] == 40.0  # 2% of 2,000 episodes
     assert m["auc"] == 0.02
     assert m["plateau"] == pytest.approx(0.02 * (2000 - 130))  # the return's range
+    # One order in every process (convergence.json's bytes must not follow string hashing).
+    assert tuple(m) == convergence.MEASURES
 
 
 def test_run_measures_normalise_the_area_over_the_run() -> None:

@@ -149,7 +149,9 @@ def margins(episodes: dict[str, np.ndarray]) -> dict[str, float]:
     n = int(np.max(episodes["episodes"]))
     curves = [moving(episodes["ret"][m, : int(c)]) for m, c in enumerate(episodes["episodes"])]
     span = max(map(np.max, curves)) - min(map(np.min, curves))
-    out = {m: MARGIN * n for m in LOWER_IS_BETTER}
+    # In MEASURES' order: the set's would follow the process's string hashing, and the
+    # margins' order in convergence.json would change from one run to the next.
+    out = {m: MARGIN * n for m in MEASURES if m in LOWER_IS_BETTER}
     return out | {"auc": MARGIN, "plateau": MARGIN * float(span)}
 
 
