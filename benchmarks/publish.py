@@ -28,6 +28,7 @@ import numpy as np
 
 from jaxlc import config
 from jaxlc.evaluation import stats
+from jaxlc.paper import claims
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -43,13 +44,6 @@ ROADS_STUDY = ROOT / "benchmarks" / "study_roads_cpu_s3"
 BENCH = ROOT / "benchmarks" / "bench_cpu_2026-11-24"
 
 # What the paper shows for each claim (its text, section IV), keyed by the claim's tag.
-PAPER_SHOWS = {
-    "(c)": "Fig. 3a: ① and ② show a better converging trend than ③",
-    "(a, b)": "Fig. 3b: among ①④⑤, ④ converges fast and has the best performance",
-    "(b)": "Fig. 3c: among ②⑥⑦, ⑦ shows the best performance",
-    "(a)": "Figs. 3d, 4a: ④ converges faster than ⑦; its manoeuvring steps rise earlier",
-    "(d)": "Fig. 6, §IV-C: ④ completes 100% of the lane changes of 100 test cases",
-}
 # Measures counted in episodes (written whole, "ep"); the others are written to 3 figures.
 _EPISODES = {"converged", "success95", "steps_rise"}
 
@@ -114,14 +108,14 @@ def verdict_table() -> str:
     for claim in _load(VERDICT_STUDY, "convergence.json")["claims"]:
         text = claim["claim"]
         lines.append(
-            f"| {text} | {PAPER_SHOWS[_tag(text)]} | {_comparisons(PAPER_STUDY, claim)} | "
+            f"| {text} | {claims.SHOWS[_tag(text)]} | {_comparisons(PAPER_STUDY, claim)} | "
             f"{_comparisons(VERDICT_STUDY, claim)} | {paper_claims[text]['verdict']}; "
             f"{claim['verdict']} |"
         )
     (p_text, p_verdict), (d_text, d_verdict) = _claim_d(PAPER_STUDY), _claim_d(VERDICT_STUDY)
     claim_d = _load(VERDICT_STUDY, "heldout.json")["claim_d"]["claim"]
     lines.append(
-        f"| {claim_d} | {PAPER_SHOWS['(d)']} | {p_text} | {d_text} | {p_verdict}; {d_verdict} |"
+        f"| {claim_d} | {claims.SHOWS['(d)']} | {p_text} | {d_text} | {p_verdict}; {d_verdict} |"
     )
     return "\n".join(lines)
 

@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from jaxlc.evaluation import stats  # noqa: E402
-from jaxlc.sweep import PAPER_LABELS  # noqa: E402
+from jaxlc.paper.grid import LABELS as PAPER_LABELS  # noqa: E402
 
 
 def _num(text: str) -> float:

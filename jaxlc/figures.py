@@ -39,27 +39,9 @@ from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 from jaxlc.evaluation import heldout, stats  # noqa: E402
 from jaxlc.evaluation.convergence import moving  # noqa: E402
 from jaxlc.evaluation.results import OUTCOMES, rank_models  # noqa: E402
+from jaxlc.paper import grid as paper_grid  # noqa: E402
 from jaxlc.study.rundir import RunDir  # noqa: E402
 
-# The paper's groups for Fig. 3 (one hyperparameter varies in each).
-GROUPS = (
-    ("(a) k = 1, 2, 4 at D = 2000", ("①", "②", "③")),
-    ("(b) D = 2000, 4000, 8000 at k = 1", ("①", "④", "⑤")),
-    ("(c) D = 2000, 4000, 8000 at k = 2", ("②", "⑥", "⑦")),
-    ("(d) the two best", ("④", "⑦")),
-)
-# The paper's colours where it names them (① red, ② blue, ④ dark green, ⑦ light green).
-TAG_COLOURS = {
-    "①": "tab:red",
-    "②": "tab:blue",
-    "③": "tab:orange",
-    "④": "darkgreen",
-    "⑤": "tab:purple",
-    "⑥": "tab:brown",
-    "⑦": "yellowgreen",
-    "⑧": "tab:gray",
-    "⑨": "tab:olive",
-}
 SCENE_BEHIND, SCENE_AHEAD = 90.0, 30.0  # m of road shown behind and ahead of the ego
 BAND_POINTS = 300  # bootstrap a training curve's band at this many points, not every episode
 
@@ -74,7 +56,7 @@ def _cells(run_dir: Path) -> list[dict[str, Any]] | None:
         return None
     cells: dict[int, dict[str, Any]] = {}
     for m in json.loads(path.read_text())["models"]:
-        tag = m["label"][:1] if m["label"][:1] in TAG_COLOURS else None
+        tag = m["label"][:1] if m["label"][:1] in paper_grid.COLOURS else None
         c = cells.setdefault(m["cell"], {"label": m["label"], "models": [], "tag": tag})
         c["models"].append(m["model"])
     return [cells[c] for c in sorted(cells)]
@@ -82,7 +64,7 @@ def _cells(run_dir: Path) -> list[dict[str, Any]] | None:
 
 def _colour(label: str, i: int) -> str:
     """The paper's colour for its nine models (labels start with their tag), else cycle."""
-    return TAG_COLOURS.get(label[:1], f"C{i % 10}")
+    return paper_grid.COLOURS.get(label[:1], f"C{i % 10}")
 
 
 _npz = RunDir.load_npz
@@ -146,8 +128,12 @@ def fig3_returns(run_dir: Path) -> Path | None:
     if cells is None or eps is None:
         return None
     by_tag = {c["tag"]: c for c in cells if c["tag"]}
-    paper = all(t in by_tag for _, tags in GROUPS for t in tags)
-    panels = [(t, [by_tag[x] for x in tags]) for t, tags in GROUPS] if paper else [("", cells)]
+    paper = all(t in by_tag for _, tags in paper_grid.GROUPS for t in tags)
+    panels = (
+        [(t, [by_tag[x] for x in tags]) for t, tags in paper_grid.GROUPS]
+        if paper
+        else [("", cells)]
+    )
     shape = (2, 2) if paper else (1, 1)
     fig, axes = plt.subplots(
         *shape, figsize=(11, 7) if paper else (7, 4), squeeze=False, layout="constrained"
@@ -168,9 +154,10 @@ def fig3_returns(run_dir: Path) -> Path | None:
 
 
 def _pair(cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Models ④ and ⑦ when the run has them, else the first two cells."""
+    """The paper's pair (④ and ⑦) when the run has them, else the first two cells."""
     by_tag = {c["tag"]: c for c in cells if c["tag"]}
-    return [by_tag["④"], by_tag["⑦"]] if {"④", "⑦"} <= set(by_tag) else cells[:2]
+    pair = paper_grid.PAIR
+    return [by_tag[t] for t in pair] if set(pair) <= set(by_tag) else cells[:2]
 
 
 def fig4_steps_loss(run_dir: Path) -> Path | None:

@@ -49,6 +49,7 @@ from jax.experimental import multihost_utils
 
 from jaxlc import config
 from jaxlc.learn import train
+from jaxlc.paper import grid as grid_of_paper
 from jaxlc.sim.env import ACT_DIM, OBS_DIM
 from jaxlc.sim.reward import REASONS, SUCCESS
 from jaxlc.study import checkpoint, lock, machine
@@ -56,25 +57,12 @@ from jaxlc.study.rundir import RunDir
 from jaxlc.study.summary import summary_markdown
 from jaxlc.study.tracking import TensorBoard
 
-# The paper's Table 1 numbers the models by (k, memory size).
-PAPER_LABELS = {
-    (1, 2000): "①",
-    (2, 2000): "②",
-    (4, 2000): "③",
-    (1, 4000): "④",
-    (1, 8000): "⑤",
-    (2, 4000): "⑥",
-    (2, 8000): "⑦",
-    (4, 4000): "⑧",
-    (4, 8000): "⑨",
-}
-
 
 def model_label(cell: dict[str, Any]) -> str:
     """``"④ k=1 D=4000"``-style name of a grid cell (the circled number only for the paper's
     nine, with the paper's learning rates and noise)."""
     base = f"k={cell['k']} D={cell['memory']}"
-    tag = PAPER_LABELS.get((cell["k"], cell["memory"]))
+    tag = grid_of_paper.tag(cell["k"], cell["memory"])
     extra = [
         f"{n}={cell[n]:g}"
         for n in ("actor_lr", "critic_lr", "noise_sigma")

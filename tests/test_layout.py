@@ -4,6 +4,7 @@ layers that import only downwards.
 The floors, lowest first (a module may import its own floor and those below, never above):
 
     0  jaxlc.config        the validated edge every layer reads; imports no jaxlc module
+    0  jaxlc.paper         the paper's grid and claims, a plug-in; imports nothing outside it
     1  jaxlc.sim           the simulator
     2  jaxlc.learn         DDPG and the training grid
     3  jaxlc.study         run directory, checkpoints, tracking, the machine
@@ -19,7 +20,7 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parent.parent / "jaxlc"
 MAX_LINES = 80
 
-FLOORS = {"config": 0, "sim": 1, "learn": 2, "study": 3, "evaluation": 4}
+FLOORS = {"config": 0, "paper": 0, "sim": 1, "learn": 2, "study": 3, "evaluation": 4}
 TOP = 5
 # The package root (jaxlc/__init__.py) and the modules beside it: commands and public API only.
 TOP_LEVEL = {
@@ -128,6 +129,12 @@ def test_every_exception_is_still_needed():
 
 def test_config_imports_no_jaxlc_module():
     assert _graph()["jaxlc.config"] == set()
+
+
+def test_the_paper_imports_nothing_outside_it():
+    graph = _graph()
+    paper = {m for m in graph if m.startswith("jaxlc.paper")}
+    assert paper and all(graph[m] <= paper for m in paper), {m: graph[m] for m in paper}
 
 
 def test_the_import_graph_sees_every_form_of_import():

@@ -16,7 +16,7 @@ import pytest
 from jaxlc import evaluate, figures
 from jaxlc.evaluation import report, results, stats
 from jaxlc.evaluation.results import OUTCOMES
-from jaxlc.sweep import PAPER_LABELS
+from jaxlc.paper.grid import LABELS as PAPER_LABELS
 
 from .conftest import HANG_GUARD_S
 

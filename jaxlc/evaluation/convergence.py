@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from jaxlc.evaluation import stats
+from jaxlc.paper.claims import COMPARISONS
 from jaxlc.sim.reward import SUCCESS
 
 WINDOW = 100
@@ -63,21 +64,6 @@ LOWER_IS_BETTER = {"converged", "success95", "steps_rise"}
 # return range, ``auc``'s the unit range it is normalised to.
 MARGIN = 0.02
 HOLDS, FAILS, SAME = "holds", "fails", "no practical difference"
-# The paper's comparisons (tag pairs "X better than Y") and the sentence each rests on.
-COMPARISONS = (
-    (
-        "(c) ① and ② converge better than ③ (Fig. 3a)",
-        (("①", "③"), ("②", "③")),
-        ("converged", "auc"),
-    ),
-    (
-        "(a, b) ④ converges fast and is best of ①④⑤ (Fig. 3b)",
-        (("④", "①"), ("④", "⑤")),
-        ("converged", "auc", "plateau"),
-    ),
-    ("(b) ⑦ is best of ②⑥⑦ (Fig. 3c)", (("⑦", "②"), ("⑦", "⑥")), ("auc", "plateau")),
-    ("(a) ④ converges faster than ⑦ (Figs. 3d, 4a)", (("④", "⑦"),), ("converged", "steps_rise")),
-)
 
 
 def moving(x: np.ndarray, window: int = WINDOW) -> np.ndarray:

@@ -40,6 +40,7 @@ from jaxlc.evaluation.stats import (
     cell_key,
     expanded_level,
 )
+from jaxlc.paper.claims import CLAIM_D
 
 MIN_BOOT_SEEDS = 5
 BOUNDS = {name: bound for name, bound, *_ in NORMS}
@@ -226,7 +227,7 @@ def claim_d(cells: list[dict[str, Any]]) -> dict[str, str]:
     """Claim (d), "④ succeeds in 100%", as a bound on ④'s held-out failure rate: *supported*
     when the pooled one-sided 95% bound is at most 1 - SOLVED (1%), *not supported* when the
     two-sided interval's lower end lies above it, else undecided."""
-    row = {"claim": "(d) ④ succeeds in 100% of lane changes", "paper": "100%"}
+    row = {"claim": CLAIM_D, "paper": "100%"}
     best = next((c for c in cells if str(c["label"]).startswith(PAPER_BEST)), None)
     if best is None:
         return {**row, "figures": "the grid has no ④", "verdict": "n/a"}

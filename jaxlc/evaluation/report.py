@@ -20,6 +20,7 @@ import numpy as np
 from jaxlc.evaluation import stats
 from jaxlc.evaluation.results import OUTCOMES, EvalError, rank_models
 from jaxlc.evaluation.stats import final_rows
+from jaxlc.paper.grid import BEST, BEST_TAG
 from jaxlc.study.checkpoint import write_text_atomic
 from jaxlc.study.rundir import RunDir
 
@@ -34,6 +35,9 @@ FIGURES = (
     ("heldout_norms.png", "Held-out lane changes against the safety and comfort norms"),
 )
 HUMAN_DURATION = (3.0, 8.0)  # s, the human range docs/results.md compares with
+
+
+PAPER = f"{BEST_TAG} (k={BEST[0]}, D={BEST[1]})"  # the model the paper finds best
 
 
 def _defined(v: Any) -> bool:
@@ -242,7 +246,7 @@ def compare_markdown(table: list[dict[str, Any]], run_a: Path, run_b: Path) -> s
 def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
     rows = result["rows"]
     finals = final_rows(rows)
-    four = [r for r in finals if r["label"].startswith("④")]
+    four = [r for r in finals if r["label"].startswith(BEST_TAG)]
     scripted = next((r for r in rows if r["model"] is None), None)
     lines = ["| claim | paper | this run | agrees |", "|---|---|---|---|"]
 
@@ -251,13 +255,13 @@ def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
     if four:
         cells = rank_cells(rows)  # with several seeds, a cell's claim is about its mean
         top = cells[0]["label"] if cells[0]["seeds"] > 1 else best["label"]
-        ok = top.startswith("④")
+        ok = top.startswith(BEST_TAG)
         ours = f"{top} is best" + (" (mean over seeds)" if cells[0]["seeds"] > 1 else "")
-        lines.append(f"| best model | ④ (k=1, D=4000) | {ours} | {'yes' if ok else 'no'} |")
+        lines.append(f"| best model | {PAPER} | {ours} | {'yes' if ok else 'no'} |")
     else:
-        lines.append("| best model | ④ (k=1, D=4000) | the grid has no model ④ | n/a |")
+        lines.append(f"| best model | {PAPER} | the grid has no model {BEST_TAG} | n/a |")
 
-    others = [(f"model ④, seed {r['seed']}", r) for r in four if r is not best]
+    others = [(f"model {BEST_TAG}, seed {r['seed']}", r) for r in four if r is not best]
     for who, r in [("best model", best), *others]:
         sr = r["success_rate"]
         ok = "yes" if _defined(sr) and sr == 1.0 else "no"

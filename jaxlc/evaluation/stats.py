@@ -58,13 +58,16 @@ from typing import Any
 import numpy as np
 import scipy.stats
 
+from jaxlc.paper.claims import CLAIM_D
+from jaxlc.paper.grid import BEST_TAG
+
 CONFIDENCE = 0.95
 RESAMPLES = 2000
 BATCH = 250  # resamples per vectorised call: bounds memory for figure bands of many points
 TAUS = np.linspace(0.0, 1.0, 101)
 CELL_AXES = ("k", "memory", "actor_lr", "critic_lr", "noise_sigma")
 SOLVED = 0.99  # a success rate that counts as the paper's 100% (claim (d))
-PAPER_BEST = "④"  # the paper's Table 1 tag of k=1, D=4000 (sweep.PAPER_LABELS)
+PAPER_BEST = BEST_TAG  # the tag of the model the paper's claims single out
 SEEDS_NOTE = "intervals need >= 2 seeds per cell"
 RANGE_BELOW = 5  # fewer seeds: a cell's "interval" of a mean is the seeds' range (describe)
 RANGE_NOTE = "with fewer than 5 seeds a cell's interval is the range of its seeds"
@@ -437,7 +440,7 @@ def claims(cells: Sequence[Cell]) -> list[dict[str, str]]:
         worse = values[0] if better == values[-1] else values[-1]
         out.append({**row, **_axis_claim(cells, axis, better, worse, name)})
 
-    claim_d = {"claim": "(d) ④ succeeds in 100% of lane changes", "paper": "100%"}
+    claim_d = {"claim": CLAIM_D, "paper": "100%"}
     if best is None:
         out.append({**claim_d, "figures": "the grid has no ④", "verdict": "n/a"})
     else:
