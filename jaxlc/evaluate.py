@@ -50,7 +50,6 @@ from jaxlc import config
 from jaxlc.evaluation import convergence, heldout, stats
 from jaxlc.evaluation.cases import evaluate_policies, init_actor, keys_for_lane_changes
 from jaxlc.evaluation.results import (
-    EVAL_FIELDS,
     META_KEYS,
     OUTCOMES,
     SCRIPTED,
@@ -348,7 +347,7 @@ def _json_safe(obj: Any) -> Any:
     return obj
 
 
-def _csv(rows: list[dict[str, Any]], fields: Sequence[str] = EVAL_FIELDS) -> str:
+def _csv(rows: list[dict[str, Any]], fields: Sequence[str]) -> str:
     buf = io.StringIO()
     w = csv.DictWriter(buf, fields, extrasaction="ignore", lineterminator="\n")
     w.writeheader()

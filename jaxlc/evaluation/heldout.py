@@ -34,13 +34,13 @@ from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.evaluation.safety import NORMS, PARTNERS, VEHICLES
 from jaxlc.evaluation.stats import (
     CONFIDENCE,
-    PAPER_BEST,
     RESAMPLES,
     SOLVED,
     cell_key,
     expanded_level,
 )
 from jaxlc.paper.claims import CLAIM_D
+from jaxlc.paper.grid import BEST_TAG
 
 MIN_BOOT_SEEDS = 5
 BOUNDS = {name: bound for name, bound, *_ in NORMS}
@@ -228,9 +228,9 @@ def claim_d(cells: list[dict[str, Any]]) -> dict[str, str]:
     when the pooled one-sided 95% bound is at most 1 - SOLVED (1%), *not supported* when the
     two-sided interval's lower end lies above it, else undecided."""
     row = {"claim": CLAIM_D, "paper": "100%"}
-    best = next((c for c in cells if str(c["label"]).startswith(PAPER_BEST)), None)
+    best = next((c for c in cells if str(c["label"]).startswith(BEST_TAG)), None)
     if best is None:
-        return {**row, "figures": "the grid has no ④", "verdict": "n/a"}
+        return {**row, "figures": f"the grid has no {BEST_TAG}", "verdict": "n/a"}
     fails, n, s = best["failures"], best["lane_changes"], best["seeds"]
     lo, _ = clopper_pearson(fails, n)
     bound = best["failure_bound"]
@@ -241,7 +241,7 @@ def claim_d(cells: list[dict[str, Any]]) -> dict[str, str]:
     else:
         v = f"undecided at {n} lane changes"
     figures = (
-        f"④ fails in fewer than {100 * bound:.2f}% of held-out lane changes (95%, "
+        f"{BEST_TAG} fails in fewer than {100 * bound:.2f}% of held-out lane changes (95%, "
         f"Clopper-Pearson: {fails} failures in {n} over {s} seed{'s' * (s != 1)})"
     )
     return {**row, "figures": figures, "verdict": v}

@@ -67,7 +67,6 @@ BATCH = 250  # resamples per vectorised call: bounds memory for figure bands of 
 TAUS = np.linspace(0.0, 1.0, 101)
 CELL_AXES = ("k", "memory", "actor_lr", "critic_lr", "noise_sigma")
 SOLVED = 0.99  # a success rate that counts as the paper's 100% (claim (d))
-PAPER_BEST = BEST_TAG  # the tag of the model the paper's claims single out
 SEEDS_NOTE = "intervals need >= 2 seeds per cell"
 RANGE_BELOW = 5  # fewer seeds: a cell's "interval" of a mean is the seeds' range (describe)
 RANGE_NOTE = "with fewer than 5 seeds a cell's interval is the range of its seeds"
@@ -406,7 +405,7 @@ def claims(cells: Sequence[Cell]) -> list[dict[str, str]]:
     """The paper's claims (module docstring), each ``{"claim", "paper", "figures",
     "verdict"}``; the figures are point estimates with their intervals."""
     out = []
-    best = next((c for c in cells if c.label.startswith(PAPER_BEST)), None)
+    best = next((c for c in cells if c.label.startswith(BEST_TAG)), None)
     others = [c for c in cells if c is not best]
     claim_a = {"claim": "(a) ④ is the best model", "paper": "④ (k=1, D=4000) is best"}
     if best is None or not others:
@@ -442,7 +441,7 @@ def claims(cells: Sequence[Cell]) -> list[dict[str, str]]:
 
     claim_d = {"claim": CLAIM_D, "paper": "100%"}
     if best is None:
-        out.append({**claim_d, "figures": "the grid has no ④", "verdict": "n/a"})
+        out.append({**claim_d, "figures": f"the grid has no {BEST_TAG}", "verdict": "n/a"})
     else:
         d = describe(best.final_success)
         if not math.isfinite(d["mean_hi"]):

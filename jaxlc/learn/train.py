@@ -175,8 +175,9 @@ def _log_add(log: EpisodeLog, start: Array, ended: Array, rows: dict[str, Array]
     def put(column: Array, value: Array) -> Array:
         return column.at[slot].set(value.astype(column.dtype), mode="drop")
 
-    terms = {n: put(log.terms[n], rows.pop(n)) for n in log.terms}
-    return log.replace(terms=terms, **{n: put(getattr(log, n), v) for n, v in rows.items()})
+    terms = {n: put(log.terms[n], rows[n]) for n in log.terms}
+    rest = {n: put(getattr(log, n), v) for n, v in rows.items() if n not in log.terms}
+    return log.replace(terms=terms, **rest)
 
 
 def anneal(h: ddpg.Hyper, episodes: Array, t: TrainConfig) -> ddpg.Hyper:
