@@ -368,7 +368,6 @@ def write_seed_stats(out_dir: Path, rows: list[dict[str, Any]]) -> dict[str, Any
         "cells": stats.cell_table(cells),
         "final": stats.final_table(cells),
         "improvement": stats.improvement_table(cells),
-        "claims": stats.claims(cells),
     }
     _write_json(out_dir / "cells.json", doc)
     for name in ("cells", "improvement"):

@@ -14,7 +14,7 @@ of that mean (``jaxlc.evaluation.stats``).
 
 Returns span -2000 (out of bounds, eq. (11)) to about -100 (a smooth lane change): when a
 plot's returns span more than a decade its axis is symlog (linear near zero, log beyond).
-Model colours: the paper's for its nine models (model labels start with their circled number).
+Model colours: the paper's for its nine models (``jaxlc.paper.grid``), found by (k, memory).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import argparse
 import json
 import sys
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -56,15 +57,17 @@ def _cells(run_dir: Path) -> list[dict[str, Any]] | None:
         return None
     cells: dict[int, dict[str, Any]] = {}
     for m in json.loads(path.read_text())["models"]:
-        tag = m["label"][:1] if m["label"][:1] in paper_grid.COLOURS else None
-        c = cells.setdefault(m["cell"], {"label": m["label"], "models": [], "tag": tag})
+        c = cells.setdefault(
+            m["cell"], {"label": m["label"], "models": [], "tag": paper_grid.tag_of(m), "meta": m}
+        )
         c["models"].append(m["model"])
     return [cells[c] for c in sorted(cells)]
 
 
-def _colour(label: str, i: int) -> str:
-    """The paper's colour for its nine models (labels start with their tag), else cycle."""
-    return paper_grid.COLOURS.get(label[:1], f"C{i % 10}")
+def _colour(model: Mapping[str, Any], i: int) -> str:
+    """The paper's colour for its nine models (``model``: a cell, model or row with ``k`` and
+    ``memory``, tagged by ``paper.grid.tag_of``), else cycle."""
+    return paper_grid.COLOURS.get(paper_grid.tag_of(model) or "", f"C{i % 10}")
 
 
 _npz = RunDir.load_npz
@@ -141,7 +144,7 @@ def fig3_returns(run_dir: Path) -> Path | None:
     for ax, (title, group) in zip(axes.flat, panels, strict=True):
         for i, c in enumerate(group):
             series = [eps["ret"][m, : eps["episodes"][m]] for m in c["models"]]
-            _seed_curves(ax, series, _colour(c["label"], i), c["label"])
+            _seed_curves(ax, series, _colour(c["meta"], i), c["label"])
         ax.set(title=title, xlabel="training episode", ylabel="total reward")
         _return_axis(ax)
         ax.grid(alpha=0.3)
@@ -169,7 +172,7 @@ def fig4_steps_loss(run_dir: Path) -> Path | None:
         return None
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained")
     for i, c in enumerate(_pair(cells)):
-        colour = _colour(c["label"], i)
+        colour = _colour(c["meta"], i)
         _seed_curves(
             a, [eps["steps"][m, : eps["episodes"][m]] for m in c["models"]], colour, c["label"]
         )
@@ -196,7 +199,7 @@ def fig6_checkpoints(run_dir: Path) -> Path | None:
     result = data[0]
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained")
     for i, c in enumerate(stats.cells_of(result["rows"])):  # in model order
-        colour = _colour(c.label, i)
+        colour = _colour(c.axes, i)
         for ax, vals, scale in ((a, c.ret, 1.0), (b, c.success, 100.0)):
             with warnings.catch_warnings():  # a checkpoint with no lane change: all NaN
                 warnings.simplefilter("ignore", RuntimeWarning)
@@ -242,7 +245,7 @@ def profiles(run_dir: Path) -> Path | None:
             if c.axes["k"] != k:
                 continue
             share, lo, hi = stats.performance_profile([c.final_success])
-            colour = _colour(c.label, i)
+            colour = _colour(c.axes, i)
             ax.plot(100 * stats.TAUS, share, color=colour, lw=1.4, label=c.label)
             if np.isfinite(lo).all():
                 ax.fill_between(100 * stats.TAUS, lo, hi, color=colour, alpha=0.2, lw=0)
@@ -274,7 +277,7 @@ def fig_compare(table: list[dict[str, Any]], name_a: str, name_b: str, path: Pat
             100 * np.asarray([_num(r[k]) for r in mine]) for k in ("diff", "diff_lo", "diff_hi")
         )
         ep = [r["episode"] for r in mine]
-        colour = _colour(label, i)
+        colour = _colour(mine[0], i)
         j = ep.index(last)
         err = None if not np.isfinite(lo[j]) else [[d[j] - lo[j]], [hi[j] - d[j]]]
         a.errorbar(d[j], i, xerr=err, fmt="o", color=colour, capsize=3)

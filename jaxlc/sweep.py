@@ -60,15 +60,15 @@ from jaxlc.study.tracking import TensorBoard
 
 def model_label(cell: dict[str, Any]) -> str:
     """``"④ k=1 D=4000"``-style name of a grid cell (the circled number only for the paper's
-    nine, with the paper's learning rates and noise)."""
+    nine, with the paper's learning rates and noise: ``paper.grid.tag_of``)."""
     base = f"k={cell['k']} D={cell['memory']}"
-    tag = grid_of_paper.tag(cell["k"], cell["memory"])
+    tag = grid_of_paper.tag_of(cell)
     extra = [
         f"{n}={cell[n]:g}"
         for n in ("actor_lr", "critic_lr", "noise_sigma")
         if cell[n] != getattr(config.DDPGConfig(), n)
     ]
-    return " ".join(([tag] if tag and not extra else []) + [base] + extra)
+    return " ".join(([tag] if tag else []) + [base] + extra)
 
 
 def model_meta(cfg: config.Config, grid: train.Grid, i: int) -> dict[str, Any]:

@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 
 from jaxlc.evaluation import convergence
+from jaxlc.paper.grid import LABELS
 from jaxlc.sim.reward import OUT_OF_BOUNDS, SUCCESS
+
+
+def _cell(tag: str) -> dict:
+    """A model of the paper's cell ``tag``, named so that the label alone would not find it:
+    comparisons find the paper's models by (k, memory)."""
+    (k, memory), *_ = [key for key, t in LABELS.items() if t == tag]
+    return {"label": f"model k={k}", "k": k, "memory": memory}
 
 
 def _curves(switch: int, n: int = 2000, noise: float = 0.0, seed: int = 0) -> dict:
@@ -37,7 +45,7 @@ def test_earlier_learners_win_every_comparison_over_seeds() -> None:
     for tag, switch in (("④", 400), ("⑦", 900)):
         for s in range(6):
             c = _curves(switch + 10 * s, noise=5.0, seed=s)
-            models.append({"label": f"{tag} x", **convergence.model_measures(**c)})
+            models.append({**_cell(tag), **convergence.model_measures(**c)})
     lo, hi = min(m["auc"] for m in models), max(m["auc"] for m in models)
     for m in models:  # auc normalised over the run, as run_measures does
         m["auc"] = (m["auc"] - lo) / (hi - lo)
@@ -56,7 +64,7 @@ def test_earlier_learners_win_every_comparison_over_seeds() -> None:
 
 def _seeded(switches: dict[str, list[int]]) -> list[dict]:
     return [
-        {"label": f"{tag} x", **convergence.model_measures(**_curves(sw, noise=5.0, seed=s))}
+        {**_cell(tag), **convergence.model_measures(**_curves(sw, noise=5.0, seed=s))}
         for tag, sws in switches.items()
         for s, sw in enumerate(sws)
     ]

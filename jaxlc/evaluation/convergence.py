@@ -52,6 +52,7 @@ import numpy as np
 
 from jaxlc.evaluation import stats
 from jaxlc.paper.claims import COMPARISONS
+from jaxlc.paper.grid import tag_of
 from jaxlc.sim.reward import SUCCESS
 
 WINDOW = 100
@@ -158,16 +159,16 @@ def decide(lo: float, hi: float, margin: float, seeds: int) -> str:
 def comparisons(
     models: list[dict[str, Any]], margin: dict[str, float] | None = None
 ) -> list[dict[str, Any]]:
-    """Each of the paper's comparisons on each measure: ``models`` are rows with ``label``
-    (starting with the paper's tag) and the measures; one row per pair and measure where the
-    grid has both cells, with the paper-side difference of means ``diff`` (its interval
-    ``diff_lo``, ``diff_hi``), the ``margin`` (``margins``; NaN: none given, so nothing is
-    "no practical difference"), the ``verdict`` (``decide``) and P(X better than Y) with its
-    interval."""
+    """Each of the paper's comparisons on each measure: ``models`` are rows with ``k``,
+    ``memory`` (the paper's tag: ``paper.grid.tag_of``) and the measures; one row per pair
+    and measure where the grid has both cells, with the paper-side difference of means
+    ``diff`` (its interval ``diff_lo``, ``diff_hi``), the ``margin`` (``margins``; NaN: none
+    given, so nothing is "no practical difference"), the ``verdict`` (``decide``) and
+    P(X better than Y) with its interval."""
     margin = margin or {}
-    by_tag: dict[str, list[dict[str, Any]]] = {}
+    by_tag: dict[str | None, list[dict[str, Any]]] = {}
     for r in models:
-        by_tag.setdefault(str(r["label"])[:1], []).append(r)
+        by_tag.setdefault(tag_of(r), []).append(r)
     out = []
     for claim, pairs, _ in COMPARISONS:
         for x, y in pairs:
@@ -254,7 +255,7 @@ def _num(v: float) -> str:
 def study(episodes: dict[str, np.ndarray], models: list[dict[str, Any]]) -> dict[str, Any]:
     """The content of ``eval/convergence.json``: per model (``summary.json``'s ``models``,
     whose ``model`` indexes ``episodes``) its measures, then the comparisons and verdicts."""
-    keep = ("model", "cell", "seed", "label", "k", "memory")
+    keep = ("model", "cell", "seed", "label", *stats.CELL_AXES)
     per = run_measures(episodes)
     rows = [{**{k: m.get(k) for k in keep}, **per[m["model"]]} for m in models]
     room = margins(episodes)

@@ -32,15 +32,9 @@ import scipy.stats
 
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.evaluation.safety import NORMS, PARTNERS, VEHICLES
-from jaxlc.evaluation.stats import (
-    CONFIDENCE,
-    RESAMPLES,
-    SOLVED,
-    cell_key,
-    expanded_level,
-)
-from jaxlc.paper.claims import CLAIM_D
-from jaxlc.paper.grid import BEST_TAG
+from jaxlc.evaluation.stats import CELL_AXES, CONFIDENCE, RESAMPLES, cell_key, expanded_level
+from jaxlc.paper.claims import CLAIM_D, SOLVED
+from jaxlc.paper.grid import BEST_TAG, is_best
 
 MIN_BOOT_SEEDS = 5
 BOUNDS = {name: bound for name, bound, *_ in NORMS}
@@ -203,8 +197,7 @@ def cell_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         cells.append(
             {
                 "label": mine[0]["label"],
-                "k": mine[0]["k"],
-                "memory": mine[0]["memory"],
+                **dict(zip(CELL_AXES, key, strict=True)),  # the paper's tag: paper.grid.tag_of
                 "seeds": len(mine),
                 "lane_changes": total,
                 "success_mean": float(np.mean(k / n)),
@@ -228,7 +221,7 @@ def claim_d(cells: list[dict[str, Any]]) -> dict[str, str]:
     when the pooled one-sided 95% bound is at most 1 - SOLVED (1%), *not supported* when the
     two-sided interval's lower end lies above it, else undecided."""
     row = {"claim": CLAIM_D, "paper": "100%"}
-    best = next((c for c in cells if str(c["label"]).startswith(BEST_TAG)), None)
+    best = next((c for c in cells if is_best(c)), None)
     if best is None:
         return {**row, "figures": f"the grid has no {BEST_TAG}", "verdict": "n/a"}
     fails, n, s = best["failures"], best["lane_changes"], best["seeds"]

@@ -1,5 +1,4 @@
-"""Statistics over seeds: intervals, probability of improvement, performance profiles, and
-the verdicts on the paper's claims that ``report.md`` gives.
+"""Statistics over seeds: intervals, probability of improvement, performance profiles.
 
 A run trained with ``python -m jaxlc.sweep --seeds N`` holds N models per grid cell (same
 hyperparameters, different seeds); a *cell* is one ``(k, memory, actor_lr, critic_lr,
@@ -23,28 +22,9 @@ improvement ``P(X > Y) = P(x > y) + 0.5 P(x = y)`` over all pairs of a seed of X
 of Y; the performance profile, the share of models whose success rate is above each
 level tau in [0, 1].
 
-Verdicts on the paper's claims, from the evaluated success rate of each model at its last
-evaluated checkpoint (N below is the fewest seeds of a cell involved):
-
-(a) ④ (k=1, D=4000) is the best model: *supported* if for every other cell c the interval
-    of P(④ > c) lies above 0.5; *not supported* if for some cell c the interval of
-    P(c > ④) lies above 0.5; else *undecided at N seeds*.
-(b) A larger replay memory is better: X = the seeds of every cell with the grid's largest
-    memory (pooled over k and the other axes, resampled within their cells), Y = those with
-    the smallest: *supported* if the interval of P(X > Y) lies above 0.5, *not supported*
-    if it lies below 0.5, else *undecided at N seeds*.
-(c) A smaller k is better: as (b), the smallest k against the largest.
-(d) ④ succeeds in 100% of its lane changes: *supported* if the interval of ④'s mean
-    success rate lies at or above ``SOLVED`` (99%) and has a width, *not supported* if its
-    upper end is below 1.0, else *undecided at N seeds* (an interval that merely reaches 1.0
-    while the mean is lower is no evidence of 100%; seeds that all score 70 of 70 give a
-    zero-width interval, no evidence either). Where the run has a held-out evaluation, the
-    report decides (d) on ④'s held-out failure bound instead (``jaxlc.evaluation.heldout.claim_d``).
-
-Below 5 seeds (``RANGE_BELOW``) a verdict needs an interval with a width: one of zero width
-(every resample alike) leaves the claim undecided.
-
-With one seed per cell every verdict is undecided.
+The paper's claims are not decided here: (a)-(c) on the training curves
+(``jaxlc.evaluation.convergence``), (d) on the held-out failure bound
+(``jaxlc.evaluation.heldout.claim_d``), as ``jaxlc.paper.claims`` states them.
 """
 
 from __future__ import annotations
@@ -58,15 +38,11 @@ from typing import Any
 import numpy as np
 import scipy.stats
 
-from jaxlc.paper.claims import CLAIM_D
-from jaxlc.paper.grid import BEST_TAG
-
 CONFIDENCE = 0.95
 RESAMPLES = 2000
 BATCH = 250  # resamples per vectorised call: bounds memory for figure bands of many points
 TAUS = np.linspace(0.0, 1.0, 101)
 CELL_AXES = ("k", "memory", "actor_lr", "critic_lr", "noise_sigma")
-SOLVED = 0.99  # a success rate that counts as the paper's 100% (claim (d))
 SEEDS_NOTE = "intervals need >= 2 seeds per cell"
 RANGE_BELOW = 5  # fewer seeds: a cell's "interval" of a mean is the seeds' range (describe)
 RANGE_NOTE = "with fewer than 5 seeds a cell's interval is the range of its seeds"
@@ -362,103 +338,6 @@ def improvement_table(cells: Sequence[Cell]) -> list[dict[str, Any]]:
                     }
                 )
     return rows
-
-
-# --------------------------------------------------------------------------- verdicts
-
-
-def verdict(lo: float, hi: float, seeds: int) -> str:
-    """The rule for "X is better than Y" from the interval of P(X > Y). A zero-width
-    interval (every resample alike: the seeds of X all beat, or all lose to, those of Y)
-    decides only from ``RANGE_BELOW`` seeds on; with fewer it is no evidence."""
-    if not lo < hi and seeds < RANGE_BELOW:
-        return f"undecided at {seeds} seed{'s' * (seeds != 1)}"
-    if lo > 0.5:
-        return "supported"
-    if hi < 0.5:
-        return "not supported"
-    return f"undecided at {seeds} seed{'s' * (seeds != 1)}"
-
-
-def _p(p: float, lo: float, hi: float) -> str:
-    if not math.isfinite(p):
-        return "–"
-    ci = f" [{lo:.2f}, {hi:.2f}]" if math.isfinite(lo) else ""
-    return f"{p:.2f}{ci}"
-
-
-def _pooled(cells: Sequence[Cell], axis: str, value: Any) -> list[Cell]:
-    return [c for c in cells if c.axes[axis] == value]
-
-
-def _axis_claim(cells: Sequence[Cell], axis: str, better: Any, worse: Any, name: str) -> dict:
-    xs, ys = _pooled(cells, axis, better), _pooled(cells, axis, worse)
-    p, lo, hi = improvement([c.final_success for c in xs], [c.final_success for c in ys])
-    return {
-        "figures": f"P({name}={better} > {name}={worse}) = {_p(p, lo, hi)}, "
-        f"{len(xs)} against {len(ys)} cells pooled",
-        "verdict": verdict(lo, hi, fewest_seeds([*xs, *ys])),
-    }
-
-
-def claims(cells: Sequence[Cell]) -> list[dict[str, str]]:
-    """The paper's claims (module docstring), each ``{"claim", "paper", "figures",
-    "verdict"}``; the figures are point estimates with their intervals."""
-    out = []
-    best = next((c for c in cells if c.label.startswith(BEST_TAG)), None)
-    others = [c for c in cells if c is not best]
-    claim_a = {"claim": "(a) ④ is the best model", "paper": "④ (k=1, D=4000) is best"}
-    if best is None or not others:
-        out.append({**claim_a, "figures": "the grid has no ④ and another cell", "verdict": "n/a"})
-    else:
-        ps = [(c, *improvement([best.final_success], [c.final_success])) for c in others]
-        n = fewest_seeds(cells)
-        if all(verdict(lo, hi, n) == "supported" for _, _, lo, hi in ps):
-            v = "supported"
-        elif any(verdict(lo, hi, n) == "not supported" for _, _, lo, hi in ps):
-            v = "not supported"
-        else:
-            v = verdict(math.nan, math.nan, n)
-        worst = min(ps, key=lambda t: (t[2], t[1]))  # the cell ④ is least clearly above
-        figures = (
-            f"smallest P(④ > other) = {_p(*worst[1:])} against {worst[0].label}; "
-            + ", ".join(f"{c.label.split()[0]} {p:.2f}" for c, p, _, _ in ps)
-        )
-        out.append({**claim_a, "figures": figures, "verdict": v})
-
-    for axis, name, claim, paper, pick in (
-        ("memory", "D", "(b) a larger replay memory is better", "D=8000 > D=2000", max),
-        ("k", "k", "(c) a smaller action-update step is better", "k=1 > k=4", min),
-    ):
-        values = sorted({c.axes[axis] for c in cells if c.axes[axis] is not None})
-        row = {"claim": claim, "paper": paper}
-        if len(values) < 2:
-            out.append({**row, "figures": f"the grid has one {name}", "verdict": "n/a"})
-            continue
-        better = pick(values)
-        worse = values[0] if better == values[-1] else values[-1]
-        out.append({**row, **_axis_claim(cells, axis, better, worse, name)})
-
-    claim_d = {"claim": CLAIM_D, "paper": "100%"}
-    if best is None:
-        out.append({**claim_d, "figures": f"the grid has no {BEST_TAG}", "verdict": "n/a"})
-    else:
-        d = describe(best.final_success)
-        if not math.isfinite(d["mean_hi"]):
-            v = verdict(math.nan, math.nan, len(best.seeds))
-        else:
-            v = (
-                "supported"
-                if SOLVED <= d["mean_lo"] < d["mean_hi"]  # a zero-width interval decides nothing
-                else "not supported"
-                if d["mean_hi"] < 1.0 - 1e-9
-                else verdict(math.nan, math.nan, len(best.seeds))
-            )
-        ci = f" [{100 * d['mean_lo']:.1f}, {100 * d['mean_hi']:.1f}]" * math.isfinite(d["mean_lo"])
-        n = len(best.seeds)
-        figures = f"mean success {100 * d['mean']:.1f}%{ci} over {n} seed{'s' * (n != 1)}"
-        out.append({**claim_d, "figures": figures, "verdict": v})
-    return out
 
 
 # --------------------------------------------------------------------------- two runs

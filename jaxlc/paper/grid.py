@@ -3,6 +3,9 @@ out, and its figures' groups and colours."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 # The paper's Table 1 numbers the models by (k, memory size).
 LABELS: dict[tuple[int, int], str] = {
     (1, 2000): "①",
@@ -15,6 +18,9 @@ LABELS: dict[tuple[int, int], str] = {
     (4, 4000): "⑧",
     (4, 8000): "⑨",
 }
+# The nine models' other hyperparameters (SPEC's [S] values): a model with other learning rates
+# or noise is not one of the paper's, whatever its (k, memory).
+HYPER = {"actor_lr": 1e-4, "critic_lr": 1e-3, "noise_sigma": 0.2}
 BEST = (1, 4000)  # (k, memory) of the model the paper finds best (claims (a) and (d))
 BEST_TAG = LABELS[BEST]
 # Fig. 3's panels (one hyperparameter varies in each), and Figs. 3d/4's pair.
@@ -39,6 +45,21 @@ COLOURS = {
 }
 
 
-def tag(k: int, memory: int) -> str | None:
+def tag(k: int | None, memory: int | None) -> str | None:
     """The paper's tag of a model with these hyperparameters, or None outside its grid."""
     return LABELS.get((k, memory))
+
+
+def tag_of(model: Mapping[str, Any]) -> str | None:
+    """The paper's tag of a model, cell or evaluation row (a mapping with ``k``, ``memory``
+    and, where it records them, ``HYPER``'s keys), or None when it is not one of the nine: the one
+    rule by which the sweep's labels, the statistics, the claims and the figures find the
+    paper's models."""
+    if any(model.get(name) not in (None, value) for name, value in HYPER.items()):
+        return None
+    return tag(model.get("k"), model.get("memory"))
+
+
+def is_best(model: Mapping[str, Any]) -> bool:
+    """Whether ``model`` is the one the paper finds best (``BEST``; ``tag_of``'s rule)."""
+    return tag_of(model) == BEST_TAG
