@@ -29,6 +29,7 @@ import numpy as np
 from jaxlc import config
 from jaxlc.evaluation import stats
 from jaxlc.paper import claims
+from jaxlc.paper.grid import is_best
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -87,7 +88,7 @@ def _comparisons(study: Path, claim: dict[str, str]) -> str:
 
 def _claim_d(study: Path) -> tuple[str, str]:
     doc = _load(study, "heldout.json")
-    cell = next(c for c in doc["cells"] if c["label"].startswith("④"))
+    cell = next(c for c in doc["cells"] if is_best(c))
     text = (
         f"{cell['failures']} failures ({cell['collisions']} collisions) in "
         f"{cell['lane_changes']:,} held-out lane changes; fails in < "
@@ -658,10 +659,13 @@ def targets_table() -> str:
     for r in rows:
         cells.setdefault(r["label"], []).append(r)
     mean = {c: np.mean([float(r["success_rate"]) for r in rs]) for c, rs in cells.items()}
-    four = [c for c in cells if c.startswith("④")][0]
+    k = {c: int(rs[0]["k"]) for c, rs in cells.items()}
+    four = next(
+        c for c, rs in cells.items() if is_best({"k": k[c], "memory": int(rs[0]["memory"])})
+    )
     d = stats.describe(np.array([float(r["success_rate"]) for r in cells[four]]))
-    small = [mean[c] for c in cells if "k=4" not in c]
-    big = [mean[c] for c in cells if "k=4" in c]
+    small = [mean[c] for c in cells if k[c] != 4]
+    big = [mean[c] for c in cells if k[c] == 4]
     cases = sum(int(r["performed"]) for r in rows)
     collided = sum(int(r["collision"]) for r in rows)
     ends = [
