@@ -28,6 +28,7 @@ import numpy as np
 
 from jaxlc import config
 from jaxlc.evaluation import stats
+from jaxlc.evaluation.report import EVERY_STEP
 from jaxlc.paper import claims
 from jaxlc.paper.grid import is_best
 
@@ -130,7 +131,8 @@ def heldout_cells(study: Path = DEFAULT_STUDY) -> str:
         "(bound) | inside every norm |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for c in _load(study, "heldout.json")["cells"]:
+    doc = _load(study, "heldout.json")
+    for c in doc["cells"]:
         lines.append(
             f"| {c['label']} | {c['seeds']} | {c['lane_changes']:,} | "
             f"{100 * c['success_mean']:.2f}% | [{100 * c['success_lo']:.2f}, "
@@ -138,7 +140,8 @@ def heldout_cells(study: Path = DEFAULT_STUDY) -> str:
             f"(< {100 * c['failure_bound']:.2f}%) | {c['collisions']} "
             f"(< {100 * c['collision_bound']:.2f}%) | {100 * c['norm_all']:.1f}% |"
         )
-    return "\n".join(lines)
+    counted = doc.get("conflicts_counted", EVERY_STEP)
+    return "\n".join([*lines, "", f"Headway and time-to-collision counted {counted}."])
 
 
 @functools.cache

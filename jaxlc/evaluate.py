@@ -59,7 +59,7 @@ from jaxlc.evaluation.results import (
     format_table,
     summarise,
 )
-from jaxlc.evaluation.safety import NORMS
+from jaxlc.evaluation.safety import COUNTED, NORMS
 from jaxlc.evaluation.stats import StatsError, final_rows
 from jaxlc.policy import network
 from jaxlc.sim.env import ACT_DIM
@@ -217,6 +217,7 @@ def evaluate_heldout(
         "norms": [
             dict(zip(("measure", "bound", "below", "source"), n, strict=True)) for n in NORMS
         ],
+        "conflicts_counted": COUNTED,
         "rows": rows,
         "cells": cells,
         "claim_d": heldout.claim_d(cells),

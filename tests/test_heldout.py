@@ -145,13 +145,18 @@ def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -
     p = EnvParams.from_config(smoke_cfg.env, gamma=smoke_cfg.ddpg.gamma)
     env, state = LaneChangeEnv(), jax.tree.map(lambda a: a[c], cs.state)
     step = jax.jit(lambda k, s: env.step(k, s, jnp.ones(1), p))
-    a_y, lag_ttc = [float(state.ego.v * state.ego.omega)], [lag_ttc_of(state, p)]
+    a_y, lag_ttc, entered = [float(state.ego.v * state.ego.omega)], [], False
     for _ in range(200):
+        # the lag counts from the step the body's corners first reach into the target lane
+        entered = entered or _reaches(state, int(state.ego.target), p)
+        lag_ttc.append(lag_ttc_of(state, p) if entered else math.inf)
         _, state, _, term, trunc, info = step(jax.random.fold_in(cs.key[c], state.time), state)
         a_y.append(float(state.ego.v * state.ego.omega))
-        lag_ttc.append(lag_ttc_of(state, p))
         if int(info["reason"]) != 0:
             break
+    entered = entered or _reaches(state, int(state.ego.target), p)
+    lag_ttc.append(lag_ttc_of(state, p) if entered else math.inf)
+    assert not _reaches(jax.tree.map(lambda a: a[c], cs.state), int(state.ego.target), p)
     n = safety.jerk_window(p)
     padded = np.concatenate([np.full(n, a_y[0]), a_y[1:]])
     jerk = np.abs(padded[n:] - padded[:-n]) / (n * p.dt)
@@ -163,3 +168,56 @@ def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -
 def lag_ttc_of(state, p) -> float:
     gap = state.ego.x - p.vehicle_length - state.nb.b1_x
     return float(safety.ttc(gap, state.nb.b1_v, state.ego.v, state.nb.has_b1))
+
+
+def _reaches(state, lane: int, p) -> bool:
+    """Whether any corner of the ego's body (front bumper at x, centre line at y, heading
+    psi) lies past the border of ``lane`` toward it, or inside it."""
+    e = state.ego
+    length, width, psi = float(p.vehicle_length), float(p.vehicle_width), float(e.psi)
+    ys = [
+        float(e.y) + a * math.sin(psi) + b * math.cos(psi)
+        for a in (-length / 2, length / 2)
+        for b in (-width / 2, width / 2)
+    ]
+    lo, hi = lane * float(p.lane_width), (lane + 1) * float(p.lane_width)
+    return max(ys) > lo and min(ys) < hi
+
+
+def test_headway_counts_once_the_body_overlaps_the_lane() -> None:
+    """Target-lane vehicles count from the ego's first overlap with the target lane on (also if
+    it swings back), the own leader while the body overlaps the own lane, centre still in it."""
+    env = LaneChangeEnv()
+    p = EnvParams()
+    _, state = env.reset(jax.random.key(0), p)
+    w, origin = float(p.lane_width), p.lanes // 2
+    centre = (origin + 0.5) * w
+
+    def at(y: float, psi: float = 0.0):
+        ego = state.ego.replace(y=jnp.float32(y), psi=jnp.float32(psi), target=origin + 1)
+        return state.replace(ego=ego)
+
+    half_w = 0.5 * float(p.vehicle_width)
+    entered = jnp.bool_(False)
+    seen = []
+    for y in (
+        centre,
+        centre + w / 2 - half_w - 0.01,
+        centre + w / 2 - half_w + 0.01,
+        centre + w / 2 + 0.01,
+        centre,
+    ):
+        mask, entered = safety.counted(at(y), p, entered)
+        seen.append(tuple(bool(v) for v in mask))
+    assert seen == [
+        (False, False, True),  # wholly in its own lane: its leader only
+        (False, False, True),  # 1 cm short of the border
+        (True, True, True),  # 1 cm over: the target lane's lead and lag count from now on
+        (True, True, False),  # centre over the border: the own lane's leader no longer
+        (True, True, True),  # back in its own lane: the target lane's vehicles still count
+    ]
+    # a heading turns the box: its corner reaches over before its side would
+    y = centre + w / 2 - half_w - 0.05
+    assert not bool(safety.counted(at(y), p, jnp.bool_(False))[1])
+    assert bool(safety.counted(at(y, 0.1), p, jnp.bool_(False))[1])
+    assert _reaches(at(y, 0.1), origin + 1, p) and not _reaches(at(y), origin + 1, p)

@@ -83,6 +83,7 @@ class Outcome:
     final_omega: Array  # yaw rate relative to the lane's (env.ego_yaw_rate), rad/s
     # Safety and comfort over the manoeuvre (jaxlc.evaluation.safety), the start state included.
     peak_lat_jerk: Array  # max |lateral jerk| over a 0.5 s moving average, m/s^3
+    # Headway and TTC only where they count (safety.counted), else inf.
     min_ttc: Array  # (policies, cases, 3) min time-to-collision to lead, lag, own leader, s
     min_thw: Array  # (policies, cases, 3) min time headway, s
     # The collision, if any: the vehicle hit (index of safety.PARTNERS) and the ego's speed.
@@ -205,6 +206,8 @@ def _empty_outcome(cs: Cases, n_pol: int, p: EnvParams) -> Outcome:
     pc = (n_pol, cs.reason.shape[0])
     f0, i0, nan = jnp.zeros(pc, jnp.float32), jnp.zeros(pc, jnp.int32), jnp.full(pc, jnp.nan)
     ttc, thw = safety.conflicts(cs.state, p)  # (cases, 3): the manoeuvre's start state
+    counted, _ = safety.counted(cs.state, p, jnp.zeros(cs.reason.shape, bool))
+    ttc, thw = (jnp.where(counted, x, jnp.inf) for x in (ttc, thw))
     return Outcome(
         reason=jnp.broadcast_to(cs.reason, pc),
         performed=jnp.broadcast_to(cs.performed, pc),
@@ -234,10 +237,12 @@ def _accumulate(
     info: dict[str, Array],
     side: Array,
     jerk: Array,
+    counted: Array,
     p: EnvParams,
 ) -> Outcome:
     """Fold one step into the outcome; only ``live`` ``(policies, cases)`` entries change
-    (``jerk``: the step's windowed lateral jerk)."""
+    (``jerk``: the step's windowed lateral jerk; ``counted``: ``(policies, cases, 3)``, the
+    vehicles whose headway and TTC count at this step, ``safety.counted``)."""
 
     def add(acc: Array, value: Array) -> Array:
         return acc + jnp.where(live, value, 0.0)
@@ -251,7 +256,7 @@ def _accumulate(
     toward = info["offset"] * side  # signed toward the target side
     # The yaw rate the success test reads: relative to the lane's (omega on a straight road).
     yaw = ego_yaw_rate(new.ego, jnp.broadcast_to(road_curvature(new, p), live.shape), p)
-    ttc, thw = safety.conflicts(new, p)
+    ttc, thw = (jnp.where(counted, x, jnp.inf) for x in safety.conflicts(new, p))
     hit = live & (info["reason"] == COLLISION)
     kappa = jnp.broadcast_to(road_curvature(new, p), live.shape)  # (policies, cases)
     overlap = jax.vmap(jax.vmap(overlaps, (0, 0, None, 0)), (0, 0, None, 0))(
@@ -293,19 +298,20 @@ def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Call
             return jax.vmap(env.step, (0, 0, 0, None))(keys, s, a, base.replace(k=k))
 
         def body(c: tuple) -> tuple:
-            i, state, obs, done, out, trace, hist = c
+            i, state, obs, done, out, trace, hist, entered = c
             mu = jax.vmap(actor_apply)(pol.actor, obs)  # (policies, cases, 1)
             action = jnp.where(pol.scripted[:, None, None], scripted_action(obs, base), mu)
             keys = jax.vmap(jax.vmap(jax.random.fold_in))(bcast(cs.key), state.time)
             new_obs, new, r, _, _, info = jax.vmap(step_policy)(pol.k, keys, state, action)
             live = ~done  # (policies, cases); only live cases are in the RL phase
             jerk, hist = safety.windowed_jerk(hist, safety.lateral_acc(new), base.dt)
-            out = _accumulate(out, live, new, r, info, side, jerk, base)
+            counted, entered = safety.counted(new, base, entered)
+            out = _accumulate(out, live, new, r, info, side, jerk, counted, base)
             done = done | (live & ((info["reason"] != 0) | (new.time >= max_steps)))
             # Finished cases freeze, so their last frame is where the manoeuvre ended.
             state, obs = tree.where(live, (new, new_obs), (state, obs))
             trace = _record(trace, i + 1, state, traced, live[:, traced], base)
-            return i + 1, state, obs, done, out, trace, hist
+            return i + 1, state, obs, done, out, trace, hist, entered
 
         def going(c: tuple) -> Array:
             i, _, _, done, *_ = c
@@ -315,8 +321,9 @@ def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Call
         a0 = safety.lateral_acc(state)
         hist = jnp.broadcast_to(a0[..., None], a0.shape + (safety.jerk_window(base),))
         out0 = _empty_outcome(cs, n_pol, base)
-        init = (jnp.int32(0), state, obs, ~bcast(cs.performed), out0, trace, hist)
-        *_, out, trace, _ = jax.lax.while_loop(going, body, init)
+        _, entered = safety.counted(state, base, jnp.zeros(a0.shape, bool))
+        init = (jnp.int32(0), state, obs, ~bcast(cs.performed), out0, trace, hist, entered)
+        *_, out, trace, _, _ = jax.lax.while_loop(going, body, init)
         # A case still running here hit the cap: its reason stays 0, "unfinished".
         return out.replace(overshoot=jnp.maximum(out.overshoot, 0.0)), trace
 

@@ -384,6 +384,8 @@ def _median(values: list[Any]) -> float:
     return float(np.median(kept)) if kept else math.nan
 
 
+# How a held-out file written before safety.COUNTED counted headway and TTC.
+EVERY_STEP = "on every step from the manoeuvre's start"
 COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
 
 
@@ -402,8 +404,9 @@ def _heldout_section(doc: dict[str, Any] | None) -> list[str]:
         "95% Clopper-Pearson intervals, and `failure <`, the one-sided 95% upper bound on "
         f"the failure rate. The norms, per lane change: {norms}. A lane change is inside "
         "every norm when it succeeds and meets all of them; TTC and time headway are the "
-        "minimum over the target lane's lead and lag and the own-lane leader, from the "
-        "manoeuvre's start to its end (`jaxlc.evaluation.safety`); the table gives their 5th "
+        "minimum over the manoeuvre of those to the target lane's lead and lag and the own "
+        f"lane's leader, counted {doc.get('conflicts_counted', EVERY_STEP)} "
+        "(`jaxlc.evaluation.safety`); the table gives their 5th "
         "percentile over the lane changes, ∞ where fewer than 5% close in. Figure: "
         "[heldout_norms.png](figures/heldout_norms.png).",
         "",

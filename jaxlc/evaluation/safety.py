@@ -6,13 +6,20 @@ Measured on every step of the RL phase (the manoeuvre), the start state included
 - lateral jerk as ISO 11270 reads it, a 0.5 s moving average: the mean of da_y/dt over the
   last 0.5 s is ``(a_y(t) - a_y(t - 0.5 s)) / 0.5 s`` (before the manoeuvre the ego drives
   straight, a_y = 0); its peak against 5 m/s^3;
-- time-to-collision to the target lane's lead and lag and to the leader in the lane holding
-  the ego's centre: ``net gap / closing speed`` while the follower is faster, infinite when
-  it is not (or the vehicle is missing), 0 once the boxes overlap along the road; critical
-  below ~1.5 s;
+- time-to-collision to the target lane's lead and lag and to the own lane's leader:
+  ``net gap / closing speed`` while the follower is faster, infinite when it is not (or the
+  vehicle is missing), 0 once the boxes overlap along the road; critical below ~1.5 s;
 - time headway, ``net gap / follower's speed`` (the ego behind a leader, the lag behind the
   ego): critical below ~0.9 s;
 - duration, against UN R79's 5 s for a lane change (ACSF category C).
+
+Headway and time-to-collision count where the vehicles share a lane (``counted``): to the
+target lane's lead and lag from the step the ego's body first overlaps the target lane (from
+then on: a lag closing in once the ego has moved over is still its follower), and to the own
+lane's leader while the body overlaps the own lane and its centre is still there (after the
+centre crosses, the vehicle ahead is the target lane's lead). A target-lane vehicle beside an
+ego still wholly in its own lane follows nobody, so it is no headway of the lane change.
+``eval/heldout.json`` records the rule (``COUNTED``).
 
 A collision is attributed to the vehicle hit (``PARTNERS``): by the lane it drives in (the
 target lane or not) and whether its centre is ahead of the ego's.
@@ -23,8 +30,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
+from jaxlc.sim import kinematics
 from jaxlc.sim.idm import NO_LEADER_GAP
 from jaxlc.sim.observation import target_gaps
+from jaxlc.sim.road import current_lane
 
 # Each norm: (measure, bound, True when the measure must stay below the bound, source).
 NORMS = (
@@ -35,6 +44,11 @@ NORMS = (
     ("min_thw_s", 0.9, False, "time headway >= 0.9 s (critical below)"),
 )
 JERK_WINDOW_S = 0.5
+# The rule by which headway and TTC count, as eval/heldout.json records it.
+COUNTED = (
+    "where they share a lane: the target lane's lead and lag from the step the ego's body first "
+    "overlaps the target lane, the own lane's leader while the body overlaps the own lane"
+)
 VEHICLES = ("lead", "lag", "own")  # target lane's lead and lag, the own-lane leader
 PARTNERS = ("none", "target_lead", "target_lag", "own_leader", "own_follower")
 
@@ -77,6 +91,22 @@ def conflicts(state, p) -> tuple[Array, Array]:
         axis=-1,
     )
     return t, h
+
+
+def counted(state, p, entered: Array) -> tuple[Array, Array]:
+    """``(mask, entered)``: which of ``VEHICLES`` count at this step, ``(..., 3)`` bool, and
+    whether the ego's body has overlapped the target lane by this step, ``(...)`` (``entered``:
+    the same before it). The ego starts in the origin lane ``lanes // 2`` (``road.origin_y``)."""
+    eg = state.ego
+    _, hy = kinematics.half_extents(eg.psi, p.vehicle_length, p.vehicle_width)
+
+    def touches(lane: Array) -> Array:  # the body's lateral extent reaches into ``lane``
+        return (eg.y + hy > lane * p.lane_width) & (eg.y - hy < (lane + 1) * p.lane_width)
+
+    origin = p.lanes // 2
+    entered = entered | touches(eg.target)
+    own = touches(origin) & (current_lane(eg, p) == origin)  # state.leader_* is that lane's
+    return jnp.stack([entered, entered, own], axis=-1), entered
 
 
 def lateral_acc(state) -> Array:
