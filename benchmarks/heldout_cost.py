@@ -22,8 +22,8 @@ from pathlib import Path
 
 import jax
 
-from jaxlc.evaluate import final_checkpoints, load_rows
 from jaxlc.evaluation.cases import evaluate_policies, keys_for_lane_changes
+from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.sim.env import ACT_DIM
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.study import machine

@@ -21,9 +21,9 @@ import time
 from pathlib import Path
 
 from jaxlc import config
-from jaxlc.evaluate import final_checkpoints, load_rows
 from jaxlc.evaluation import heldout
 from jaxlc.evaluation.cases import evaluate_policies, keys_for_lane_changes
+from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.study import machine
 
 FIELDS = (

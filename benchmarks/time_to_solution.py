@@ -43,15 +43,17 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from sim_throughput import write_csv
 
-    from jaxlc import config, sweep
+    from jaxlc import config
     from jaxlc.learn import train
     from jaxlc.study import machine
+    from jaxlc.study.loop import host_devices
+    from jaxlc.study.summary import summarise
 
     path = config.CONFIG_DIR / "smoke.toml" if args.tiny and args.config is None else args.config
     cfg = config.load(path, [*args.overrides, f"train.seeds={args.seeds}"])
     if args.tiny:
         args.target, args.last = 0.0, 1  # any finished episode: the loop and the log, not RL
-    machine.use_host_devices(sweep.host_devices(cfg))
+    machine.use_host_devices(host_devices(cfg))
 
     import jax
     import numpy as np
@@ -66,7 +68,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
         env_steps += t.chunk_steps * t.envs_per_model * grid.size
         host = jax.device_get({"episodes": state.episodes, "log": state.log})
         log = {k: np.asarray(v) for k, v in host["log"].columns().items()}
-        rows = sweep.summarise(cfg, grid, log, host["episodes"], last=args.last)
+        rows = summarise(cfg, grid, log, host["episodes"], last=args.last)
         ready = [r for r in rows if r["episodes"] >= args.last]
         best = max(ready, key=lambda r: r["success_rate_last"], default=None)
         if best is not None and best["success_rate_last"] >= args.target:

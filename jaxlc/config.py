@@ -52,7 +52,8 @@ def _f(
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """Road, traffic, IDM, episode, ego kinematics and reward (README, "The simulator")."""
+    """Road, traffic, IDM, episode, ego kinematics and reward (docs/usage.md, "The simulator
+    in a few lines")."""
 
     road_length: float = _f(600.0, 50.0, open_lo=True, doc="m")
     lanes: int = _f(3, 2, 8, doc="lanes in the ego's direction; the ego starts on lanes // 2")
@@ -123,7 +124,7 @@ class EnvConfig:
 
 @dataclass(frozen=True)
 class DDPGConfig:
-    """Learner hyperparameters (the paper's DDPG; README, "Decisions beyond the paper")."""
+    """Learner hyperparameters (the paper's DDPG; docs/decisions.md)."""
 
     hidden: tuple[int, ...] = _f([300, 600], 1, 4096)
     actor_lr: float = _f(1e-4, 0.0, 1.0, open_lo=True)
@@ -183,11 +184,27 @@ class GridConfig:
 
 
 @dataclass(frozen=True)
+class EvalConfig:
+    """The evaluation protocol of ``python -m jaxlc.evaluate`` (whose flags of the same names
+    override these): the paper's fixed cases at each checkpoint, then the held-out lane
+    changes of each final checkpoint. Not part of ``Config.hash``: it names what was trained."""
+
+    cases: int = _f(100, 1, doc="the paper's lane-change cases per checkpoint")
+    max_steps: int = _f(1500, 1, doc="env steps a case may take before it counts unfinished")
+    seed: int = _f(0, 0, 2**31 - 1, doc="seed of the cases")
+    chunk: int = _f(32, 1, doc="policies per compiled batch")
+    traced: int = _f(4, 0, 1000, doc="cases whose trajectories the figures draw")
+    lane_changes: int = _f(1000, 0, doc="held-out lane changes per final checkpoint (0: none)")
+    heldout_seed: int = _f(0, 0, 2**31 - 1, doc="seed of the held-out cases")
+
+
+@dataclass(frozen=True)
 class Config:
     env: EnvConfig = field(default_factory=EnvConfig)
     ddpg: DDPGConfig = field(default_factory=DDPGConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     grid: GridConfig = field(default_factory=GridConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
         return {
@@ -199,8 +216,10 @@ class Config:
         }
 
     def hash(self) -> str:
-        """Short stable hash of every value (checkpoints record it)."""
-        blob = json.dumps(self.to_dict(), sort_keys=True).encode()
+        """Short stable hash of every value that shapes training (checkpoints record it):
+        every table but ``[eval]``, so evaluating with other settings is the same run."""
+        trained = {k: v for k, v in self.to_dict().items() if k != "eval"}
+        blob = json.dumps(trained, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:12]
 
 
@@ -213,6 +232,7 @@ _TABLES: dict[str, type] = {
     "ddpg": DDPGConfig,
     "train": TrainConfig,
     "grid": GridConfig,
+    "eval": EvalConfig,
 }
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any
 
 from jax import Array
@@ -20,7 +19,7 @@ from jaxlc import config
 from jaxlc.learn.networks import make_networks
 from jaxlc.sim.env import ACT_DIM
 from jaxlc.study import checkpoint
-from jaxlc.study.rundir import RunDir
+from jaxlc.study.rundir import checkpoint_network
 
 
 def actor_fn(
@@ -33,22 +32,7 @@ def actor_fn(
     return lambda obs: actor_net.apply(actor_params, obs)
 
 
-def network(path: str | os.PathLike[str], meta: dict[str, Any]) -> tuple[tuple[int, ...], bool]:
-    """``(hidden, symmetric_actor)`` of the checkpoint at ``path`` (metadata ``meta``); a
-    checkpoint that records its widths but not ``symmetric_actor`` predates that option."""
-    if "hidden" in meta:
-        return tuple(int(h) for h in meta["hidden"]), bool(meta.get("symmetric_actor", False))
-    run = RunDir(Path(path).resolve().parents[2])  # RUN_DIR/checkpoints/mXX_sY/file
-    if run.is_run():
-        d = run.load_config().ddpg
-        return tuple(d.hidden), d.symmetric_actor
-    raise checkpoint.CheckpointError(
-        f"checkpoint {path} records no network widths ('hidden') and has no run directory "
-        "two levels up; build the function with jaxlc.policy.actor_fn(params, hidden)"
-    )
-
-
 def load_policy(path: str | os.PathLike[str]) -> tuple[Callable[[Array], Array], dict[str, Any]]:
     """``(act, meta)`` of a checkpoint: its actor as a function, and its metadata."""
     params, meta = checkpoint.load(path)
-    return actor_fn(params, *network(path, meta)), meta
+    return actor_fn(params, *checkpoint_network(path, meta)), meta

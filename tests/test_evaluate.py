@@ -240,3 +240,20 @@ def test_corrupt_checkpoint_exits_2_with_one_line(run, tmp_path: Path, capsys) -
     assert evaluate.main([str(tmp_path), "--cases", str(CASES), "--chunk", str(CHUNK)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and "corrupt" in err[0]
+
+
+def test_the_protocol_comes_from_the_runs_eval_table_and_flags_override_it(
+    tmp_path: Path, capsys
+) -> None:
+    cfg = config.load(SMOKE, ["eval.cases=7", "eval.lane_changes=0", "eval.chunk=3"])
+    (tmp_path / "config.toml").write_text(config.to_toml(cfg))
+    assert cfg.hash() == config.load(SMOKE).hash()  # evaluating otherwise is the same run
+    _, ev = evaluate._protocol(evaluate.parse_args([str(tmp_path)]))
+    assert (ev.cases, ev.lane_changes, ev.chunk, ev.max_steps) == (7, 0, 3, 1500)
+    _, ev = evaluate._protocol(evaluate.parse_args([str(tmp_path), "--cases", "5"]))
+    assert (ev.cases, ev.chunk) == (5, 3)
+    # a bad value is refused as the config refuses it, naming the key; nothing runs
+    assert evaluate.main([str(tmp_path), "--chunk", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'eval.chunk'" in err[0] and ">= 1" in err[0], err
+    assert not (tmp_path / "eval").exists()

@@ -162,3 +162,27 @@ def test_every_layer_is_a_package_that_says_what_it_may_import():
         assert any(m.startswith(f"jaxlc.{layer}.") for m in trees), f"{layer} has no modules"
     folders = {p.parent for p in PACKAGE.rglob("*.py")}
     assert all((d / "__init__.py").is_file() for d in folders), folders
+
+
+# The command modules: the library and the benchmarks never import them. The three the
+# study runs through parse arguments and call into the library, in at most COMMAND_LINES.
+COMMANDS = {"jaxlc.sweep", "jaxlc.evaluate", "jaxlc.figures", "jaxlc.export"}
+THIN = {"jaxlc.sweep", "jaxlc.evaluate", "jaxlc.figures"}
+COMMAND_LINES = 200
+
+
+def test_commands_are_thin():
+    path = {m: PACKAGE.parent / (m.replace(".", "/") + ".py") for m in THIN}
+    sizes = {m: len(p.read_text(encoding="utf-8").splitlines()) for m, p in path.items()}
+    assert all(n <= COMMAND_LINES for n in sizes.values()), sizes
+
+
+def test_nothing_imports_a_command():
+    graph = _graph()
+    users = {m: graph[m] & COMMANDS for m in graph if graph[m] & COMMANDS}
+    assert not users, users
+    modules = set(graph)
+    for path in sorted((PACKAGE.parent / "benchmarks").rglob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        found = _imports(tree, "benchmarks." + path.stem, modules | COMMANDS)
+        assert not found & COMMANDS, f"{path.name} imports {found & COMMANDS}"

@@ -2,11 +2,12 @@
 
 In: checkpoints and the run directory (``jaxlc.study``), the actor network (``jaxlc.learn``),
 the simulator and its reason codes (``jaxlc.sim``), the ``Config`` (``jaxlc.config``).
-Out: the fixed cases and the program that runs every policy on them (``cases``), result rows,
+Out: the evaluation protocol of a run (``protocol``), the fixed cases and the program that
+runs every policy on them (``cases``), result rows,
 outcomes and ranking (``results``), statistics over seeds (``stats``), the safety and
 comfort measures of a lane change (``safety``), the held-out evaluation's bounds
 (``heldout``), learning speed from the training curves (``convergence``), ``report.md``
-(``report``). The figures are drawn by ``jaxlc.figures``, a top-level command kept whole.
+(``report``), the figures (``plots``).
 
 Imports: ``jaxlc.config``, ``jaxlc.sim``, ``jaxlc.learn`` and ``jaxlc.study``; never the
 top-level commands (``tests/test_layout.py`` checks it).

@@ -42,6 +42,8 @@ from jaxlc.sim.reward import COLLISION
 from jaxlc.sim.reward import names as reward_names
 from jaxlc.sim.road import ego_yaw_rate, road_curvature
 
+PROTOCOL = config.EvalConfig()  # the defaults of the [eval] table: cases, step cap, chunk
+
 
 @flax.struct.dataclass
 class Policies:
@@ -131,7 +133,11 @@ def heldout_keys(seed: int, cases: int) -> Array:
 
 
 def keys_for_lane_changes(
-    cfg: config.Config, lane_changes: int, seed: int, max_steps: int = 1500, batch: int = 512
+    cfg: config.Config,
+    lane_changes: int,
+    seed: int,
+    max_steps: int = PROTOCOL.max_steps,
+    batch: int = 512,
 ) -> Array:
     """The fewest held-out keys (``heldout_keys(seed, n)``) whose cases hold ``lane_changes``
     lane changes: cases are started ``batch`` at a time until enough reach the RL phase."""
@@ -396,12 +402,12 @@ def evaluate_policies(
     actors: Sequence[Any | None],
     ks: Sequence[int],
     *,
-    cases: int = 100,
+    cases: int = PROTOCOL.cases,
     seed: int = 0,
     keys: Array | None = None,
-    max_steps: int = 1500,
-    chunk: int = 32,
-    traced: int = 4,
+    max_steps: int = PROTOCOL.max_steps,
+    chunk: int = PROTOCOL.chunk,
+    traced: int = PROTOCOL.traced,
     devices: int = 1,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Evaluate actors (``None``: the scripted controller) with action-update steps ``ks`` on
@@ -483,10 +489,10 @@ def evaluate_act(
     act: Callable[[Array], Array],
     *,
     k: int = 1,
-    cases: int = 100,
+    cases: int = PROTOCOL.cases,
     seed: int = 0,
     keys: Array | None = None,
-    max_steps: int = 1500,
+    max_steps: int = PROTOCOL.max_steps,
 ) -> dict[str, np.ndarray]:
     """Any learner's policy, given as a jittable ``act(obs (cases, OBS_DIM)) -> action (cases,
     1)``, on the same fixed cases as every checkpoint (or those of ``keys``): the outcome dict

@@ -97,7 +97,7 @@ def optimizer_step(
 def critic_error(q: jax.Array, y: jax.Array, cfg: DDPGConfig) -> jax.Array:
     """Per-sample critic loss: eq. (4)'s squared TD error, replaced beyond
     ``cfg.huber_delta`` by the Huber loss's linear branch (the default; 0 keeps the square:
-    README, "Decisions") so that outlying TD errors (the cliff of eq. (11)) pull boundedly."""
+    docs/decisions.md) so that outlying TD errors (the cliff of eq. (11)) pull boundedly."""
     if cfg.huber_delta > 0:
         return 2.0 * optax.losses.huber_loss(q, y, delta=cfg.huber_delta)  # = (y - q)^2 inside
     return jnp.square(y - q)

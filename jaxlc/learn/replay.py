@@ -2,7 +2,7 @@
 
 Every model's arrays have the grid's largest capacity ``cap_max`` (static); the capacity that a
 model actually uses is a traced int32 scalar, so models with memories of 2000, 4000 and 8000
-are one vmapped program (README, "The sweep"). Slots ``[capacity, cap_max)`` are
+are one vmapped program (docs/usage.md, "The sweep"). Slots ``[capacity, cap_max)`` are
 never written. A memory is a ring: ``ptr`` is the next slot to write, ``size`` the number of
 filled slots.
 """
@@ -87,7 +87,7 @@ def sample(
 
     Returns obs/next_obs ``(batch, obs_dim)``, action ``(batch, act_dim)``, reward/terminated
     ``(batch,)``. An empty memory yields slot 0 (zeros); callers start updating once a batch
-    is stored ([P]/[S]: README, "Decisions beyond the paper").
+    is stored ([P]/[S]: docs/decisions.md).
 
     With ``mirror`` (per-entry signs of the reflection, ``jaxlc.sim.observation.MIRROR_SIGNS``)
     each drawn transition is reflected with probability 1/2: obs and next obs times the signs,

@@ -9,7 +9,7 @@ normally empties the record as it lets go.
 
 The lock is only as good as the file system's locking: exact on a local disk; on a shared
 file system it holds across hosts only where the file system passes the lock on to every
-host (README, "One writer per run directory"). Where the file system refuses locks
+host (docs/operations.md, "One writer per run directory"). Where the file system refuses locks
 altogether, ``acquire`` says so (``RunLock.locked`` is False) instead of failing the run.
 """
 

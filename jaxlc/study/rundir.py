@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -189,3 +190,20 @@ class RunDir:
     @staticmethod
     def read_json(path: Path) -> Any:
         return json.loads(path.read_text(encoding="utf-8"))
+
+
+def checkpoint_network(
+    path: str | os.PathLike[str], meta: dict[str, Any]
+) -> tuple[tuple[int, ...], bool]:
+    """``(hidden, symmetric_actor)`` of the checkpoint at ``path`` (metadata ``meta``); a
+    checkpoint that records its widths but not ``symmetric_actor`` predates that option."""
+    if "hidden" in meta:
+        return tuple(int(h) for h in meta["hidden"]), bool(meta.get("symmetric_actor", False))
+    run = RunDir(Path(path).resolve().parents[2])  # RUN_DIR/checkpoints/mXX_sY/file
+    if run.is_run():
+        d = run.load_config().ddpg
+        return tuple(d.hidden), d.symmetric_actor
+    raise checkpoint.CheckpointError(
+        f"checkpoint {path} records no network widths ('hidden') and has no run directory "
+        "two levels up; build the function with jaxlc.policy.actor_fn(params, hidden)"
+    )

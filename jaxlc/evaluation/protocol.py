@@ -1,0 +1,376 @@
+"""The evaluation protocol (``python -m jaxlc.evaluate`` is its command line): which
+checkpoints a run's evaluation takes (``select_checkpoints``, ``final_checkpoints``), every
+policy on the protocol's fixed cases (``evaluate_run``) and on the held-out lane changes
+(``evaluate_heldout``), the learning-speed study (``write_convergence``), the statistics over
+seeds (``write_seed_stats``), two runs compared (``compare_runs``), and the files each writes
+under ``RUN_DIR/eval/`` (the cases themselves: ``jaxlc.evaluation.cases``; what a row holds:
+``jaxlc.evaluation.results``).
+
+Outcome buckets are the reason codes of ``jaxlc.sim.reward`` with 0 read as "unfinished" (hit
+the step cap), so every case lands in exactly one bucket.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxlc import config
+from jaxlc.evaluation import convergence, heldout, stats
+from jaxlc.evaluation.cases import (
+    PROTOCOL,
+    evaluate_policies,
+    init_actor,
+    keys_for_lane_changes,
+)
+from jaxlc.evaluation.results import (
+    META_KEYS,
+    OUTCOMES,
+    SCRIPTED,
+    EvalError,
+    defined,
+    eval_fields,
+    summarise,
+)
+from jaxlc.evaluation.safety import COUNTED, NORMS
+from jaxlc.evaluation.stats import final_rows
+from jaxlc.study import checkpoint
+from jaxlc.study.rundir import RunDir, checkpoint_network
+
+
+def default_episodes(every: int, final: int) -> list[int]:
+    """The paper's checkpoint choice (100, 400, 800, ..., 4800, 5000 for every=100, 5000
+    episodes) for any spacing: the first, every 4th, and the last."""
+    return sorted({every, *range(4 * every, final + 1, 4 * every), final})
+
+
+def _run_config(run_dir: Path) -> config.Config:
+    if not RunDir(run_dir).is_run():
+        raise EvalError(
+            f"{run_dir} has no config.toml, so it is not a run directory; "
+            "pass the --out directory of python -m jaxlc.sweep"
+        )
+    return RunDir(run_dir).load_config()
+
+
+def select_checkpoints(
+    run_dir: Path, episodes: Sequence[int] | None = None, model: int | None = None
+) -> list[tuple[Path, dict[str, Any]]]:
+    """``(path, meta)`` of the checkpoints to evaluate, by model then episode.
+
+    ``episodes=None``: ``default_episodes`` of the run's checkpoint spacing up to each
+    model's last checkpoint."""
+    found = RunDir(run_dir).saved_checkpoints()
+    if model is not None:
+        found = [(p, m) for p, m in found if m.get("model") == model]
+        if not found:
+            raise EvalError(f"no checkpoints of model {model} in {run_dir}; see its checkpoints/")
+    have = sorted({m["episode"] for _, m in found})
+    if episodes is not None:
+        chosen = [(p, m) for p, m in found if m["episode"] in set(episodes)]
+        if not chosen:
+            raise EvalError(
+                f"none of the episodes {sorted(episodes)} has a checkpoint; there are {have}"
+            )
+        return chosen
+    every = have[0] if len(have) == 1 else int(min(np.diff(have)))
+    # Per model, so one that stopped early still has its own last checkpoint evaluated.
+    want = {i: set(default_episodes(every, e)) for i, e in _last_episodes(found).items()}
+    chosen = [(p, m) for p, m in found if m["episode"] in want[m["model"]]]
+    return chosen or found
+
+
+def _last_episodes(found: list[tuple[Path, dict[str, Any]]]) -> dict[int, int]:
+    """Each model's last checkpoint episode."""
+    last: dict[int, int] = {}
+    for _, m in found:
+        last[m["model"]] = max(last.get(m["model"], 0), m["episode"])
+    return last
+
+
+def _row_meta(path: Path, meta: dict[str, Any], run_dir: Path | None) -> dict[str, Any]:
+    shown = path.relative_to(run_dir) if run_dir and path.is_relative_to(run_dir) else path
+    return {**{k: meta.get(k) for k in META_KEYS}, "checkpoint": str(shown)}
+
+
+def load_rows(
+    run_dir: Path, chosen: list[tuple[Path, dict[str, Any]]]
+) -> tuple[config.Config, list[Any], list[dict[str, Any]]]:
+    """``(config, actors, metas)`` of the ``chosen`` checkpoints of ``run_dir``: the run's
+    config, their actor params (shapes checked against it) and the row identities, the
+    scripted baseline first."""
+    cfg = _run_config(run_dir)
+    shapes = checkpoint.shapes_of(init_actor(cfg))
+    actors = [checkpoint.load(p, expect_shapes=shapes)[0] for p, _ in chosen]
+    return cfg, actors, [SCRIPTED] + [_row_meta(p, m, run_dir) for p, m in chosen]
+
+
+def evaluate_run(
+    run_dir: Path,
+    episodes: Sequence[int] | None = None,
+    *,
+    cases: int = PROTOCOL.cases,
+    model: int | None = None,
+    seed: int = 0,
+    max_steps: int = PROTOCOL.max_steps,
+    chunk: int = PROTOCOL.chunk,
+    traced: int = PROTOCOL.traced,
+    devices: int = 1,
+) -> dict[str, Any]:
+    """Evaluate a run's checkpoints and the scripted baseline (row 0); writes
+    ``run_dir/eval/eval.json``, ``eval.csv``, ``cases.npz``, ``traces.npz``; returns the
+    JSON's content."""
+    run_dir, rd = Path(run_dir), RunDir(run_dir)
+    chosen = select_checkpoints(run_dir, episodes, model)
+    cfg, actors, metas = load_rows(run_dir, chosen)
+    kw = dict(cases=cases, seed=seed, max_steps=max_steps, chunk=chunk, traced=traced)
+    out, trace, info = evaluate_policies(
+        cfg, [None, *actors], [1] + [m["k"] for m in metas[1:]], devices=devices, **kw
+    )
+    result = _result(cfg, out, info, metas, kw)
+    _write(rd.eval, "eval", result, cfg)
+    write_seed_stats(rd.eval, result["rows"])
+    ids = _policy_ids(metas)
+    rd.save_npz(rd.cases, {**out, **ids, **info})
+    traced_side = info["side"][info["traced"]]
+    rd.save_npz(rd.traces, {**trace, **ids, "traced": info["traced"], "side": traced_side})
+    return result
+
+
+def final_checkpoints(
+    run_dir: Path, episodes: Sequence[int] | None = None
+) -> list[tuple[Path, dict[str, Any]]]:
+    """Each model's last checkpoint, and those of ``episodes`` too, by model then episode."""
+    found = RunDir(run_dir).saved_checkpoints()
+    last, want = _last_episodes(found), set(episodes or ())
+    return [(p, m) for p, m in found if m["episode"] in want | {last[m["model"]]}]
+
+
+def evaluate_heldout(
+    run_dir: Path,
+    episodes: Sequence[int] | None = None,
+    *,
+    lane_changes: int = PROTOCOL.lane_changes,
+    seed: int = 0,
+    max_steps: int = PROTOCOL.max_steps,
+    chunk: int = PROTOCOL.chunk,
+    devices: int = 1,
+) -> dict[str, Any]:
+    """Every model's final checkpoint (and those of ``episodes``) and the scripted baseline
+    on ``lane_changes`` held-out lane changes (``jaxlc.evaluation.heldout``); writes
+    ``eval/heldout.json``, ``heldout.csv``, ``heldout_cells.csv``, ``collisions.csv`` and
+    ``heldout_cases.npz``; returns the JSON's content."""
+    run_dir, rd = Path(run_dir), RunDir(run_dir)
+    chosen = final_checkpoints(run_dir, episodes)
+    cfg, actors, metas = load_rows(run_dir, chosen)
+    keys = keys_for_lane_changes(cfg, lane_changes, seed, max_steps)
+    out, _, info = evaluate_policies(
+        cfg,
+        [None, *actors],
+        [1] + [m["k"] for m in metas[1:]],
+        keys=keys,
+        max_steps=max_steps,
+        chunk=chunk,
+        traced=0,
+        devices=devices,
+    )
+    dt = cfg.env.dt
+    rows = [{**m, **heldout.model_row(out, info, p, dt)} for p, m in enumerate(metas)]
+    cells = heldout.cell_rows(final_rows(rows))
+    result = {
+        "config_hash": cfg.hash(),
+        "seed": seed,
+        "key_stream": f"jaxlc.evaluation.cases.heldout_keys({seed}, {len(keys)})",
+        "cases": len(keys),
+        "lane_changes": int(info["performed"].sum()),
+        "norms": [
+            dict(zip(("measure", "bound", "below", "source"), n, strict=True)) for n in NORMS
+        ],
+        "conflicts_counted": COUNTED,
+        "rows": rows,
+        "cells": cells,
+        "claim_d": heldout.claim_d(cells),
+        "collisions": heldout.collisions(out, info, metas, dt),
+    }
+    _write_json(rd.heldout_json, result)
+    _write_table(rd.eval / "heldout.csv", rows, heldout.HELDOUT_FIELDS)
+    _write_table(rd.eval / "heldout_cells.csv", cells)
+    _write_table(rd.eval / "collisions.csv", result["collisions"], heldout.COLLISION_FIELDS)
+    ids = _policy_ids(metas)
+    rd.save_npz(rd.heldout_cases, {**out, **ids, **info})
+    return result
+
+
+def write_convergence(run_dir: Path) -> dict[str, Any] | None:
+    """``eval/convergence.json`` and ``convergence.csv``: the learning-speed measures of every
+    model from its training curves and the paper's comparisons on them
+    (``jaxlc.evaluation.convergence``); None when the run has no episode metrics."""
+    rd = RunDir(run_dir)
+    episodes = rd.load_npz(rd.episodes)
+    if episodes is None or not rd.summary_json.is_file():
+        return None
+    doc = convergence.study(episodes, rd.read_json(rd.summary_json)["models"])
+    _write_json(rd.convergence, doc)
+    _write_table(rd.eval / "convergence.csv", doc["models"])
+    return doc
+
+
+def evaluate_checkpoint(
+    path: Path,
+    run_dir: Path | None = None,
+    *,
+    cases: int = PROTOCOL.cases,
+    seed: int = 0,
+    max_steps: int = PROTOCOL.max_steps,
+) -> dict[str, Any]:
+    """Evaluate one checkpoint file and the scripted baseline; writes
+    ``eval/<model dir>_<stem>.json`` (+ ``.csv``) in its run directory (or beside the file).
+
+    The config is the run directory's (given, or the file's ``../../``); a lone file gets the
+    default env and the network it holds."""
+    path = Path(path)
+    up = path.resolve().parents
+    if run_dir is None and len(up) > 2 and RunDir(up[2]).is_run():
+        run_dir = up[2]
+    params, meta = checkpoint.load(path)
+    if run_dir is not None:
+        cfg = _run_config(Path(run_dir))
+        checkpoint.load(path, expect_shapes=checkpoint.shapes_of(init_actor(cfg)))
+    else:
+        hidden, symmetric = checkpoint_network(path, meta)
+        cfg = config.load(
+            None, [f"ddpg.hidden={list(hidden)}", f"ddpg.symmetric_actor={str(symmetric).lower()}"]
+        )
+    metas = [SCRIPTED, _row_meta(path.resolve(), meta, run_dir and Path(run_dir).resolve())]
+    kw = dict(cases=cases, seed=seed, max_steps=max_steps, traced=0)
+    out, _, info = evaluate_policies(cfg, [None, params], [1, int(meta.get("k", 1))], **kw)
+    result = _result(cfg, out, info, metas, kw)
+    eval_dir = RunDir(run_dir).eval if run_dir else path.parent / "eval"
+    _write(eval_dir, f"{path.parent.name}_{path.stem}", result, cfg)
+    return result
+
+
+def _result(
+    cfg: config.Config,
+    out: dict[str, np.ndarray],
+    info: dict[str, np.ndarray],
+    metas: list[dict[str, Any]],
+    kw: dict[str, Any],
+) -> dict[str, Any]:
+    """The content of eval.json: the setting, the cases, one row per policy."""
+    rows = summarise(out, cfg.env.dt, cfg.env.reward_terms)
+    rows = [{**m, **r} for m, r in zip(metas, rows, strict=True)]
+    # The run up to the gap is the same for every policy, so these counts are the cases'.
+    early = out["reason"][0][~info["performed"]]
+    return {
+        "config_hash": cfg.hash(),
+        "cases": int(info["case"].size),
+        "seed": kw["seed"],
+        "max_steps": kw["max_steps"],
+        "performed": int(info["performed"].sum()),
+        "left": int((info["side"] > 0).sum()),
+        "right": int((info["side"] < 0).sum()),
+        "before_rl": {name: int((early == code).sum()) for code, name in enumerate(OUTCOMES)},
+        "traced": info["traced"].tolist(),
+        "success_box": {
+            "offset_m": cfg.env.success_offset,
+            "heading": cfg.env.success_heading,
+            "yaw_rate": cfg.env.success_yaw_rate,
+        },
+        "rows": rows,
+    }
+
+
+def _write(out_dir: Path, name: str, result: dict[str, Any], cfg: config.Config) -> None:
+    _write_json(out_dir / f"{name}.json", result)
+    fields = eval_fields(cfg.env.reward_terms)
+    checkpoint.write_text_atomic(out_dir / f"{name}.csv", _csv(result["rows"], fields))
+
+
+def _write_json(path: Path, doc: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    checkpoint.write_text_atomic(path, json.dumps(_json_safe(doc), indent=1) + "\n")
+
+
+def _write_table(path: Path, table: list[dict[str, Any]], fields: Sequence[str] = ()) -> None:
+    """A CSV of ``table``'s rows; its columns ``fields``, else the first row's keys."""
+    fields = fields or (list(table[0]) if table else [])
+    checkpoint.write_text_atomic(path, _csv(table, fields))
+
+
+def _policy_ids(metas: list[dict[str, Any]]) -> dict[str, np.ndarray]:
+    """Which model and episode each evaluated row is (-1 and 0 for the scripted baseline)."""
+    return {
+        "policy_model": np.asarray([-1 if m["model"] is None else m["model"] for m in metas]),
+        "policy_episode": np.asarray([m["episode"] or 0 for m in metas]),
+    }
+
+
+def _json_safe(obj: Any) -> Any:
+    # JSON has no NaN: an undefined mean (no successes) is null.
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _csv(rows: list[dict[str, Any]], fields: Sequence[str]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fields, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: r[k] if defined(r.get(k)) else "" for k in fields})
+    return buf.getvalue()
+
+
+def write_seed_stats(out_dir: Path, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """``cells.json`` (everything), ``cells.csv`` (per cell and checkpoint) and
+    ``improvement.csv`` (P(X > Y) of the final success rate) from eval rows; returns the
+    JSON's content."""
+    cells = stats.cells_of(rows)
+    doc = {
+        "confidence": stats.CONFIDENCE,
+        "resamples": stats.RESAMPLES,
+        "note": stats.seeds_note(cells),
+        "cells": stats.cell_table(cells),
+        "final": stats.final_table(cells),
+        "improvement": stats.improvement_table(cells),
+    }
+    _write_json(out_dir / "cells.json", doc)
+    for name in ("cells", "improvement"):
+        _write_table(out_dir / f"{name}.csv", doc[name])
+    return doc
+
+
+def _eval_rows(run_dir: Path) -> list[dict[str, Any]]:
+    path = RunDir(run_dir).eval_json
+    if not path.is_file():
+        raise EvalError(f"{path} is missing; run python -m jaxlc.evaluate {run_dir} first")
+    return RunDir.read_json(path)["rows"]
+
+
+def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
+    """Per-cell differences B - A of the mean success rate of two evaluated runs (their
+    ``eval/eval.json``; nothing is re-evaluated): writes ``compare.md``, ``compare.csv`` and
+    ``compare.png`` into ``out`` (default ``run_b/compare_<name of run_a>``); returns it."""
+    run_a, run_b = Path(run_a), Path(run_b)
+    table = stats.compare(stats.cells_of(_eval_rows(run_a)), stats.cells_of(_eval_rows(run_b)))
+    out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
+    out.mkdir(parents=True, exist_ok=True)
+    _write_table(out / "compare.csv", table)
+    from jaxlc.evaluation import plots, report
+
+    plots.fig_compare(table, run_a.name, run_b.name, out / "compare.png")
+    text = report.compare_markdown(table, run_a, run_b)
+    checkpoint.write_text_atomic(out / "compare.md", text)
+    return out
