@@ -13,11 +13,11 @@ SMOKE = config.CONFIG_DIR / "smoke.toml"
 
 # Only stops a hung subprocess; never a speed judgement: a run slower than this is broken.
 HANG_GUARD_S = 3600
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks" / "scripts"
 
 
 def load_benchmark(name: str) -> ModuleType:
-    """``benchmarks/NAME.py`` as a module (the benchmarks are scripts, not a package)."""
+    """``benchmarks/scripts/NAME.py`` as a module (the benchmarks are scripts, not a package)."""
     spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -14,7 +14,7 @@ from jaxlc.study import checkpoint
 
 from .conftest import HANG_GUARD_S, load_benchmark
 
-BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
+BENCH = Path(__file__).resolve().parent.parent / "benchmarks" / "scripts"
 
 
 def _bench(script: str, args: list[str], out: Path, env: dict | None = None):

@@ -1,5 +1,6 @@
-"""The published tables equal what their committed evidence gives (``benchmarks/publish.py``),
-the check notices a table edited by hand, and every file a document links to exists."""
+"""The published tables equal what their committed evidence gives
+(``benchmarks/scripts/publish.py``), the check notices a table edited by hand, and every file
+a document links to exists."""
 
 import re
 from pathlib import Path

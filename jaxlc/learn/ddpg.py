@@ -86,7 +86,7 @@ def optimizer_step(
     """One Adam step at the traced rate ``lr``, then the soft target update, eqs. (6)/(7).
 
     Elementwise over every parameter, so memory-bound: on a CPU it is a large part of an
-    update's time (``benchmarks/update_throughput.py`` times it on its own).
+    update's time (``benchmarks/scripts/update_throughput.py`` times it on its own).
     """
     updates, opt = _adam.update(grads, opt, params)
     params = jax.tree.map(lambda p, u: p - lr * u, params, updates)

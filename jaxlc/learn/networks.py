@@ -70,7 +70,7 @@ class Actor(nn.Module):
         # One trunk call on (2, ..., obs_dim): each layer is one product over s and Ms
         # together (twice the rows of the plain actor's) instead of two, which XLA's CPU
         # kernels run faster than two half-height products; the FLOPs stay twice the plain
-        # actor's (benchmarks/update_throughput.py).
+        # actor's (benchmarks/scripts/update_throughput.py).
         both = jnp.tanh(trunk(jnp.stack([obs, obs * signs])))  # (2, ..., act_dim)
         return 0.5 * (both[0] - both[1])
 

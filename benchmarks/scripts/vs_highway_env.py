@@ -19,8 +19,8 @@ Ratios: jaxlc at 1 env over highway-env's single env, and jaxlc's best batch ove
 highway-env's best setting. The table goes to stdout and a CSV to
 ``benchmarks/results/vs_highway_env.csv``.
 
-    python benchmarks/vs_highway_env.py                  # ~3-4 min
-    python benchmarks/vs_highway_env.py --tiny           # seconds, for tests
+    python benchmarks/scripts/vs_highway_env.py                  # ~3-4 min
+    python benchmarks/scripts/vs_highway_env.py --tiny           # seconds, for tests
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-for path in (ROOT, ROOT / "benchmarks"):  # run as a script from anywhere
+ROOT = Path(__file__).resolve().parents[2]
+for path in (ROOT, ROOT / "benchmarks" / "scripts"):  # run as a script from anywhere
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))
 

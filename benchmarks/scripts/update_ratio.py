@@ -2,7 +2,7 @@
 model: ``transitions``, ``updates``), over the phases of each model's run: its first 10% of
 scan steps, the next 40%, the second half, and the whole run.
 
-    python benchmarks/update_ratio.py runs/s3 --keep benchmarks/study_symmetric_cpu_s3
+    python benchmarks/scripts/update_ratio.py runs/s3 --keep benchmarks/study_symmetric_cpu_s3
 
 ``--keep DIR`` writes ``DIR/update_ratio.csv`` (one row per model) and ``DIR/metrics/
 step_counts.npz`` (the two count arrays, compressed: the evidence the CSV is computed from,

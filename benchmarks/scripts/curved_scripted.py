@@ -8,7 +8,7 @@ their ends are counted with ``jaxlc.evaluation.heldout.model_row``. Beside them:
 observation's offset from the target lane's centre line (one lane width on a straight road)
 and the curvature the observation reports.
 
-    python benchmarks/curved_scripted.py --curvatures -0.002 0 0.002 --lane-changes 1000 \
+    python benchmarks/scripts/curved_scripted.py --curvatures -0.002 0 0.002 --lane-changes 1000 \
         --out benchmarks/curved_scripted
 
 Writes ``OUT/curved_scripted.csv`` and prints it.
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
     sys.path.insert(0, str(ROOT))
 

@@ -2,8 +2,9 @@
 any lane held at once, over ``--envs`` highways × ``--steps`` env-steps driven by the scripted
 controller (``jaxlc.sim.controller.scripted_action``), from ``reset`` on (its warm-up included).
 
-    python benchmarks/lane_occupancy.py --out benchmarks/bench_cpu_2026-11-24/lane_occupancy.csv
-    python benchmarks/lane_occupancy.py env.inflow_min=1600 env.inflow_max=1600
+    python benchmarks/scripts/lane_occupancy.py \
+        --out benchmarks/bench_cpu_2026-11-24/lane_occupancy.csv
+    python benchmarks/scripts/lane_occupancy.py env.inflow_min=1600 env.inflow_max=1600
 
 A lane whose ring is full makes its next vehicle wait at the entry (the entry test of
 ``jaxlc.sim.env``), so a count that reaches the slot count means delayed entries, not a wrong

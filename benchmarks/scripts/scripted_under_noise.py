@@ -7,8 +7,8 @@ noise, for each action-update step k and noise sigma, in N parallel envs of the 
 simulator, and counts how the lane changes end: the ceiling a learned policy is judged
 against in training.
 
-    python benchmarks/scripted_under_noise.py                 # k 1 2 4 x sigma 0 0.1 0.2
-    python benchmarks/scripted_under_noise.py --k 1 --sigma 0.2 --envs 64 --steps 500
+    python benchmarks/scripts/scripted_under_noise.py                 # k 1 2 4 x sigma 0 0.1 0.2
+    python benchmarks/scripts/scripted_under_noise.py --k 1 --sigma 0.2 --envs 64 --steps 500
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
     sys.path.insert(0, str(ROOT))
 

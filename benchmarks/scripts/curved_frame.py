@@ -1,7 +1,7 @@
 """README's curved-road picture: frames of one scripted lane change on a curved road, drawn by
 the gymnasium env's ``render()`` (``jaxlc.gym.render_frame``), stacked into one PNG.
 
-    python benchmarks/curved_frame.py --curvature 0.004 --seed 1 --out docs/curved_road.png
+    python benchmarks/scripts/curved_frame.py --curvature 0.004 --seed 1 --out docs/curved_road.png
 
 The controller is ``jaxlc.sim.controller.scripted_action`` (pole placement with curvature
 feed-forward); the frames are taken every ``--every`` RL steps from the manoeuvre's start.

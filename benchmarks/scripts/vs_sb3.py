@@ -33,8 +33,8 @@ trained side by side until every model has ``--nine-episodes`` episodes, against
 runs one after another, EXTRAPOLATED as 9 x the wall time the measured SB3 run took to its
 ``--nine-episodes``-th episode (lowered to the episodes SB3 finished, if fewer).
 
-    python benchmarks/vs_sb3.py                       # up to ~25 min (SB3 capped at 20)
-    python benchmarks/vs_sb3.py --tiny                # tiny nets and runs, for tests
+    python benchmarks/scripts/vs_sb3.py                       # up to ~25 min (SB3 capped at 20)
+    python benchmarks/scripts/vs_sb3.py --tiny                # tiny nets and runs, for tests
 
 Writes ``benchmarks/results/vs_sb3.csv``.
 """
@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:  # run as a script from anywhere
     sys.path.insert(0, str(ROOT))
 

@@ -15,7 +15,7 @@ If the return peaks at a0 = mu(s*), the policy is at a maximum of the true retur
 its first action (the deterministic policy gradient there is zero: the kink); if it peaks
 elsewhere, the critic misleads the actor.
 
-    python benchmarks/kink_probe.py RUN_DIR/checkpoints/m01_s0/ep05000.msgpack
+    python benchmarks/scripts/kink_probe.py RUN_DIR/checkpoints/m01_s0/ep05000.msgpack
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from jaxlc import config  # noqa: E402
 from jaxlc.policy import actor_fn  # noqa: E402

@@ -1,7 +1,7 @@
 """Published tables written from committed evidence, never typed.
 
-    python benchmarks/publish.py            # rewrite every block in README.md and docs/*.md
-    python benchmarks/publish.py --check    # exit 1 naming each block that differs
+    python benchmarks/scripts/publish.py            # rewrite every block in README.md and docs/*.md
+    python benchmarks/scripts/publish.py --check    # exit 1 naming each block that differs
 
 A block is the text of a document between ``<!-- publish:NAME -->`` and
 ``<!-- /publish:NAME -->``; ``BLOCKS[NAME]`` writes it from the committed folders under
@@ -32,7 +32,7 @@ from jaxlc.evaluation.report import EVERY_STEP
 from jaxlc.paper import claims
 from jaxlc.paper.grid import is_best
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 DOCS = (README, ROOT / "docs" / "results.md", ROOT / "docs" / "benchmarks.md")
 
@@ -153,7 +153,7 @@ def _csv(path: Path) -> tuple[dict[str, str], ...]:
 
 def roads_table() -> str:
     """The roads study's policies (``configs/roads.toml``) and the straight-trained default's
-    on the same held-out lane changes of straight and curved roads (``benchmarks/probe.py
+    on the same held-out lane changes of straight and curved roads (``benchmarks/scripts/probe.py
     --key env.curvature``): per-model success range, failures by end, the scripted
     controller beside them."""
     lines = [
@@ -211,7 +211,7 @@ def _peaks(*names: str) -> str:
 
 
 def sim_table() -> str:
-    """``benchmarks/sim_throughput.py``: env-steps/s by batch size."""
+    """``benchmarks/scripts/sim_throughput.py``: env-steps/s by batch size."""
     rows = _bench("sim_throughput.csv")
     best = max(rows, key=lambda r: float(r["env_steps_per_s"]))
     return "\n".join(
@@ -238,7 +238,7 @@ def sim_table() -> str:
 
 
 def highway_table() -> str:
-    """``benchmarks/vs_highway_env.py``: both simulators in one run, and the ratios."""
+    """``benchmarks/scripts/vs_highway_env.py``: both simulators in one run, and the ratios."""
     rows = _bench("vs_highway_env.csv")
     names = {
         "single": "one env",
@@ -275,7 +275,8 @@ def highway_table() -> str:
 
 
 def update_table() -> str:
-    """``benchmarks/update_throughput.py`` on 1 and on 3 host devices, and one update's parts."""
+    """``benchmarks/scripts/update_throughput.py`` on 1 and on 3 host devices, and one
+    update's parts."""
     lines = [
         "| models laid over | grid-updates/s | MFLOP per model update | achieved GFLOP/s | "
         "matmul peak, same process | share of peak |",
@@ -314,8 +315,8 @@ ACTORS = ROOT / "benchmarks" / "bench_actors_cpu_2026-11-25"
 
 
 def actors_table() -> str:
-    """``benchmarks/update_throughput.py actors``: the plain and the reflection-odd actor side
-    by side, each run beside the matmul peaks measured around it."""
+    """``benchmarks/scripts/update_throughput.py actors``: the plain and the reflection-odd
+    actor side by side, each run beside the matmul peaks measured around it."""
     rows = _csv(ACTORS / "actors.csv")
     lines = [
         "| round | actor | MFLOP per model update | grid-updates/s | peak around the update "
@@ -347,7 +348,7 @@ def actors_table() -> str:
 
 
 def devices_table() -> str:
-    """``benchmarks/devices_throughput.py``, one process per device count, both grids."""
+    """``benchmarks/scripts/devices_throughput.py``, one process per device count, both grids."""
     counts = (1, 2, 3)
     lines = [
         "| grid | " + " | ".join(f"N = {n}" for n in counts) + " |",
@@ -385,7 +386,7 @@ def devices_table() -> str:
 
 
 def rejax_table() -> str:
-    """``benchmarks/vs_rejax.py``'s rows beside jaxlc's DDPG ④ over 3 seeds: success on the
+    """``benchmarks/scripts/vs_rejax.py``'s rows beside jaxlc's DDPG ④ over 3 seeds: success on the
     100 fixed cases at the end, return, wall time, decisions per second, the machine's peak."""
     folder = ROOT / "benchmarks" / "vs_rejax_cpu"
     lines = [
@@ -428,7 +429,7 @@ def rejax_table() -> str:
 
 
 def scripted_noise_table() -> str:
-    """``benchmarks/scripted_under_noise.py``: the scripted controller's success under the
+    """``benchmarks/scripts/scripted_under_noise.py``: the scripted controller's success under the
     training noise, by k and σ, with the lane changes behind each figure."""
     rows = _bench("scripted_under_noise.csv")
     ks = list(dict.fromkeys(r["k"] for r in rows))
@@ -459,7 +460,8 @@ def scripted_noise_table() -> str:
 
 
 def time_to_solution() -> str:
-    """``benchmarks/time_to_solution.py`` on the default study: one sentence from its CSV."""
+    """``benchmarks/scripts/time_to_solution.py`` on the default study: one sentence from its
+    CSV."""
     (r,) = _bench("time_to_solution.csv")
     t = _timing()["time_to_solution"]
     if r["reached"] != "True":
@@ -475,8 +477,9 @@ def time_to_solution() -> str:
 
 
 def sb3_table() -> str:
-    """``benchmarks/vs_sb3.py``: one model of each learner to the target, then nine models to
-    the episode SB3 reached (jaxlc's grid measured, SB3's nine runs extrapolated from one)."""
+    """``benchmarks/scripts/vs_sb3.py``: one model of each learner to the target, then nine
+    models to the episode SB3 reached (jaxlc's grid measured, SB3's nine runs extrapolated from
+    one)."""
     sb3, jx, grid, sb3_nine = _bench("vs_sb3.csv")
 
     def target(r: dict[str, str]) -> str:
@@ -522,7 +525,7 @@ def _script(name: str) -> Any:
 
 
 def study_cells(eval_csv: Path) -> str:
-    """``benchmarks/study_summary.py`` on a study's committed ``eval.csv``: per cell the
+    """``benchmarks/scripts/study_summary.py`` on a study's committed ``eval.csv``: per cell the
     success at the last checkpoint over seeds, the best checkpoint and the drop to the last,
     the lane changes' duration, peak lateral acceleration and overshoot."""
     summary = _script("study_summary")
@@ -758,7 +761,7 @@ def render(text: str) -> tuple[str, list[str]]:
     def fill(m: re.Match[str]) -> str:
         name = m.group(2)
         if name not in BLOCKS:
-            raise SystemExit(f"block '{name}': no writer in benchmarks/publish.py")
+            raise SystemExit(f"block '{name}': no writer in benchmarks/scripts/publish.py")
         body = BLOCKS[name]() + "\n"
         if body != m.group(3):
             changed.append(name)
@@ -779,7 +782,7 @@ def main(argv: list[str] | None = None) -> int:
             doc.write_text(text)
     if args.check:
         for where in differ:
-            print(f"{where} differs from its evidence: python benchmarks/publish.py")
+            print(f"{where} differs from its evidence: python benchmarks/scripts/publish.py")
         return 1 if differ else 0
     print(f"rewrote {len(differ)} block(s): {', '.join(differ) or 'none'}")
     return 0

@@ -1,6 +1,6 @@
 """What the held-out evaluation costs: N policies x L held-out lane changes, wall time.
 
-    python benchmarks/heldout_cost.py runs/s3 --policies 72 --lane-changes 1000
+    python benchmarks/scripts/heldout_cost.py runs/s3 --policies 72 --lane-changes 1000
 
 The policies are the run's final checkpoints, repeated until there are N (each row is a real
 rollout: the same params on the same cases cost the same as different ones), plus the
@@ -36,7 +36,8 @@ def main() -> None:
     ap.add_argument("--policies", type=int, default=72)
     ap.add_argument("--lane-changes", type=int, default=1000)
     ap.add_argument("--chunk", type=int, default=32)
-    ap.add_argument("--out", type=Path, default=Path(__file__).with_suffix(""))
+    here = Path(__file__).resolve().parents[1] / "heldout_cost"  # the evidence folder
+    ap.add_argument("--out", type=Path, default=here)
     args = ap.parse_args()
     cfg = RunDir(args.run_dir).load_config()
     # The host devices python -m jaxlc.evaluate would take for a chunk (before JAX starts).

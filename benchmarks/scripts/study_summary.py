@@ -8,7 +8,7 @@
 - read as one-seed studies (the nine cells of one seed index each): how many have a model
   at >= 99% at the last checkpoint.
 
-    python benchmarks/study_summary.py benchmarks/study_default_s3/eval.csv
+    python benchmarks/scripts/study_summary.py benchmarks/study_default_s3/eval.csv
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from jaxlc.evaluation import stats  # noqa: E402
 from jaxlc.paper.grid import LABELS as PAPER_LABELS  # noqa: E402

@@ -25,10 +25,10 @@ share is also given from the fastest call of each ("best_of"), and the 1-minute 
 recorded, because a shared machine makes single figures noisy. ``XLA_FLAGS`` in the environment
 applies to all of them.
 
-Usage: ``python benchmarks/update_throughput.py [--models 9 --batch 64 --repeats 5]``;
+Usage: ``python benchmarks/scripts/update_throughput.py [--models 9 --batch 64 --repeats 5]``;
 ``--tiny`` shrinks everything for tests. Writes ``benchmarks/results/update_throughput.csv``.
 
-``python benchmarks/update_throughput.py actors [--rounds 2 --episodes 600]``: the plain and
+``python benchmarks/scripts/update_throughput.py actors [--rounds 2 --episodes 600]``: the plain and
 the reflection-odd actor side by side (``actors``): MFLOP per model update, grid-updates/s and
 a default sweep's env-steps/s, each beside the matmul peak. Writes
 ``benchmarks/results/actors.csv``.
@@ -54,7 +54,7 @@ import numpy as np
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
     sys.path.insert(0, str(ROOT))
 

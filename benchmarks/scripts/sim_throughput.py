@@ -4,8 +4,8 @@ Each measurement is one jitted ``lax.scan`` of ``--steps`` steps of ``vmap(env.s
 N envs (random actions and per-env keys drawn inside the scan, as a trainer would), timed
 after compilation; the figure is the median of ``--repeats`` runs.
 
-    python benchmarks/sim_throughput.py                       # N = 1, 64, 1024, 4096, 16384
-    python benchmarks/sim_throughput.py --envs 1 64 --steps 200 --repeats 2
+    python benchmarks/scripts/sim_throughput.py                       # N = 1, 64, 1024, 4096, 16384
+    python benchmarks/scripts/sim_throughput.py --envs 1 64 --steps 200 --repeats 2
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import jax.numpy as jnp
 
 import jaxlc
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results"
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:

@@ -11,8 +11,8 @@ On a CPU the devices are host devices that XLA makes with
 count asked for); they share the machine's cores. On a GPU machine ``jax.devices()`` are the
 GPUs, and ``--devices`` cannot exceed their number.
 
-    python benchmarks/devices_throughput.py                      # paper grid, N = 1 2 3
-    python benchmarks/devices_throughput.py --devices 1 --tiny   # seconds, for tests
+    python benchmarks/scripts/devices_throughput.py                      # paper grid, N = 1 2 3
+    python benchmarks/scripts/devices_throughput.py --devices 1 --tiny   # seconds, for tests
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
 
     import jax
 
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     if str(root) not in sys.path:
         sys.path.insert(0, str(root))
     from sim_throughput import write_csv  # this script's folder is on sys.path

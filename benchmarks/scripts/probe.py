@@ -1,9 +1,9 @@
 """One config value, several settings, the final checkpoints of a run (no retraining): how the
 value changes the held-out lane changes, their collisions and their norms.
 
-    python benchmarks/probe.py runs/s0 --key env.gap_min_ttc --values 0 3 4 5 \
+    python benchmarks/scripts/probe.py runs/s0 --key env.gap_min_ttc --values 0 3 4 5 \
         --lane-changes 2000 --out benchmarks/gap_ttc_probe
-    python benchmarks/probe.py runs/s3 --key ddpg.symmetric_actor --values false true \
+    python benchmarks/scripts/probe.py runs/s3 --key ddpg.symmetric_actor --values false true \
         --out benchmarks/symmetric_probe
 
 For each value (TOML syntax; validated as the config is): the share of held-out cases that

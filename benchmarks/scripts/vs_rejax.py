@@ -13,9 +13,9 @@ learner (each seed's initial one; the mean over seeds is reported). Success is o
 cases that reached a
 lane change; the interval is a 95% bootstrap over seeds (``jaxlc.evaluation.stats.describe``).
 
-    python benchmarks/vs_rejax.py                                  # ppo sac td3, 3 seeds, 1M
-    python benchmarks/vs_rejax.py --algos ppo --seeds 5 --timesteps 2000000
-    python benchmarks/vs_rejax.py --tiny                           # seconds, for tests
+    python benchmarks/scripts/vs_rejax.py                          # ppo sac td3, 3 seeds, 1M
+    python benchmarks/scripts/vs_rejax.py --algos ppo --seeds 5 --timesteps 2000000
+    python benchmarks/scripts/vs_rejax.py --tiny                           # seconds, for tests
 
 Needs ``pip install -e ".[ecosystem]"``. Writes ``benchmarks/results/vs_rejax.csv``.
 """
@@ -35,8 +35,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "benchmarks"))
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "benchmarks" / "scripts"))
 
 import jaxlc  # noqa: E402
 from jaxlc import config  # noqa: E402

@@ -8,9 +8,9 @@ by chunk; after each chunk every model's last-100 success is read from its episo
 same figure as the sweep's summary). It stops at the first model to reach the target, or at
 ``--max-minutes``, or when every model has done its episodes.
 
-    python benchmarks/time_to_solution.py                    # the default study, target 99%
-    python benchmarks/time_to_solution.py --seeds 3 --max-minutes 30
-    python benchmarks/time_to_solution.py --tiny             # seconds, for tests
+    python benchmarks/scripts/time_to_solution.py                    # the default study, target 99%
+    python benchmarks/scripts/time_to_solution.py --seeds 3 --max-minutes 30
+    python benchmarks/scripts/time_to_solution.py --tiny             # seconds, for tests
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from datetime import date
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, object]:
@@ -40,7 +40,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
     t0 = time.perf_counter()  # the user's clock: compile time counts
 
     sys.path.insert(0, str(ROOT))
-    sys.path.insert(0, str(ROOT / "benchmarks"))
+    sys.path.insert(0, str(ROOT / "benchmarks" / "scripts"))
     from sim_throughput import write_csv
 
     from jaxlc import config
