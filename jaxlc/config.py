@@ -113,6 +113,17 @@ class EnvConfig:
     w2: float = _f(5.0, 0.0)
     w3: float = _f(0.075, 0.0)
     w4: float = _f(1.0, 0.0)
+    # The whole manoeuvre's terms (jaxlc.sim.reward.MANOEUVRE: r_long, r_lat, r_gap, r_speed),
+    # [D], off until named in reward_terms; their weights and the norms they read.
+    w_long_acc: float = _f(0.0, 0.0, doc="r_long: per m/s^2 of |longitudinal acceleration|")
+    w_long_jerk: float = _f(0.0, 0.0, doc="r_long: per m/s^3 of |longitudinal jerk|")
+    w_lat_acc: float = _f(0.0, 0.0, doc="r_lat: per m/s^2 of |v*omega| past lat_acc_max")
+    w_lat_jerk: float = _f(0.0, 0.0, doc="r_lat: per m/s^3 of lateral jerk past lat_jerk_max")
+    lat_acc_max: float = _f(3.0, 0.0, open_lo=True, doc="m/s^2, ISO 11270's bound")
+    lat_jerk_max: float = _f(5.0, 0.0, open_lo=True, doc="m/s^3, ISO 11270's bound")
+    w_headway: float = _f(0.0, 0.0, doc="r_gap: per s of headway under headway_min")
+    headway_min: float = _f(0.9, 0.0, doc="s, the critical time headway")
+    w_speed: float = _f(0.0, 0.0, doc="r_speed: per unit of |v - v0| / v0")
     reward_scale: float = _f(1.0, 0.0, open_lo=True, doc="multiplies every reward term")
     reward_terms: tuple[str, ...] = _f(
         ["r_s", "r_e", "r_d"],

@@ -51,6 +51,7 @@ from jaxlc.sim.observation import (  # noqa: F401 (OBS_DIM, MIRROR_SIGNS, GAP_CL
     OBS_DIM,
     observation,
     observe_lanes,
+    target_gaps_of,
 )
 from jaxlc.sim.road import (
     ego_lanes,
@@ -124,7 +125,9 @@ def _advance(
     offset = lateral_offset(ego, p)
     # Comfort and success read the yaw rate relative to the lane's (= omega when straight).
     yaw_rate = ego_yaw_rate(ego, kappa, p)
-    x = reward.Inputs(yaw_rate, a_lat, offset, crashed, ego, nb)
+    gaps = target_gaps_of(nb, ego, kappa, p)
+    overlap = jnp.any(ego_lanes(ego, p) & (jnp.arange(p.lanes) == ego.target))  # ()
+    x = reward.Inputs(yaw_rate, a_lat, offset, crashed, ego, nb, eg, gaps, overlap)
     terms = {n: jnp.where(in_rl, v, 0.0) for n, v in reward.terms(x, p).items()}
     r = reward.total(terms)
     rl_reason = reward.end_reason(offset, ego.psi, yaw_rate, ego.steps, crashed, p)

@@ -144,7 +144,13 @@ def observe_lanes(
 def target_gaps(state: EnvState, p: EnvParams) -> tuple[Array, Array]:
     """``(lead_gap, lag_gap)``: net gaps (m along the target lane) from the ego to the target
     lane's lead and lag vehicles; meaningless where ``state.nb.has_a1``/``has_b1`` is False."""
-    nb, x = target_frame(state.nb, state.ego, road_curvature(state, p), p)
+    return target_gaps_of(state.nb, state.ego, road_curvature(state, p), p)
+
+
+def target_gaps_of(nb: gap.Neighbours, ego: Ego, kappa: Array, p: EnvParams) -> tuple[Array, Array]:
+    """``target_gaps`` of the neighbours ``nb`` and the ego ``ego`` on a road of curvature
+    ``kappa`` (before the state that holds them is built)."""
+    nb, x = target_frame(nb, ego, kappa, p)
     return nb.a1_x - p.vehicle_length - x, x - p.vehicle_length - nb.b1_x
 
 

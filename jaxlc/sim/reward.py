@@ -11,7 +11,9 @@ executed yaw acceleration. A collision ends the episode with the out-of-bounds p
 |dd| = max(|dd|, D).
 
 The reward is the sum of its terms, each a ``Term`` (name, the config keys that weight it, a
-function of the step's ``Inputs``): the paper's three are ``PAPER``. The config's
+function of the step's ``Inputs``): the paper's three are ``PAPER``; ``MANOEUVRE`` holds four
+more for the whole manoeuvre (longitudinal comfort, lateral comfort past ISO 11270's bounds,
+headway to the target lane's vehicles, speed), off unless named. The config's
 ``env.reward_terms`` names the terms a run uses; a term of your own is ``register``-ed under a
 new name and named there. Every output that shows the reward term by term (the env's
 ``info``, training metrics, evaluation tables, the gym and gymnax infos, TensorBoard) iterates
@@ -44,6 +46,9 @@ class Inputs(NamedTuple):
     collided: Array  # bool
     ego: Any = None  # jaxlc.sim.state.Ego after the step (speed, acceleration, heading)
     nb: Any = None  # jaxlc.sim.gap.Neighbours: the target lane's vehicles after the step
+    before: Any = None  # the Ego before the step (jerks are differences over dt)
+    gaps: Any = None  # (lead_gap, lag_gap), m along the target lane (observation.target_gaps)
+    overlap: Any = None  # bool, the ego's body overlaps the target lane after the step
 
 
 class Term(NamedTuple):
@@ -77,9 +82,54 @@ PAPER: tuple[Term, ...] = (
     Term("r_e", ("w3",), elapsed),
     Term("r_d", ("w4", "border"), deviation),
 )
+
+
+def longitudinal_comfort(x: Inputs, p) -> Array:
+    """``-w_long_acc*|a_x| - w_long_jerk*|a_x - a_x,before|/dt``: the ego's longitudinal
+    acceleration after the step and its change over the step."""
+    jerk = (x.ego.accel - x.before.accel) / p.dt
+    return -p.w_long_acc * jnp.abs(x.ego.accel) - p.w_long_jerk * jnp.abs(jerk)
+
+
+def lateral_comfort(x: Inputs, p) -> Array:
+    """ISO 11270's two bounds as costs of their excess: ``-w_lat_acc*max(|a_y| - lat_acc_max,
+    0) - w_lat_jerk*max(|j_y| - lat_jerk_max, 0)``, a_y = v*omega after the step, j_y its change
+    over the step / dt (the evaluation's jerk averages over 0.5 s: ``evaluation.safety``)."""
+    a_y, a_y0 = x.ego.v * x.ego.omega, x.before.v * x.before.omega
+    over_a = jnp.maximum(jnp.abs(a_y) - p.lat_acc_max, 0.0)
+    over_j = jnp.maximum(jnp.abs(a_y - a_y0) / p.dt - p.lat_jerk_max, 0.0)
+    return -p.w_lat_acc * over_a - p.w_lat_jerk * over_j
+
+
+def headway_shortfall(x: Inputs, p) -> Array:
+    """``-w_headway * (max(headway_min - h_lead, 0) + max(headway_min - h_lag, 0))`` once the
+    ego's body overlaps the target lane (the rule of ``evaluation.safety.counted``): h_lead =
+    lead gap / ego speed, h_lag = lag gap / lag speed, a missing or standing follower none."""
+    lead_gap, lag_gap = x.gaps
+
+    def short(gap: Array, v: Array, present: Array) -> Array:
+        h = jnp.where(v > 0.0, gap / jnp.where(v > 0.0, v, 1.0), jnp.inf)
+        return jnp.where(present, jnp.maximum(p.headway_min - h, 0.0), 0.0)
+
+    total = short(lead_gap, x.ego.v, x.nb.has_a1) + short(lag_gap, x.nb.b1_v, x.nb.has_b1)
+    return -p.w_headway * jnp.where(x.overlap, total, 0.0)
+
+
+def speed_keeping(x: Inputs, p) -> Array:
+    """``-w_speed * |v - v0| / v0``: the ego's speed against its desired speed."""
+    return -p.w_speed * jnp.abs(x.ego.v - x.ego.v0) / x.ego.v0
+
+
+# The whole manoeuvre's terms ([D], off by default: not in env.reward_terms, weights 0).
+MANOEUVRE: tuple[Term, ...] = (
+    Term("r_long", ("w_long_acc", "w_long_jerk"), longitudinal_comfort),
+    Term("r_lat", ("w_lat_acc", "w_lat_jerk", "lat_acc_max", "lat_jerk_max"), lateral_comfort),
+    Term("r_gap", ("w_headway", "headway_min"), headway_shortfall),
+    Term("r_speed", ("w_speed",), speed_keeping),
+)
 # Terms by name: the paper's, and those registered. Filled at import (the paper's) and by
 # ``register`` before a run is configured, as gymnasium registers its envs.
-_REGISTRY: dict[str, Term] = {t.name: t for t in PAPER}
+_REGISTRY: dict[str, Term] = {t.name: t for t in (*PAPER, *MANOEUVRE)}
 
 
 def register(term: Term) -> Term:
