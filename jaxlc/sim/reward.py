@@ -102,9 +102,10 @@ def lateral_comfort(x: Inputs, p) -> Array:
 
 
 def headway_shortfall(x: Inputs, p) -> Array:
-    """``-w_headway * (max(headway_min - h_lead, 0) + max(headway_min - h_lag, 0))`` once the
-    ego's body overlaps the target lane (the rule of ``evaluation.safety.counted``): h_lead =
-    lead gap / ego speed, h_lag = lag gap / lag speed, a missing or standing follower none."""
+    """``-w_headway * (max(headway_min - h_lead, 0) + max(headway_min - h_lag, 0))`` while the
+    ego's body overlaps the target lane (the evaluation counts from the first overlap on,
+    ``evaluation.safety.counted``): h_lead = lead gap / ego speed, h_lag = lag gap / lag speed;
+    none for a missing vehicle or a standing follower."""
     lead_gap, lag_gap = x.gaps
 
     def short(gap: Array, v: Array, present: Array) -> Array:
