@@ -261,9 +261,8 @@ def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
         return lines
     if four:
         cells = rank_cells(rows)  # with several seeds, a cell's claim is about its mean
-        top = cells[0] if cells[0]["seeds"] > 1 else {**best, "best": is_best(best)}
-        ok = top["best"]
-        top = top["label"]
+        pick = cells[0] if cells[0]["seeds"] > 1 else {**best, "best": is_best(best)}
+        top, ok = pick["label"], pick["best"]
         ours = f"{top} is best" + (" (mean over seeds)" if cells[0]["seeds"] > 1 else "")
         lines.append(f"| best model | {PAPER} | {ours} | {'yes' if ok else 'no'} |")
     else:
