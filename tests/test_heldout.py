@@ -136,7 +136,8 @@ def test_keys_for_lane_changes_hold_exactly_that_many(smoke_cfg: config.Config) 
 
 def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -> None:
     """A constant full-left policy on held-out cases; one case replayed with env.step: the
-    rollout's peak windowed jerk and minimum lag TTC equal those computed from the replay."""
+    rollout's peak windowed jerks (lateral and longitudinal), peak longitudinal acceleration
+    and minimum lag TTC equal those computed from the replay."""
     keys = cases.keys_for_lane_changes(smoke_cfg, 3, seed=0, batch=8)
     out = cases.evaluate_act(smoke_cfg, lambda obs: jnp.ones((obs.shape[0], 1)), keys=keys)
     start, _ = cases.programs(smoke_cfg, 1500)
@@ -146,22 +147,30 @@ def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -
     env, state = LaneChangeEnv(), jax.tree.map(lambda a: a[c], cs.state)
     step = jax.jit(lambda k, s: env.step(k, s, jnp.ones(1), p))
     a_y, lag_ttc, entered = [float(state.ego.v * state.ego.omega)], [], False
+    a_x = [float(state.ego.accel)]
     for _ in range(200):
         # the lag counts from the step the body's corners first reach into the target lane
         entered = entered or _reaches(state, int(state.ego.target), p)
         lag_ttc.append(lag_ttc_of(state, p) if entered else math.inf)
         _, state, _, term, trunc, info = step(jax.random.fold_in(cs.key[c], state.time), state)
         a_y.append(float(state.ego.v * state.ego.omega))
+        a_x.append(float(state.ego.accel))
         if int(info["reason"]) != 0:
             break
     entered = entered or _reaches(state, int(state.ego.target), p)
     lag_ttc.append(lag_ttc_of(state, p) if entered else math.inf)
     assert not _reaches(jax.tree.map(lambda a: a[c], cs.state), int(state.ego.target), p)
     n = safety.jerk_window(p)
-    padded = np.concatenate([np.full(n, a_y[0]), a_y[1:]])
-    jerk = np.abs(padded[n:] - padded[:-n]) / (n * p.dt)
+
+    def peak_jerk(a: list[float]) -> float:  # each step: the mean slope over the last 0.5 s
+        padded = np.concatenate([np.full(n, a[0]), a[1:]])  # held at its start value before
+        return float(np.max(np.abs(padded[n:] - padded[:-n]) / (n * p.dt)))
+
     assert int(out["reason"][0][c]) == int(info["reason"])
-    assert out["peak_lat_jerk"][0][c] == pytest.approx(jerk.max(), rel=1e-4)
+    assert out["peak_lat_jerk"][0][c] == pytest.approx(peak_jerk(a_y), rel=1e-4)
+    assert out["peak_long_jerk"][0][c] == pytest.approx(peak_jerk(a_x), rel=1e-4, abs=1e-6)
+    assert out["peak_long_acc"][0][c] == pytest.approx(np.max(np.abs(a_x[1:])), rel=1e-6)
+    assert out["peak_long_jerk"][0][c] > 0  # the IDM ego's speed changes in the manoeuvre
     assert out["min_ttc"][0][c][1] == pytest.approx(min(lag_ttc), rel=1e-4)
 
 

@@ -85,6 +85,8 @@ class Outcome:
     final_omega: Array  # yaw rate relative to the lane's (env.ego_yaw_rate), rad/s
     # Safety and comfort over the manoeuvre (jaxlc.evaluation.safety), the start state included.
     peak_lat_jerk: Array  # max |lateral jerk| over a 0.5 s moving average, m/s^3
+    peak_long_acc: Array  # max |longitudinal acceleration|, m/s^2
+    peak_long_jerk: Array  # max |longitudinal jerk| over a 0.5 s moving average, m/s^3
     # Headway and TTC only where they count (safety.counted), else inf.
     min_ttc: Array  # (policies, cases, 3) min time-to-collision to lead, lag, own leader, s
     min_thw: Array  # (policies, cases, 3) min time headway, s
@@ -227,6 +229,8 @@ def _empty_outcome(cs: Cases, n_pol: int, p: EnvParams) -> Outcome:
         final_psi=nan,
         final_omega=nan,
         peak_lat_jerk=f0,
+        peak_long_acc=f0,
+        peak_long_jerk=f0,
         min_ttc=jnp.broadcast_to(ttc, pc + (3,)),
         min_thw=jnp.broadcast_to(thw, pc + (3,)),
         partner=i0,
@@ -242,13 +246,14 @@ def _accumulate(
     r: Array,
     info: dict[str, Array],
     side: Array,
-    jerk: Array,
+    jerk: tuple[Array, Array],
     counted: Array,
     p: EnvParams,
 ) -> Outcome:
     """Fold one step into the outcome; only ``live`` ``(policies, cases)`` entries change
-    (``jerk``: the step's windowed lateral jerk; ``counted``: ``(policies, cases, 3)``, the
-    vehicles whose headway and TTC count at this step, ``safety.counted``)."""
+    (``jerk``: the step's windowed lateral and longitudinal jerks; ``counted``:
+    ``(policies, cases, 3)``, the vehicles whose headway and TTC count at this step,
+    ``safety.counted``)."""
 
     def add(acc: Array, value: Array) -> Array:
         return acc + jnp.where(live, value, 0.0)
@@ -279,7 +284,9 @@ def _accumulate(
         final_offset=last(out.final_offset, toward),
         final_psi=last(out.final_psi, new.ego.psi),
         final_omega=last(out.final_omega, yaw),
-        peak_lat_jerk=peak(out.peak_lat_jerk, jnp.abs(jerk)),
+        peak_lat_jerk=peak(out.peak_lat_jerk, jnp.abs(jerk[0])),
+        peak_long_acc=peak(out.peak_long_acc, jnp.abs(new.ego.accel)),
+        peak_long_jerk=peak(out.peak_long_jerk, jnp.abs(jerk[1])),
         min_ttc=jnp.where(live[..., None], jnp.minimum(out.min_ttc, ttc), out.min_ttc),
         min_thw=jnp.where(live[..., None], jnp.minimum(out.min_thw, thw), out.min_thw),
         partner=jnp.where(hit, safety.partner(overlap, new.traffic.x, new.ego, p), out.partner),
@@ -310,7 +317,11 @@ def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Call
             keys = jax.vmap(jax.vmap(jax.random.fold_in))(bcast(cs.key), state.time)
             new_obs, new, r, _, _, info = jax.vmap(step_policy)(pol.k, keys, state, action)
             live = ~done  # (policies, cases); only live cases are in the RL phase
-            jerk, hist = safety.windowed_jerk(hist, safety.lateral_acc(new), base.dt)
+            (j_y, h_y), (j_x, h_x) = (
+                safety.windowed_jerk(h, a, base.dt)
+                for h, a in zip(hist, (safety.lateral_acc(new), new.ego.accel), strict=True)
+            )
+            jerk, hist = (j_y, j_x), (h_y, h_x)
             counted, entered = safety.counted(new, base, entered)
             out = _accumulate(out, live, new, r, info, side, jerk, counted, base)
             done = done | (live & ((info["reason"] != 0) | (new.time >= max_steps)))
@@ -323,9 +334,11 @@ def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Call
             i, _, _, done, *_ = c
             return (i <= limit) & jnp.any(~done)
 
-        # The lateral accelerations of the last 0.5 s; the ego drove straight before.
+        # The lateral and longitudinal accelerations of the last 0.5 s, each held at its
+        # start value (the ego drove straight before; its jerk before the start is not known).
         a0 = safety.lateral_acc(state)
-        hist = jnp.broadcast_to(a0[..., None], a0.shape + (safety.jerk_window(base),))
+        window = a0.shape + (safety.jerk_window(base),)
+        hist = tuple(jnp.broadcast_to(a[..., None], window) for a in (a0, state.ego.accel))
         out0 = _empty_outcome(cs, n_pol, base)
         _, entered = safety.counted(state, base, jnp.zeros(a0.shape, bool))
         init = (jnp.int32(0), state, obs, ~bcast(cs.performed), out0, trace, hist, entered)

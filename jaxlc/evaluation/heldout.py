@@ -38,6 +38,8 @@ from jaxlc.paper.grid import BEST_TAG, is_best
 
 MIN_BOOT_SEEDS = 5
 BOUNDS = {name: bound for name, bound, *_ in NORMS}
+# Measured beside the norms (no norm of their own here): comfort along the road.
+LONGITUDINAL = ("peak_long_acc", "peak_long_jerk")
 ENDS = ("success", "out_of_bounds", "collision", "timeout", "unfinished")
 NORM_KEYS = tuple(f"norm_{name}" for name, *_ in NORMS) + ("norm_all",)
 CRIT_KEYS = tuple(f"{m}_crit_{v}" for m in ("ttc", "thw") for v in VEHICLES)
@@ -47,6 +49,7 @@ HELDOUT_FIELDS = (
     + ("success_rate", "success_lo", "success_hi", "failure_bound")
     + ("collision_rate", "collision_lo", "collision_hi")
     + ("duration_s", "peak_lat_acc", "peak_lat_jerk", "min_ttc_s", "min_thw_s")
+    + LONGITUDINAL
     + NORM_KEYS
     + CRIT_KEYS
 )
@@ -89,6 +92,7 @@ def lane_change_measures(out: dict[str, np.ndarray], p: int, dt: float) -> dict[
         "peak_lat_jerk": out["peak_lat_jerk"][p],
         "min_ttc_s": out["min_ttc"][p].min(axis=-1),
         "min_thw_s": out["min_thw"][p].min(axis=-1),
+        **{k: out[k][p] for k in LONGITUDINAL},
     }
     inside = {
         f"norm_{name}": (m[name] < bound) if below else (m[name] >= bound)
@@ -133,6 +137,7 @@ def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, d
         "duration_s": _mean(m["duration_s"][ok]),
         "peak_lat_acc": _mean(m["peak_lat_acc"][ok]),
         "peak_lat_jerk": _mean(m["peak_lat_jerk"][ok]),
+        **{k: _mean(m[k][ok]) for k in LONGITUDINAL},
         # The low tail is what safety is about: 5th percentiles over the lane changes.
         "min_ttc_s": _p5(m["min_ttc_s"]),
         "min_thw_s": _p5(m["min_thw_s"]),
