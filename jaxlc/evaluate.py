@@ -80,14 +80,12 @@ def _episodes_arg(text: str) -> list[int]:
 
 def _protocol(args: argparse.Namespace) -> tuple[config.Config, config.EvalConfig]:
     """The run's config (defaults for a lone checkpoint) and its ``[eval]`` protocol with the
-    flags given in place of its values, checked as the config's are."""
+    flags given in place of its values (each ``[eval]`` key that is also a flag), checked as
+    the config's are."""
     run = RunDir(args.run_dir) if args.run_dir else None
     cfg = run.load_config() if run and run.is_run() else config.Config()
-    given = {k: v for k in PROTOCOL if (v := getattr(args, k)) is not None}
+    given = {k: v for k in vars(cfg.eval) if (v := getattr(args, k, None)) is not None}
     return cfg, config.from_dict({"eval": {**vars(cfg.eval), **given}}).eval
-
-
-PROTOCOL = ("cases", "max_steps", "seed", "chunk", "lane_changes", "heldout_seed")
 
 
 def _host_devices(cfg: config.Config, ev: config.EvalConfig) -> int:

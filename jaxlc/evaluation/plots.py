@@ -308,6 +308,16 @@ def _best(result: dict[str, Any]) -> tuple[int, list[int]] | None:
     return m, sorted(rows, key=lambda i: result["rows"][i]["episode"])
 
 
+def _best_traces(run_dir: Path) -> tuple[dict, dict, dict, Any, list[int]] | None:
+    """``(result, traces, cases, env config, best model's policy rows by episode)`` of an
+    evaluated run; None when it has no evaluation or no model was ranked."""
+    data = _eval(run_dir)
+    best = None if data is None else _best(data[0])
+    if best is None:
+        return None
+    return *data, RunDir(run_dir).load_config().env, best[1]
+
+
 def _curvature(tr: dict[str, np.ndarray], pi: int, j: int) -> float:
     """The traced case's road curvature (0 for traces written before roads could bend)."""
     return float(tr["curvature"][pi, j]) if "curvature" in tr else 0.0
@@ -348,12 +358,10 @@ def _lanes(ax: Any, p: Any, x0: float, x1: float, kappa: float = 0.0, s0: float 
 
 def fig7_trajectories(run_dir: Path) -> Path | None:
     """(a) the final checkpoint's left and right lane changes, (b) one case over checkpoints."""
-    data = _eval(run_dir)
-    if data is None or _best(data[0]) is None:
+    found = _best_traces(run_dir)
+    if found is None:
         return None
-    result, tr, _ = data
-    p = RunDir(run_dir).load_config().env
-    _, prows = _best(result)
+    result, tr, _, p, prows = found
     final = prows[-1]
     fig, (a, b) = plt.subplots(2, 1, figsize=(9, 6.5), layout="constrained")
     # The cases share one road when the config's curvature is a number: draw it bent then.
@@ -466,12 +474,10 @@ def _checkpoint_picks(prows: list[int], n: int) -> list[int]:
 
 def fig5_scenes(run_dir: Path, panels: int = 6) -> Path | None:
     """Scene at the end of one case's manoeuvre for up to ``panels`` checkpoints."""
-    data = _eval(run_dir)
-    if data is None or _best(data[0]) is None:
+    found = _best_traces(run_dir)
+    if found is None:
         return None
-    result, tr, cases = data
-    p = RunDir(run_dir).load_config().env
-    _, prows = _best(result)
+    result, tr, cases, p, prows = found
     picks = _checkpoint_picks(prows, panels)
     j = 0
     fig, axes = plt.subplots(
@@ -498,12 +504,10 @@ def fig5_scenes(run_dir: Path, panels: int = 6) -> Path | None:
 def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | None:
     """Animated lane changes (one left, one right case) of the best model, checkpoint after
     checkpoint; every ``every``-th simulation step is a frame."""
-    data = _eval(run_dir)
-    if data is None or _best(data[0]) is None:
+    found = _best_traces(run_dir)
+    if found is None:
         return None
-    result, tr, cases = data
-    p = RunDir(run_dir).load_config().env
-    _, prows = _best(result)
+    result, tr, cases, p, prows = found
     picks = _checkpoint_picks(prows, checkpoints)
     left = np.nonzero(tr["side"] > 0)[0]
     right = np.nonzero(tr["side"] < 0)[0]

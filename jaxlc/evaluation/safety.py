@@ -30,10 +30,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.sim import kinematics
 from jaxlc.sim.idm import NO_LEADER_GAP
 from jaxlc.sim.observation import target_gaps
-from jaxlc.sim.road import current_lane
+from jaxlc.sim.road import body_in_lane, current_lane
 
 # Each norm: (measure, bound, True when the measure must stay below the bound, source).
 NORMS = (
@@ -98,14 +97,10 @@ def counted(state, p, entered: Array) -> tuple[Array, Array]:
     whether the ego's body has overlapped the target lane by this step, ``(...)`` (``entered``:
     the same before it). The ego starts in the origin lane ``lanes // 2`` (``road.origin_y``)."""
     eg = state.ego
-    _, hy = kinematics.half_extents(eg.psi, p.vehicle_length, p.vehicle_width)
-
-    def touches(lane: Array) -> Array:  # the body's lateral extent reaches into ``lane``
-        return (eg.y + hy > lane * p.lane_width) & (eg.y - hy < (lane + 1) * p.lane_width)
-
     origin = p.lanes // 2
-    entered = entered | touches(eg.target)
-    own = touches(origin) & (current_lane(eg, p) == origin)  # state.leader_* is that lane's
+    entered = entered | body_in_lane(eg, eg.target, p)
+    # state.leader_* is the leader of the lane holding the centre: the origin lane's till then
+    own = body_in_lane(eg, origin, p) & (current_lane(eg, p) == origin)
     return jnp.stack([entered, entered, own], axis=-1), entered
 
 

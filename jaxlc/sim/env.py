@@ -54,6 +54,7 @@ from jaxlc.sim.observation import (  # noqa: F401 (OBS_DIM, MIRROR_SIGNS, GAP_CL
     target_gaps_of,
 )
 from jaxlc.sim.road import (
+    body_in_lane,
     ego_lanes,
     ego_yaw_rate,
     lane_keeping_yaw_rate,
@@ -126,7 +127,7 @@ def _advance(
     # Comfort and success read the yaw rate relative to the lane's (= omega when straight).
     yaw_rate = ego_yaw_rate(ego, kappa, p)
     gaps = target_gaps_of(nb, ego, kappa, p)
-    overlap = jnp.any(ego_lanes(ego, p) & (jnp.arange(p.lanes) == ego.target))  # ()
+    overlap = body_in_lane(ego, ego.target, p)  # () counted by r_gap in the RL phase only
     x = reward.Inputs(yaw_rate, a_lat, offset, crashed, ego, nb, eg, gaps, overlap)
     terms = {n: jnp.where(in_rl, v, 0.0) for n, v in reward.terms(x, p).items()}
     r = reward.total(terms)

@@ -87,6 +87,8 @@ def half_extents(psi: Array, length: Array, width: Array) -> tuple[Array, Array]
 
 
 def lanes_overlapped(y: Array, half_y: Array, lanes: int, lane_width: Array) -> Array:
-    """``(lanes,)`` bool: which lanes the body's lateral extent [y - half_y, y + half_y] touches."""
+    """``(..., lanes)`` bool: which lanes the body's lateral extent [y - half_y, y + half_y]
+    touches (``y``, ``half_y``: any batch shape)."""
     lo = jnp.arange(lanes) * lane_width
+    y, half_y = jnp.asarray(y)[..., None], jnp.asarray(half_y)[..., None]
     return (y + half_y > lo) & (y - half_y < lo + lane_width)

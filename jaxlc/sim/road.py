@@ -68,6 +68,14 @@ def ego_lanes(ego: Ego, p: EnvParams) -> Array:
     return kinematics.lanes_overlapped(ego.y, hy, p.lanes, p.lane_width) & (ego.phase >= CRUISE)
 
 
+def body_in_lane(ego: Ego, lane: Array, p: EnvParams) -> Array:
+    """``(...)`` bool: the ego's body reaches into lane ``lane`` (any batch shape; whatever
+    the ego's phase)."""
+    _, hy = kinematics.half_extents(ego.psi, p.vehicle_length, p.vehicle_width)
+    touched = kinematics.lanes_overlapped(ego.y, hy, p.lanes, p.lane_width)
+    return jnp.any(touched & (jnp.arange(p.lanes) == jnp.asarray(lane)[..., None]), axis=-1)
+
+
 def lateral_offset(eg: Ego, p: EnvParams) -> Array:
     """Signed offset of the ego from the target lane's centre line, m.
 
