@@ -131,6 +131,17 @@ class EnvConfig:
         "and any registered with jaxlc.sim.reward.register",
     )
     offset_obs_scale: float = _f(3.7, 0.0, 100.0, open_lo=True, doc="m per unit of obs dd")
+    # The ego's longitudinal control in the RL phase ([D], the paper's future work).
+    longitudinal: str = _f(
+        "idm",
+        doc="'idm' (the paper's: IDM with adaptation to the target lane's lead; the action is "
+        "the yaw acceleration alone) or 'policy' (a second action entry u adds "
+        "long_acc_bound*u to that IDM acceleration, within [-idm_b_max, idm_a_max] and never "
+        "past the ego's desired speed)",
+    )
+    long_acc_bound: float = _f(
+        2.0, 0.0, 10.0, open_lo=True, doc="m/s^2, the policy's longitudinal authority"
+    )
 
 
 @dataclass(frozen=True)
@@ -236,7 +247,10 @@ class Config:
 
 # The values a text key takes (the learners are jaxlc.learn.learners.LEARNERS; this module
 # imports no other jaxlc module, and tests/test_ddpg.py checks that the two lists agree).
-CHOICES: dict[str, tuple[str, ...]] = {"ddpg.learner": ("ddpg", "td3")}
+CHOICES: dict[str, tuple[str, ...]] = {
+    "ddpg.learner": ("ddpg", "td3"),
+    "env.longitudinal": ("idm", "policy"),
+}
 
 _TABLES: dict[str, type] = {
     "env": EnvConfig,

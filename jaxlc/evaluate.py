@@ -55,7 +55,7 @@ from jaxlc.evaluation.protocol import (  # the names the command's users and tes
 )
 from jaxlc.evaluation.results import EvalError, format_table
 from jaxlc.evaluation.stats import StatsError
-from jaxlc.sim.env import ACT_DIM
+from jaxlc.sim.env import action_dim
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
@@ -90,7 +90,7 @@ def _protocol(args: argparse.Namespace) -> tuple[config.Config, config.EvalConfi
 
 def _host_devices(cfg: config.Config, ev: config.EvalConfig) -> int:
     """``machine.host_devices_for`` a chunk of policies, each an actor over every case."""
-    widths = (OBS_DIM, *cfg.ddpg.hidden, ACT_DIM)
+    widths = (OBS_DIM, *cfg.ddpg.hidden, action_dim(cfg.env))
     return machine.host_devices_for(ev.chunk, machine.largest_product(ev.cases, widths))
 
 

@@ -7,8 +7,9 @@ outside JAX.
 
 The graph computes exactly what ``jaxlc.policy.load_policy``'s ``act`` computes: from the
 observation vector as the env returns it, ``(batch, OBS_DIM)`` float32 already scaled, to the
-action ``(batch, 1)`` in [-1, 1] (the reflection-odd structure included where the actor has
-it); nothing is left in Python beside it. It is converted from that same function (jax2onnx),
+action ``(batch, 1)`` in [-1, 1] (``(batch, 2)`` with ``env.longitudinal = "policy"``, each
+entry named in the JSON; the reflection-odd structure included where the actor has it);
+nothing is left in Python beside it. It is converted from that same function (jax2onnx),
 so the two cannot drift apart, and checked by ``tests/test_export.py`` against onnxruntime.
 ``--format stablehlo`` writes ``jax.export``'s serialisation instead (for JAX consumers:
 ``jax.export.deserialize(bytes).call(obs)``).
@@ -33,7 +34,7 @@ import jax.numpy as jnp
 
 from jaxlc.policy import load_policy
 from jaxlc.sim import observation
-from jaxlc.sim.env import ACT_DIM, OBS_DIM, EnvParams
+from jaxlc.sim.env import OBS_DIM, EnvParams, action_dim
 from jaxlc.sim.observation import LAYOUT
 from jaxlc.study import checkpoint
 from jaxlc.study.checkpoint import write_bytes_atomic, write_text_atomic
@@ -108,7 +109,7 @@ def sidecar(path: Path, meta: dict[str, Any], run_dir: Path, fmt: str) -> dict[s
         },
         "output": {
             "name": "action",
-            "shape": ["batch", ACT_DIM],
+            "shape": ["batch", action_dim(params)],
             "dtype": "float32",
             "meaning": "yaw acceleration command of the ego, held for k steps of dt",
             "bound": [-1.0, 1.0],
@@ -116,6 +117,7 @@ def sidecar(path: Path, meta: dict[str, Any], run_dir: Path, fmt: str) -> dict[s
             "unit": "rad/s^2 (physical yaw acceleration = action * scale)",
             "k": meta["k"],
             "dt_s": float(params.dt),
+            **_longitudinal(params),
         },
         "symmetric_actor": bool(meta.get("symmetric_actor", False)),
         "checkpoint": str(path.relative_to(run_dir)),
@@ -125,6 +127,32 @@ def sidecar(path: Path, meta: dict[str, Any], run_dir: Path, fmt: str) -> dict[s
         "episode": meta["episode"],
         "config_hash": meta["config_hash"],
         "jaxlc_version": meta["jaxlc_version"],
+    }
+
+
+def _longitudinal(params: EnvParams) -> dict[str, Any]:
+    """The second action entry's meaning, where the run's ego has one (``env.longitudinal =
+    "policy"``)."""
+    if action_dim(params) == 1:
+        return {}
+    return {
+        "entries": [
+            {
+                "index": 0,
+                "meaning": "yaw acceleration",
+                "scale": float(params.max_yaw_acc),
+                "unit": "rad/s^2",
+                "mirror_sign": -1.0,
+            },
+            {
+                "index": 1,
+                "meaning": "longitudinal acceleration added to the IDM's "
+                "(within [-idm_b_max, idm_a_max], never past the desired speed)",
+                "scale": float(params.long_acc_bound),
+                "unit": "m/s^2",
+                "mirror_sign": 1.0,
+            },
+        ],
     }
 
 

@@ -46,7 +46,7 @@ from jaxlc.config import Config, EnvConfig
 from jaxlc.sim import observation as obs_layout
 from jaxlc.sim import reward
 from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, reset_core, step_core
-from jaxlc.sim.env import ACT_DIM, OBS_DIM, EnvParams, EnvState, make
+from jaxlc.sim.env import OBS_DIM, EnvParams, EnvState, action_dim, make
 from jaxlc.sim.reward import REASONS
 from jaxlc.sim.road import reference_y, road_curvature
 
@@ -69,7 +69,6 @@ _STEP_TAIL = (
     ("episode_return", 1),
     ("episode_steps", 1),
     ("offset", 1),
-    ("action", 1),
     ("ready", 1),
     ("skipped_steps", 1),
     ("skipped_episodes", 1),
@@ -79,7 +78,8 @@ _STEP_TAIL = (
 
 def _step_fields(params: EnvParams) -> tuple[tuple[str, int], ...]:
     """What a step returns: the head, each of ``params``' reward terms, the tail."""
-    return (*_STEP_HEAD, *((n, 1) for n in reward.names(params)), *_STEP_TAIL)
+    terms = ((n, 1) for n in reward.names(params))
+    return (*_STEP_HEAD, *terms, *_STEP_TAIL[:3], ("action", action_dim(params)), *_STEP_TAIL[3:])
 
 
 _RESET_FIELDS = (
@@ -306,7 +306,7 @@ def _configure(
     env.max_skip_steps = int(max_skip_steps)
     low, high = obs_layout.bounds(env.params)
     obs_space = spaces.Box(low, high, (OBS_DIM,), np.float32)
-    return obs_space, spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
+    return obs_space, spaces.Box(-1.0, 1.0, (action_dim(env.params),), np.float32)
 
 
 def _reason_names(codes: np.ndarray) -> np.ndarray:
@@ -389,7 +389,7 @@ class LaneChangeGymEnv(gymnasium.Env[np.ndarray, np.ndarray]):
             raise gymnasium.error.ResetNeeded(
                 "call reset() before step() and after an episode ends"
             )
-        a = np.asarray(action, np.float32).reshape(ACT_DIM)
+        a = np.asarray(action, np.float32).reshape(action_dim(self.params))
         self._key, *states, packed = self._programs.step(self._key, self._state, a)
         out = _unpack(np.asarray(packed), self._programs.fields)
         terminated, truncated = bool(out["terminated"]), bool(out["truncated"])
@@ -404,7 +404,7 @@ class LaneChangeGymEnv(gymnasium.Env[np.ndarray, np.ndarray]):
         code = int(out["reason_code"])
         info: dict[str, Any] = {"reason": REASONS[code], "reason_code": code}
         for name in self._programs.info:
-            info[name] = out[name].item()
+            info[name] = out[name].item() if out[name].size == 1 else out[name]
         return out["obs"], float(out["reward"]), terminated, truncated, info
 
     def render(self) -> np.ndarray | None:
@@ -480,7 +480,7 @@ class LaneChangeVectorEnv(VectorEnv):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if self._state is None:
             raise gymnasium.error.ResetNeeded("call reset() before step()")
-        a = np.asarray(actions, np.float32).reshape(self.num_envs, ACT_DIM)
+        a = np.asarray(actions, np.float32).reshape(self.num_envs, action_dim(self.params))
         self._keys, self._state, packed = self._programs.vstep(self._keys, self._state, a)
         out = _unpack(np.asarray(packed), self._programs.fields)
         self._check_ready(out["ready"])

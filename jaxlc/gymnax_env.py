@@ -50,7 +50,7 @@ from jax import Array
 from jaxlc.config import Config, EnvConfig
 from jaxlc.sim import observation as obs_layout
 from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, fast_forward, reset_core
-from jaxlc.sim.env import ACT_DIM, EnvParams, EnvState, LaneChangeEnv, make, observation
+from jaxlc.sim.env import EnvParams, EnvState, LaneChangeEnv, action_dim, make, observation
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.sim.reward import names as reward_names
 
@@ -159,10 +159,11 @@ class LaneChangeGymnax(environment.Environment):
 
     @property
     def num_actions(self) -> int:
-        return ACT_DIM
+        return action_dim(self.default_params.sim)
 
     def action_space(self, params: LaneChangeParams | None = None) -> spaces.Box:
-        return spaces.Box(-1.0, 1.0, (ACT_DIM,), jnp.float32)
+        params = self.default_params if params is None else params
+        return spaces.Box(-1.0, 1.0, (action_dim(params.sim),), jnp.float32)
 
     def observation_space(self, params: LaneChangeParams | None = None) -> spaces.Box:
         """The bounds of ``jaxlc.sim.observation.bounds``."""

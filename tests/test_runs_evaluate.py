@@ -1,7 +1,8 @@
 """Every kind of run the sweep writes evaluates to a report, or is refused in one line.
 
 Small runs reach the code paths users meet: a model never trained past its first checkpoint,
-one model of one seed, a grid that is not the paper's, a curved road, TD3, a run stopped
+one model of one seed, a grid that is not the paper's, a curved road, TD3, lateral and
+longitudinal control together, a run stopped
 mid-chunk, and a held-out collision record with no lag vehicle (the ego hit by its own-lane
 follower where the target lane was empty). Each is evaluated with ``python -m jaxlc.evaluate``'s
 ``main``; its report must hold no ``nan`` and no traceback. Every console script answers
@@ -18,10 +19,13 @@ import sys
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from jaxlc import config, evaluate, figures, sweep
+from jaxlc import config, evaluate, export, figures, sweep
 from jaxlc.evaluation import report
+from jaxlc.policy import load_policy
+from jaxlc.sim.observation import MIRROR_SIGNS, OBS_DIM
 from jaxlc.study.rundir import RunDir
 
 from .conftest import HANG_GUARD_S, SMOKE, wait_for_line
@@ -37,6 +41,15 @@ RUNS = {
     "paper_smoke": [*PAPER_SMOKE, "train.episodes=20", "grid.k=[1,4]", "grid.memory=[256]"],
     "one_model_untrained": ["grid.k=[1]", "grid.memory=[256]", "train.episodes=20"],
     "non_paper_grid": ["grid.k=[1,3]", "grid.memory=[256]", "train.episodes=20"],
+    # lateral and longitudinal control together, the headway term named
+    "joint": [
+        "grid.k=[2]",
+        "grid.memory=[256]",
+        "train.episodes=20",
+        "env.longitudinal='policy'",
+        "env.reward_terms=['r_s','r_e','r_d','r_gap']",
+        "env.w_headway=2.0",
+    ],
     "curved_td3": [
         "grid.k=[2]",
         "grid.memory=[512]",
@@ -87,6 +100,23 @@ def test_every_run_evaluates_to_a_report(runs, name, capsys) -> None:
     assert len(cells) == len(config.load(base, RUNS[name]).grid.k)
     for label in cells:
         assert label in text
+
+
+def test_a_joint_run_loads_and_exports_its_two_actions(runs, tmp_path) -> None:
+    """A run of ``env.longitudinal = "policy"``: its checkpoint acts with two entries, the
+    lateral odd and the longitudinal even under the road's reflection, and its export says so."""
+    run_dir = runs["joint"]
+    path, _ = export.pick_checkpoint(run_dir)
+    act, meta = load_policy(path)
+    obs = np.random.default_rng(0).normal(size=(16, OBS_DIM)).astype(np.float32)
+    a, a_m = np.asarray(act(obs)), np.asarray(act(obs * np.asarray(MIRROR_SIGNS, np.float32)))
+    assert a.shape == (16, 2)
+    np.testing.assert_array_equal(a_m, a * np.array([-1.0, 1.0], np.float32))
+    out = tmp_path / "policy.stablehlo"
+    assert export.main([str(run_dir), "--format", "stablehlo", "--out", str(out)]) == 0
+    side = json.loads(out.with_name(out.name + ".json").read_text())["output"]
+    assert side["shape"] == ["batch", 2]
+    assert [e["mirror_sign"] for e in side["entries"]] == [-1.0, 1.0]
 
 
 def test_a_collision_with_no_lag_vehicle_prints_dashes(runs) -> None:

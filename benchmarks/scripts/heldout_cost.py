@@ -24,7 +24,7 @@ import jax
 
 from jaxlc.evaluation.cases import evaluate_policies, keys_for_lane_changes
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
-from jaxlc.sim.env import ACT_DIM
+from jaxlc.sim.env import action_dim
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.study import machine
 from jaxlc.study.rundir import RunDir
@@ -41,7 +41,7 @@ def main() -> None:
     args = ap.parse_args()
     cfg = RunDir(args.run_dir).load_config()
     # The host devices python -m jaxlc.evaluate would take for a chunk (before JAX starts).
-    widths = (OBS_DIM, *cfg.ddpg.hidden, ACT_DIM)
+    widths = (OBS_DIM, *cfg.ddpg.hidden, action_dim(cfg.env))
     product = machine.largest_product(int(1.4 * args.lane_changes), widths)
     machine.use_host_devices(machine.host_devices_for(args.chunk, product))
     _, loaded, metas = load_rows(args.run_dir, final_checkpoints(args.run_dir))

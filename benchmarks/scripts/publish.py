@@ -20,6 +20,7 @@ import importlib.util
 import json
 import re
 import sys
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,9 @@ DEFAULT_STUDY = ROOT / "benchmarks" / "study_symmetric_cpu_s3"  # three seeds pe
 VERDICT_STUDY = ROOT / "benchmarks" / "study_default_cpu_s10"  # the verdict's default column
 # configs/roads.toml's study, with both probes of env.curvature (roads- and straight-trained).
 ROADS_STUDY = ROOT / "benchmarks" / "study_roads_cpu_s3"
+# configs/joint.toml's study (lateral and longitudinal control), with today's default on the
+# same seeds evaluated under the same rules (default_s3/), and its weight study (weights/).
+JOINT_STUDY = ROOT / "benchmarks" / "study_joint_cpu_s3"
 # The benchmark session every speed figure of docs/benchmarks.md comes from.
 BENCH = ROOT / "benchmarks" / "bench_cpu_2026-11-24"
 
@@ -149,6 +153,88 @@ def _csv(path: Path) -> tuple[dict[str, str], ...]:
     """A committed CSV's rows, read once however many blocks use it."""
     with path.open() as f:
         return tuple(csv.DictReader(f))
+
+
+def _per_cell(rows: tuple[dict[str, str], ...], column: str) -> dict[str, float]:
+    """A heldout.csv column's mean over each cell's seeds, by the cell's label."""
+    cells: dict[str, list[float]] = {}
+    for r in rows:
+        if r["cell"] != "":
+            cells.setdefault(r["label"], []).append(float(r[column]))
+    return {label: float(np.mean(v)) for label, v in cells.items()}
+
+
+def joint_table() -> str:
+    """Per cell, the joint policies (``configs/joint.toml``) beside today's default's on the
+    same seeds, held-out lane changes under the same rules: success (mean over seeds, the
+    two-level interval), collisions with their one-sided 95% bound, the share inside every
+    norm, and the norms that fail most (headway, duration, lateral acceleration and jerk)."""
+    lines = [
+        "| cell | policy | lane changes | success | 95% interval | collisions (bound) "
+        "| inside every norm | headway ≥ 0.9 s | under 5 s | lat. acc. ≤ 3 m/s² "
+        "| lat. jerk ≤ 5 m/s³ |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    studies = (("default", JOINT_STUDY / "default_s3"), ("joint", JOINT_STUDY))
+    docs = {
+        name: {c["label"]: c for c in _load(study, "heldout.json")["cells"]}
+        for name, study in studies
+    }
+    rows = {name: _csv(study / "eval" / "heldout.csv") for name, study in studies}
+    norms = ("norm_min_thw_s", "norm_duration_s", "norm_peak_lat_acc", "norm_peak_lat_jerk")
+    for label in docs["joint"]:
+        for name, _ in studies:
+            c = docs[name][label]
+            shares = " | ".join(f"{100 * _per_cell(rows[name], n)[label]:.1f}%" for n in norms)
+            lines.append(
+                f"| {label} | {name} | {c['lane_changes']:,} | {100 * c['success_mean']:.2f}% | "
+                f"[{100 * c['success_lo']:.2f}, {100 * c['success_hi']:.2f}]% | "
+                f"{c['collisions']} (< {100 * c['collision_bound']:.2f}%) | "
+                f"{100 * c['norm_all']:.1f}% | {shares} |"
+            )
+    counted = _load(JOINT_STUDY, "heldout.json")["conflicts_counted"]
+    drawn = {name: _load(study, "heldout.json") for name, study in studies}
+    gaps = "; ".join(
+        f"{name}: {d['cases']:,} cases drawn for {d['lane_changes']:,} lane changes, "
+        f"{100 * (1 - d['lane_changes'] / d['cases']):.1f}% with no lane change"
+        for name, d in drawn.items()
+    )
+    return "\n".join(
+        [*lines, "", f"Headway and time-to-collision counted {counted}. Gaps found: {gaps}."]
+    )
+
+
+def joint_weights_table() -> str:
+    """The joint reward's weight study (seed 0 of each setting, one folder per run under
+    ``weights/``, the lateral-only control among them): per setting, over its nine models,
+    the range per model of held-out success, inside every norm (k <= 2 and k = 4) and lane
+    changes under 0.9 s of headway to the target lane's lead."""
+    lines = [
+        "| `longitudinal` | `w_headway` | `w_lat_acc`, `w_lat_jerk` | success per model "
+        "| inside every norm (k ≤ 2) | inside every norm (k = 4) "
+        "| headway to the target lead under 0.9 s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    settings = []
+    for folder in (JOINT_STUDY / "weights").iterdir():
+        env = tomllib.loads((folder / "config.toml").read_text())["env"]
+        key = (env["longitudinal"] != "policy", env["w_lat_acc"], env["w_headway"])
+        settings.append((key, env["longitudinal"], env["w_lat_jerk"], folder))
+    rows = [
+        (f"| {longitudinal} | {headway:g} | {lat_acc:g}, {lat_jerk:g}", folder / "heldout.csv")
+        for (_, lat_acc, headway), longitudinal, lat_jerk, folder in sorted(settings)
+    ]
+    # today's default on the same seed: the paper's three terms alone, lateral control alone
+    rows.append(("| idm (today's default) | – | –", JOINT_STUDY / "default_s3/eval/heldout.csv"))
+    for head, path in rows:
+        models = [r for r in _csv(path) if r["cell"] != "" and r["seed"] == "0"]
+        ok = [float(r["success_rate"]) for r in models]
+        low = [float(r["norm_all"]) for r in models if int(r["k"]) <= 2]
+        k4 = [float(r["norm_all"]) for r in models if int(r["k"]) == 4]
+        lead = [float(r["thw_crit_lead"]) for r in models]
+        spans = " | ".join(f"{100 * min(x):.1f}–{100 * max(x):.1f}%" for x in (ok, low, k4, lead))
+        lines.append(f"{head} | {spans} |")
+    return "\n".join(lines)
 
 
 def roads_table() -> str:
@@ -732,6 +818,8 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "heldout-cells": heldout_cells,
     "heldout-cells-s10": lambda: heldout_cells(VERDICT_STUDY),
     "roads": roads_table,
+    "joint": joint_table,
+    "joint-weights": joint_weights_table,
     "sim": sim_table,
     "highway": highway_table,
     "update": update_table,

@@ -36,7 +36,7 @@ from jaxlc.learn.networks import make_networks
 from jaxlc.learn.train import check_devices
 from jaxlc.sim.collision import overlaps
 from jaxlc.sim.controller import scripted_action
-from jaxlc.sim.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv
+from jaxlc.sim.env import RL, EnvParams, EnvState, LaneChangeEnv, action_dim
 from jaxlc.sim.observation import OBS_DIM, observation, target_gaps
 from jaxlc.sim.reward import COLLISION
 from jaxlc.sim.reward import names as reward_names
@@ -104,6 +104,7 @@ class Trace:
     x: Array  # ego front bumper, m
     y: Array  # ego centre line, m
     psi: Array
+    v: Array  # ego speed, m/s
     frames: Array  # (policies, traced) int32 valid frames
     traffic_x: Array  # (..., lanes, slots)
     traffic_active: Array  # (..., lanes, slots) bool
@@ -170,7 +171,7 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
     devices (``shard_map``, as the sweep lays its models): each device rolls out its block of
     policies on every case; the policy count must be a multiple of ``devices``."""
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    actor_net, _ = make_networks(cfg.ddpg, ACT_DIM)
+    actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
     rollout = make_rollout(base, actor_net.apply, max_steps)
     if devices > 1:
         mesh = Mesh(np.asarray(jax.devices()[:devices]), ("models",))
@@ -187,7 +188,7 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
 def make_start_case(base: EnvParams, max_steps: int) -> Callable[[Array], Cases]:
     """``key -> Cases`` (unbatched): reset, then step with no action until the RL phase
     begins, the episode ends before it, or ``max_steps`` pass."""
-    env, zero, origin = LaneChangeEnv(), jnp.zeros(ACT_DIM), base.lanes // 2
+    env, zero, origin = LaneChangeEnv(), jnp.zeros(action_dim(base)), base.lanes // 2
 
     def start_case(key: Array) -> Cases:
         k_reset, k_run = jax.random.split(key)
@@ -312,7 +313,7 @@ def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Call
 
         def body(c: tuple) -> tuple:
             i, state, obs, done, out, trace, hist, entered = c
-            mu = jax.vmap(actor_apply)(pol.actor, obs)  # (policies, cases, 1)
+            mu = jax.vmap(actor_apply)(pol.actor, obs)  # (policies, cases, action_dim)
             action = jnp.where(pol.scripted[:, None, None], scripted_action(obs, base), mu)
             keys = jax.vmap(jax.vmap(jax.random.fold_in))(bcast(cs.key), state.time)
             new_obs, new, r, _, _, info = jax.vmap(step_policy)(pol.k, keys, state, action)
@@ -357,6 +358,7 @@ def _empty_trace(n_pol: int, n_traced: int, frames: int, p: EnvParams) -> Trace:
         x=f,
         y=f,
         psi=f,
+        v=f,
         frames=jnp.zeros(shape[:2], jnp.int32),
         traffic_x=jnp.zeros(lanes, jnp.float32),
         traffic_active=jnp.zeros(lanes, bool),
@@ -378,6 +380,7 @@ def _record(
         "x": eg.x,
         "y": eg.y,
         "psi": eg.psi,
+        "v": eg.v,
         "traffic_x": tr.x,
         "traffic_active": tr.active,
         "lead_x": nb.a1_x,
@@ -405,7 +408,7 @@ def pick_traced(cases: Cases, n: int) -> np.ndarray:
 
 def init_actor(cfg: config.Config, key: Array | None = None) -> Any:
     """Fresh actor params for ``cfg`` (a "random-params" baseline, and a shape template)."""
-    actor_net, _ = make_networks(cfg.ddpg, ACT_DIM)
+    actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
     key = jax.random.PRNGKey(0) if key is None else key
     return actor_net.init(key, jnp.zeros((1, OBS_DIM), jnp.float32))
 

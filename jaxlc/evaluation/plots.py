@@ -421,6 +421,45 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
     return _save(fig, RunDir(run_dir).figure("fig7_trajectories.png"))
 
 
+def speed_gaps(run_dir: Path) -> Path | None:
+    """The longitudinal side of the drawn lane changes: the ego's speed and its net gaps to
+    the target lane's lead and lag (along the road's centre line) over the manoeuvre, the best
+    model's final checkpoint (solid) beside the scripted controller (dashed), whose
+    longitudinal motion is the IDM's."""
+    found = _best_traces(run_dir)
+    if found is None or "v" not in found[1]:  # traces written before the speed was kept
+        return None
+    result, tr, _, p, prows = found
+    final = prows[-1]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), layout="constrained")
+    for j, case in enumerate(tr["traced"]):
+        colour = f"C{j}"
+        for pi, ls in ((0, "--"), (final, "-")):
+            n = int(tr["frames"][pi, j])
+            if n < 2:
+                continue
+            t = np.arange(n) * p.dt
+            x = tr["x"][pi, j, :n]
+            lead = np.where(tr["has_lead"][pi, j, :n], tr["lead_x"][pi, j, :n] - x, np.nan)
+            lag = np.where(tr["has_lag"][pi, j, :n], x - tr["lag_x"][pi, j, :n], np.nan)
+            lab = f"case {case}" if pi == final else None
+            kw = {"color": colour, "ls": ls, "lw": 1.5}
+            axes[0].plot(t, tr["v"][pi, j, :n], label=lab, **kw)
+            axes[1].plot(t, lead - p.vehicle_length, **kw)
+            axes[2].plot(t, lag - p.vehicle_length, **kw)
+    for ax, what in zip(
+        axes, ("ego speed (m/s)", "gap to target lead (m)", "gap to target lag (m)"), strict=True
+    ):
+        ax.set(xlabel="time since the manoeuvre began (s)", ylabel=what)
+    axes[0].legend(fontsize=7)
+    row = result["rows"][final]
+    fig.suptitle(
+        f"Speed and gaps: {row['label']}, checkpoint {row['episode']} (solid); "
+        "scripted controller, IDM speed (dashed)"
+    )
+    return _save(fig, RunDir(run_dir).figure("speed_gaps.png"))
+
+
 def draw_scene(ax: Any, tr: dict[str, np.ndarray], pi: int, j: int, f: int, p: Any) -> None:
     """One frame: ego red (with its dotted past path), the gap's lead and lag green, others
     blue, lane markings; the view follows the ego, and a curved road is drawn bent around it
@@ -600,6 +639,7 @@ def make_all(run_dir: Path) -> list[Path]:
         fig5_scenes,
         fig6_checkpoints,
         fig7_trajectories,
+        speed_gaps,
         learning_gif,
         profiles,
         heldout_norms,

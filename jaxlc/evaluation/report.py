@@ -31,6 +31,7 @@ FIGURES = (
     ("fig5_scenes.png", "Fig. 5: scenes at chosen checkpoints"),
     ("fig6_checkpoints.png", "Fig. 6: average return and success rate per checkpoint"),
     ("fig7_trajectories.png", "Fig. 7: lane-change trajectories"),
+    ("speed_gaps.png", "Speed and gaps to the target lane's lead and lag over the manoeuvre"),
     ("profiles.png", "Performance profiles: share of models above each success rate"),
     ("learning.gif", "Video: lane changes across checkpoints"),
     ("heldout_norms.png", "Held-out lane changes against the safety and comfort norms"),

@@ -8,6 +8,7 @@ small and tanh does not saturate.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import flax.linen as nn
 import jax
@@ -15,6 +16,7 @@ import jax.numpy as jnp
 
 from jaxlc.config import DDPGConfig
 from jaxlc.sim.observation import MIRROR_SIGNS
+from jaxlc.sim.state import ACTION_MIRROR
 
 
 def uniform_pm(scale: float) -> nn.initializers.Initializer:
@@ -53,7 +55,9 @@ class Actor(nn.Module):
     f, so a left lane change is exactly the mirror image of a right one. Mirrored batches
     only teach that symmetry, and a policy can still learn a bias on one side (a left lane
     change that parks beside the target centre while the right one completes); here the
-    bias cancels. The params are the same pytree either way (``ddpg.symmetric_actor``).
+    bias cancels. The params are the same pytree either way (``ddpg.symmetric_actor``). With a
+    longitudinal action (``env.longitudinal = "policy"``) that entry is even instead:
+    mu(Ms) = (-lateral, +longitudinal).
     """
 
     hidden: Sequence[int] = (300, 600)
@@ -72,7 +76,11 @@ class Actor(nn.Module):
         # kernels run faster than two half-height products; the FLOPs stay twice the plain
         # actor's (benchmarks/scripts/update_throughput.py).
         both = jnp.tanh(trunk(jnp.stack([obs, obs * signs])))  # (2, ..., act_dim)
-        return 0.5 * (both[0] - both[1])
+        if self.act_dim == 1:
+            return 0.5 * (both[0] - both[1])
+        # mu(s) = (f(s) + A f(Ms)) / 2, A the action's signs: the yaw acceleration odd, the
+        # longitudinal acceleration even (mu(Ms) = A mu(s)).
+        return 0.5 * (both[0] + jnp.asarray(ACTION_MIRROR[: self.act_dim], obs.dtype) * both[1])
 
 
 class Critic(nn.Module):
@@ -85,6 +93,13 @@ class Critic(nn.Module):
     def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
         x = jnp.concatenate([obs, action], axis=-1)
         return _Trunk(self.hidden, 1, self.final_init, name="mlp")(x)[..., 0]
+
+
+def actor_out_dim(actor_params: Any) -> int:
+    """The action length of an actor's params pytree (its last layer's width)."""
+    layers = actor_params["params"]["mlp"]
+    last = max(layers, key=lambda name: int(name.rsplit("_", 1)[1]))
+    return int(layers[last]["kernel"].shape[-1])
 
 
 def make_networks(cfg: DDPGConfig, act_dim: int = 1) -> tuple[Actor, Critic]:

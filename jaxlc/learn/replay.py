@@ -82,6 +82,7 @@ def sample(
     key: jax.Array,
     batch_size: int,
     mirror: tuple[float, ...] | None = None,
+    action_mirror: tuple[float, ...] | None = None,
 ) -> dict[str, jax.Array]:
     """``batch_size`` transitions drawn uniformly, with replacement, from the filled slots.
 
@@ -91,7 +92,9 @@ def sample(
 
     With ``mirror`` (per-entry signs of the reflection, ``jaxlc.sim.observation.MIRROR_SIGNS``)
     each drawn transition is reflected with probability 1/2: obs and next obs times the signs,
-    action negated; reward and end unchanged. The draw of the slots is the same either way.
+    action times ``action_mirror`` (default: negated, the yaw acceleration; a longitudinal
+    entry keeps its sign, ``jaxlc.sim.state.ACTION_MIRROR``); reward and end unchanged. The
+    draw of the slots is the same either way.
     """
     idx = jax.random.randint(key, (batch_size,), 0, jnp.maximum(replay.size, 1))
     batch = {
@@ -107,6 +110,10 @@ def sample(
     signs = jnp.where(flip, jnp.asarray(mirror, jnp.float32), 1.0)  # (batch, obs_dim)
     return batch | {
         "obs": batch["obs"] * signs,
-        "action": jnp.where(flip, -batch["action"], batch["action"]),
+        "action": (
+            jnp.where(flip, -batch["action"], batch["action"])
+            if action_mirror is None
+            else batch["action"] * jnp.where(flip, jnp.asarray(action_mirror, jnp.float32), 1.0)
+        ),
         "next_obs": batch["next_obs"] * signs,
     }

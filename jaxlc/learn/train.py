@@ -33,7 +33,7 @@ from jax.sharding import PartitionSpec as P
 from jaxlc.config import Config, ConfigError, DDPGConfig, TrainConfig
 from jaxlc.learn import ddpg, learners, replay, tree
 from jaxlc.learn.networks import make_networks
-from jaxlc.sim.env import ACT_DIM, EnvParams, EnvState, LaneChangeEnv
+from jaxlc.sim.env import ACTION_MIRROR, EnvParams, EnvState, LaneChangeEnv, action_dim
 from jaxlc.sim.observation import MIRROR_SIGNS, OBS_DIM
 from jaxlc.sim.reward import SUCCESS
 from jaxlc.sim.reward import names as reward_names
@@ -203,10 +203,10 @@ def init_model(key: Array, hyper: ModelHyper, cfg: Config) -> TrainState:
     k_learn, k_env, k_run = jax.random.split(key, 3)
     keys = jax.random.split(k_env, t.envs_per_model)
     obs, env_state = jax.vmap(LaneChangeEnv().reset, (0, None))(keys, base)
-    learner = learners.of(d).init_learner(k_learn, OBS_DIM, d, ACT_DIM)
+    learner = learners.of(d).init_learner(k_learn, OBS_DIM, d, action_dim(base))
     return TrainState(
         learner=learner,
-        memory=replay.init(max(cfg.grid.memory), OBS_DIM, ACT_DIM, hyper.capacity),
+        memory=replay.init(max(cfg.grid.memory), OBS_DIM, action_dim(base), hyper.capacity),
         env=env_state,
         obs=obs,
         terms=jnp.zeros((t.envs_per_model, len(base.reward_terms)), jnp.float32),
@@ -238,7 +238,13 @@ def _learn(
     algo = learners.of(d)
 
     def one_update(learner: ddpg.Learner, k: Array):
-        batch = replay.sample(memory, k, d.batch_size, MIRROR_SIGNS if d.mirror else None)
+        batch = replay.sample(
+            memory,
+            k,
+            d.batch_size,
+            MIRROR_SIGNS if d.mirror else None,
+            ACTION_MIRROR[: memory.action.shape[-1]],
+        )
         return algo.update(learner, batch, h, d, key=jax.random.fold_in(k, 1))
 
     if d.updates_per_transition == 0:
@@ -291,7 +297,7 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     d, t = cfg.ddpg, cfg.train
     n_envs, every = t.envs_per_model, t.checkpoint_every
-    actor_net, _ = make_networks(d, ACT_DIM)
+    actor_net, _ = make_networks(d, action_dim(base))
 
     def step(ts: TrainState, hyper: ModelHyper) -> tuple[TrainState, dict[str, Array]]:
         key, k_noise, k_env, k_update = jax.random.split(ts.key, 4)
@@ -299,14 +305,20 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
         h = anneal(hyper.ddpg, ts.episodes, t)
 
         # Act in every env; only RL-phase steps are transitions.
-        mu = actor_net.apply(ts.learner.actor, ts.obs)  # (envs, 1)
+        mu = actor_net.apply(ts.learner.actor, ts.obs)  # (envs, action_dim)
         action = learners.of(d).explore(k_noise, mu, h.noise_sigma, d.noise_clip)
         obs, env_state, reward, term, trunc, info = jax.vmap(env.step, (0, 0, 0, None))(
             jax.random.split(k_env, n_envs), ts.env, action, base.replace(k=hyper.k)
         )
         rl = info["rl_step"]  # (envs,)
         memory = replay.add(
-            ts.memory, ts.obs, info["action"][:, None], reward, obs, term.astype(jnp.float32), rl
+            ts.memory,
+            ts.obs,
+            info["action"].reshape(n_envs, -1),  # (envs, action_dim)
+            reward,
+            obs,
+            term.astype(jnp.float32),
+            rl,
         )
 
         # DDPG updates once the memory holds one batch [P]/[S].

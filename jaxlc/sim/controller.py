@@ -29,7 +29,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.sim.env import EnvParams
+from jaxlc.sim.env import EnvParams, action_dim
 from jaxlc.sim.observation import INDEX, scale
 
 DEFAULT_POLE = 1.2  # 1/s: a lane change of about 4-5 s, inside the 3-8 s of human drivers
@@ -37,7 +37,9 @@ _READ = ("v", "accel", "psi", "omega", "offset", "curvature")
 
 
 def scripted_action(obs: Array, params: EnvParams, pole: float = DEFAULT_POLE) -> Array:
-    """``(..., OBS_DIM) -> (..., 1)`` action in [-1, 1] from the pole-placement law."""
+    """``(..., OBS_DIM) -> (..., action_dim)`` action in [-1, 1] from the pole-placement law;
+    with ``longitudinal = "policy"`` its second entry is 0: the IDM's acceleration, unchanged
+    (the baseline drives as the paper's ego does)."""
     raw = {n: obs[..., INDEX[n]] * scale(n, params) for n in _READ}
     v = jnp.maximum(raw["v"], 1.0)
     psi, e, kappa = raw["psi"], raw["offset"], raw["curvature"]
@@ -48,4 +50,7 @@ def scripted_action(obs: Array, params: EnvParams, pole: float = DEFAULT_POLE) -
     omega_r = raw["omega"] - kappa_d * raw["v"] * cos_psi  # relative to the lane's yaw rate
     feed_forward = kappa_d * raw["accel"] * cos_psi
     a_lat = feed_forward - (pole**3 * e + 3 * pole**2 * v * psi + 3 * pole * v * omega_r) / v
-    return jnp.clip(a_lat / params.max_yaw_acc, -1.0, 1.0)[..., None]
+    lateral = jnp.clip(a_lat / params.max_yaw_acc, -1.0, 1.0)[..., None]
+    if action_dim(params) == 1:
+        return lateral
+    return jnp.concatenate([lateral, jnp.zeros_like(lateral)], axis=-1)

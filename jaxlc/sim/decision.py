@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.sim.env import ACT_DIM, RL, EnvParams, EnvState, LaneChangeEnv, observation
+from jaxlc.sim.env import RL, EnvParams, EnvState, LaneChangeEnv, action_dim, observation
 from jaxlc.sim.reward import NONE
 from jaxlc.sim.reward import names as reward_names
 
@@ -29,7 +29,6 @@ from jaxlc.sim.reward import names as reward_names
 # of gap search), so only a config in which no gap is ever acceptable reaches it.
 DEFAULT_MAX_SKIP_STEPS = 20_000
 _ENV = LaneChangeEnv()
-_NO_ACTION = jnp.zeros(ACT_DIM, jnp.float32)
 
 
 def fast_forward(
@@ -42,6 +41,8 @@ def fast_forward(
     in the RL phase is returned as it is, key included.
     """
 
+    no_action = jnp.zeros(action_dim(params), jnp.float32)
+
     def cond(carry: tuple[Array, EnvState, Array, Array]) -> Array:
         _, s, n, _ = carry
         return (s.ego.phase != RL) & (n < max_steps)
@@ -49,7 +50,7 @@ def fast_forward(
     def body(carry: tuple[Array, EnvState, Array, Array]) -> tuple[Array, EnvState, Array, Array]:
         key, s, n, ended = carry
         key, k = jax.random.split(key)
-        _, s, _, _, _, info = _ENV.step(k, s, _NO_ACTION, params)
+        _, s, _, _, _, info = _ENV.step(k, s, no_action, params)
         return key, s, n + 1, ended + (info["reason"] != NONE)
 
     zero = jnp.int32(0)

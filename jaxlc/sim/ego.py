@@ -7,8 +7,9 @@ An episode of the ego goes through four phases (``state.PHASES``):
          (``gap.py``), adapting the ego's speed, for at most ``gap_time_limit`` s;
   RL     the action steers the ego (yaw acceleration) until success, out of bounds,
          collision or timeout.
-The ego's longitudinal motion is ``ego_accel`` in every phase; its lateral motion is the held
-action's yaw acceleration (``held_action``), integrated by ``motion.move``.
+The ego's longitudinal motion is ``ego_accel`` in every phase (with ``longitudinal =
+"policy"`` plus the held second action's correction in the RL phase); its lateral motion is the
+held action's yaw acceleration (``held_action``), integrated by ``motion.move``.
 """
 
 from __future__ import annotations
@@ -23,23 +24,44 @@ from jaxlc.sim.road import origin_y, road_curvature, target_frame
 from jaxlc.sim.state import CRUISE, GAP, RL, Draws, Ego, EnvParams, EnvState, Traffic
 
 
-def clean_action(action: Array) -> Array:
-    """Any action, NaN and inf included, becomes a finite value in [-1, 1]."""
-    a = jnp.reshape(action, (-1,))[0].astype(jnp.float32)
+def clean_action(action: Array, entry: int = 0) -> Array:
+    """Entry ``entry`` of any action, NaN and inf included, as a finite value in [-1, 1]."""
+    flat = jnp.reshape(action, (-1,))
+    if flat.shape[0] <= entry:  # a static shape: a wrong action fails loudly, not clamped
+        raise ValueError(
+            f"the action needs {entry + 1} entries (env.longitudinal = 'policy' adds the "
+            f"longitudinal one), got shape {jnp.shape(action)}"
+        )
+    a = flat[entry].astype(jnp.float32)
     return jnp.clip(jnp.nan_to_num(a, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
+
+
+def _hold(ego: Ego, value: Array, held: Array, p: EnvParams) -> Array:
+    in_rl = ego.phase == RL
+    refresh = in_rl & (ego.steps % p.k == 0)
+    return jnp.where(refresh, value, jnp.where(in_rl, held, 0.0))
 
 
 def held_action(ego: Ego, action: Array, p: EnvParams) -> Array:
     """``()`` action executed this step: refreshed every k-th RL step, held in between [P],
     0 outside the RL phase."""
-    in_rl = ego.phase == RL
-    refresh = in_rl & (ego.steps % p.k == 0)
-    return jnp.where(refresh, clean_action(action), jnp.where(in_rl, ego.held, 0.0))
+    return _hold(ego, clean_action(action), ego.held, p)
 
 
-def ego_accel(state: EnvState, p: EnvParams) -> Array:
+def held_long_action(ego: Ego, action: Array, p: EnvParams) -> Array | None:
+    """``()`` longitudinal action executed this step (the action's second entry, held as the
+    first), with ``longitudinal = "policy"``; None otherwise."""
+    if p.longitudinal != "policy":
+        return None
+    return _hold(ego, clean_action(action, 1), ego.held_long, p)
+
+
+def ego_accel(state: EnvState, p: EnvParams, held_long: Array | None = None) -> Array:
     """``()`` IDM acceleration of the ego toward its own-lane leader, "with adaptation" to the
-    chosen gap once it looks for one: the lower of the two."""
+    chosen gap once it looks for one: the lower of the two. With ``held_long`` (the policy's
+    longitudinal action, ``longitudinal = "policy"``) the RL phase adds ``long_acc_bound *
+    held_long`` to it, within [-idm_b_max, idm_a_max], and never accelerates the ego past its
+    desired speed (the observation's speed bound, and a speed limit, hold)."""
     eg = state.ego
     in_rl = eg.phase == RL
     nb, x = target_frame(state.nb, eg, road_curvature(state, p), p)  # m along the target lane
@@ -50,7 +72,12 @@ def ego_accel(state: EnvState, p: EnvParams) -> Array:
     # With no vehicle to adapt to (gap NO_LEADER_GAP), any finite speed gives a ~ free road.
     adapt_v = jnp.where(adapt_gap >= NO_LEADER_GAP, eg.v, jnp.where(in_rl, nb.a1_v, seek_v))
     a_adapt = idm_with_params(eg.v, eg.v0, adapt_gap, adapt_v, p)
-    return jnp.where(eg.phase >= GAP, jnp.minimum(a_own, a_adapt), a_own)
+    a = jnp.where(eg.phase >= GAP, jnp.minimum(a_own, a_adapt), a_own)
+    if held_long is None:
+        return a
+    a_pol = jnp.clip(a + p.long_acc_bound * held_long, -p.idm_b_max, p.idm_a_max)
+    a_pol = jnp.minimum(a_pol, jnp.maximum((eg.v0 - eg.v) / p.dt, a))
+    return jnp.where(in_rl, a_pol, a)
 
 
 def ego_phase(
@@ -58,6 +85,7 @@ def ego_phase(
     m: Motion,
     a_ego: Array,
     held: Array,
+    held_long: Array | None,
     spawned: Array,
     tr: Traffic,
     u: Draws,
@@ -90,6 +118,7 @@ def ego_phase(
         gap_time=jnp.where(command, 0.0, eg.gap_time + p.dt * (eg.phase == GAP)),
         yielding=eg.yielding,
         ep_return=eg.ep_return,
+        held_long=held_long,
     )
 
 

@@ -27,6 +27,10 @@ episode ends the ego leaves the road and the env goes back to WAIT on the same s
 ``obs`` is the observation after the step: on the step an episode ends it is the terminal
 observation, which is what a learner bootstraps from.
 
+Action: ``(1,)`` in [-1, 1], the yaw acceleration over ``max_yaw_acc``; with
+``env.longitudinal = "policy"`` ``(2,)`` (``action_dim``), the second entry adding
+``long_acc_bound`` times it to the ego's IDM acceleration in the RL phase (``ego.ego_accel``).
+
 Observation: ``OBS_DIM`` = 14 normalised entries, the table ``observation.LAYOUT``. Params
 may be closed over or passed traced (and vmapped: one program for a batch of drawn tasks);
 both give the same rollout, its reals to float32 rounding (``tests/test_rollout_golden.py``).
@@ -43,7 +47,7 @@ from jax import Array
 from jaxlc.config import Config, EnvConfig
 from jaxlc.sim import reward
 from jaxlc.sim.collision import collided
-from jaxlc.sim.ego import ego_accel, ego_phase, gap_decision, held_action
+from jaxlc.sim.ego import ego_accel, ego_phase, gap_decision, held_action, held_long_action
 from jaxlc.sim.motion import move
 from jaxlc.sim.observation import (  # noqa: F401 (OBS_DIM, MIRROR_SIGNS, GAP_CLIP re-exported)
     GAP_CLIP,
@@ -64,6 +68,7 @@ from jaxlc.sim.road import (
 )
 from jaxlc.sim.state import (  # noqa: F401 (the state types and phases re-exported)
     ACT_DIM,
+    ACTION_MIRROR,
     CRUISE,
     GAP,
     PHASES,
@@ -74,6 +79,8 @@ from jaxlc.sim.state import (  # noqa: F401 (the state types and phases re-expor
     EnvParams,
     EnvState,
     Traffic,
+    action_dim,
+    action_mirror,
     between,
 )
 from jaxlc.sim.traffic import inflow, traffic_accel
@@ -112,12 +119,13 @@ def _advance(
     kappa = road_curvature(state, p)
     in_rl = eg.phase == RL
     held = held_action(eg, action, p)
+    held_long = held_long_action(eg, action, p)  # None unless longitudinal = "policy"
     a_lat = p.max_yaw_acc * held
-    a_ego = ego_accel(state, p)
+    a_ego = ego_accel(state, p, held_long)
     m = move(tr, eg, traffic_accel(state, p), a_ego, a_lat, p, kappa)
     occupied = ego_lanes(eg, p)
     traffic, spawned = inflow(tr, m, occupied, (eg.phase == WAIT) & spawn, u, p, kappa)
-    ego = ego_phase(eg, m, a_ego, held, spawned, tr, u, p)
+    ego = ego_phase(eg, m, a_ego, held, held_long, spawned, tr, u, p)
     if p.curvature_drawn:  # a new episode, a new road (the traffic keeps its s and lanes)
         kappa = jnp.where(spawned, between(u.curvature, p.curvature_min, p.curvature_max), kappa)
     nb, leader_gap, leader_v = observe_lanes(traffic, ego, p, kappa)
@@ -153,7 +161,8 @@ def _advance(
         "phase": ego.phase,
         "reason": reason,
         "lane_change": accept,
-        "action": held,
+        # () the yaw acceleration's action; (2,) with the longitudinal one ("policy")
+        "action": held if held_long is None else jnp.stack([held, held_long]),
         **terms,  # each reward term by name (params.reward_terms)
         "episode_return": ep_return,
         "episode_steps": ego.steps,
@@ -174,7 +183,7 @@ class LaneChangeEnv:
         return Box(-jnp.inf, jnp.inf, (OBS_DIM,))
 
     def action_space(self, params: EnvParams) -> Box:
-        return Box(-1.0, 1.0, (ACT_DIM,))
+        return Box(-1.0, 1.0, (action_dim(params),))
 
     def reset(self, key: Array, params: EnvParams) -> tuple[Array, EnvState]:
         """Empty road, then ``warmup_steps`` of traffic; the ego spawns on a later step."""
@@ -210,6 +219,7 @@ class LaneChangeEnv:
             gap_time=f0,
             yielding=jnp.bool_(False),
             ep_return=f0,
+            held_long=f0 if action_dim(p) > 1 else None,
         )
         road = None
         if p.curvature_drawn:  # its own key: a constant road's draws are left as they were
@@ -221,7 +231,7 @@ class LaneChangeEnv:
         state = EnvState(traffic, ego, nb, leader_gap, leader_v, jnp.int32(0), road)
 
         def warm(s: EnvState, k: Array) -> tuple[EnvState, None]:
-            return _advance(k, s, jnp.zeros(ACT_DIM), p, spawn=False)[0], None
+            return _advance(k, s, jnp.zeros(action_dim(p)), p, spawn=False)[0], None
 
         state, _ = jax.lax.scan(warm, state, jax.random.split(k_warm, p.warmup_steps))
         return observation(state, p), state.replace(time=jnp.int32(0))

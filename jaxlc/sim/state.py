@@ -24,7 +24,10 @@ from jaxlc.sim import gap, reward
 
 WAIT, CRUISE, GAP, RL = 0, 1, 2, 3
 PHASES = ("wait", "cruise", "gap", "rl")
-ACT_DIM = 1
+ACT_DIM = 1  # the paper's action: the yaw acceleration alone (env.longitudinal = "idm")
+# Each action entry's sign under the reflection y -> -y: the yaw acceleration flips, the
+# longitudinal acceleration (env.longitudinal = "policy") does not.
+ACTION_MIRROR = (-1.0, 1.0)
 KMH = 1.0 / 3.6
 
 # An EnvConfig field (in the config's units) -> its EnvParams value (SI); any field not named
@@ -39,7 +42,7 @@ CONVERSIONS: dict[str, Callable[[Any], Any]] = {
 }
 # Fields that fix array shapes or loop lengths: static (``pytree_node=False``), so a change
 # compiles a new program; every other field is traced and may differ between vmapped models.
-STATIC = frozenset({"lanes", "slots_per_lane"})
+STATIC = frozenset({"lanes", "slots_per_lane", "longitudinal"})
 # EnvConfig fields that EnvParams holds as other fields, declared in the class below.
 DERIVED = frozenset({"warmup_time", "curvature", "reward_terms"})
 
@@ -64,6 +67,17 @@ def _with_env_config_fields(cls: type) -> type:
         setattr(cls, f.name, default)
     cls.__annotations__ = {**declared, **cls.__annotations__}
     return cls
+
+
+def action_dim(p: Any) -> int:
+    """The action's length under ``p`` (an ``EnvParams`` or ``EnvConfig``): 1, the yaw
+    acceleration; 2 with ``longitudinal = "policy"``, then the longitudinal one."""
+    return 2 if p.longitudinal == "policy" else 1
+
+
+def action_mirror(p: Any) -> tuple[float, ...]:
+    """``ACTION_MIRROR`` for ``p``'s action."""
+    return ACTION_MIRROR[: action_dim(p)]
 
 
 def curvature_range(value: float | tuple[float, float]) -> tuple[float, float]:
@@ -154,6 +168,9 @@ class Ego:
     gap_time: Array  # () s spent looking for a gap
     yielding: Array  # () bool, whether the target lane's lag yields
     ep_return: Array  # () return of the current manoeuvre
+    # () longitudinal action executed (held for k steps), in [-1, 1], with
+    # longitudinal = "policy"; None (no leaf) otherwise, whose state is the paper's.
+    held_long: Array | None = None
 
 
 @flax.struct.dataclass

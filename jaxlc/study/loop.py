@@ -17,7 +17,7 @@ from jax.experimental import multihost_utils
 
 from jaxlc import config
 from jaxlc.learn import train
-from jaxlc.sim.env import ACT_DIM, OBS_DIM
+from jaxlc.sim.env import OBS_DIM, action_dim
 from jaxlc.study import checkpoint, machine
 from jaxlc.study.multihost import to_host
 from jaxlc.study.rundir import RunDir
@@ -259,7 +259,7 @@ def host_devices(cfg: config.Config) -> int:
     models = len(train.grid_cells(cfg)) * cfg.train.seeds
     d = cfg.ddpg
     return machine.host_devices_for(
-        models, machine.largest_product(d.batch_size, (OBS_DIM, *d.hidden, ACT_DIM))
+        models, machine.largest_product(d.batch_size, (OBS_DIM, *d.hidden, action_dim(cfg.env)))
     )
 
 
