@@ -34,7 +34,7 @@ import jax.numpy as jnp
 
 from jaxlc.policy import load_policy
 from jaxlc.sim import observation
-from jaxlc.sim.env import OBS_DIM, EnvParams, action_dim
+from jaxlc.sim.env import ACTION_MIRROR, OBS_DIM, EnvParams, action_dim
 from jaxlc.sim.observation import LAYOUT
 from jaxlc.study import checkpoint
 from jaxlc.study.checkpoint import write_bytes_atomic, write_text_atomic
@@ -142,7 +142,7 @@ def _longitudinal(params: EnvParams) -> dict[str, Any]:
                 "meaning": "yaw acceleration",
                 "scale": float(params.max_yaw_acc),
                 "unit": "rad/s^2",
-                "mirror_sign": -1.0,
+                "mirror_sign": ACTION_MIRROR[0],
             },
             {
                 "index": 1,
@@ -150,7 +150,7 @@ def _longitudinal(params: EnvParams) -> dict[str, Any]:
                 "(within [-idm_b_max, idm_a_max], never past the desired speed)",
                 "scale": float(params.long_acc_bound),
                 "unit": "m/s^2",
-                "mirror_sign": 1.0,
+                "mirror_sign": ACTION_MIRROR[1],
             },
         ],
     }

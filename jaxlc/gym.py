@@ -69,6 +69,7 @@ _STEP_TAIL = (
     ("episode_return", 1),
     ("episode_steps", 1),
     ("offset", 1),
+    ("action", 1),  # action_dim entries (``_step_fields``)
     ("ready", 1),
     ("skipped_steps", 1),
     ("skipped_episodes", 1),
@@ -79,7 +80,8 @@ _STEP_TAIL = (
 def _step_fields(params: EnvParams) -> tuple[tuple[str, int], ...]:
     """What a step returns: the head, each of ``params``' reward terms, the tail."""
     terms = ((n, 1) for n in reward.names(params))
-    return (*_STEP_HEAD, *terms, *_STEP_TAIL[:3], ("action", action_dim(params)), *_STEP_TAIL[3:])
+    tail = ((n, action_dim(params) if n == "action" else size) for n, size in _STEP_TAIL)
+    return (*_STEP_HEAD, *terms, *tail)
 
 
 _RESET_FIELDS = (

@@ -180,12 +180,15 @@ def joint_table() -> str:
         name: {c["label"]: c for c in _load(study, "heldout.json")["cells"]}
         for name, study in studies
     }
-    rows = {name: _csv(study / "eval" / "heldout.csv") for name, study in studies}
     norms = ("norm_min_thw_s", "norm_duration_s", "norm_peak_lat_acc", "norm_peak_lat_jerk")
+    means = {
+        name: [_per_cell(_csv(study / "eval" / "heldout.csv"), n) for n in norms]
+        for name, study in studies
+    }
     for label in docs["joint"]:
         for name, _ in studies:
             c = docs[name][label]
-            shares = " | ".join(f"{100 * _per_cell(rows[name], n)[label]:.1f}%" for n in norms)
+            shares = " | ".join(f"{100 * m[label]:.1f}%" for m in means[name])
             lines.append(
                 f"| {label} | {name} | {c['lane_changes']:,} | {100 * c['success_mean']:.2f}% | "
                 f"[{100 * c['success_lo']:.2f}, {100 * c['success_hi']:.2f}]% | "

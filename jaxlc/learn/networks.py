@@ -76,10 +76,9 @@ class Actor(nn.Module):
         # kernels run faster than two half-height products; the FLOPs stay twice the plain
         # actor's (benchmarks/scripts/update_throughput.py).
         both = jnp.tanh(trunk(jnp.stack([obs, obs * signs])))  # (2, ..., act_dim)
-        if self.act_dim == 1:
-            return 0.5 * (both[0] - both[1])
         # mu(s) = (f(s) + A f(Ms)) / 2, A the action's signs: the yaw acceleration odd, the
-        # longitudinal acceleration even (mu(Ms) = A mu(s)).
+        # longitudinal acceleration even (mu(Ms) = A mu(s)); A's entries are +-1, so for the
+        # yaw action alone this is (f(s) - f(Ms)) / 2 to the bit.
         return 0.5 * (both[0] + jnp.asarray(ACTION_MIRROR[: self.act_dim], obs.dtype) * both[1])
 
 

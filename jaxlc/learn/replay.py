@@ -108,12 +108,11 @@ def sample(
         return batch
     flip = jax.random.bernoulli(jax.random.fold_in(key, 1), 0.5, (batch_size, 1))
     signs = jnp.where(flip, jnp.asarray(mirror, jnp.float32), 1.0)  # (batch, obs_dim)
+    if action_mirror is None:
+        action_mirror = (-1.0,) * batch["action"].shape[-1]
+    a_signs = jnp.where(flip, jnp.asarray(action_mirror, jnp.float32), 1.0)  # (batch, act_dim)
     return batch | {
         "obs": batch["obs"] * signs,
-        "action": (
-            jnp.where(flip, -batch["action"], batch["action"])
-            if action_mirror is None
-            else batch["action"] * jnp.where(flip, jnp.asarray(action_mirror, jnp.float32), 1.0)
-        ),
+        "action": batch["action"] * a_signs,
         "next_obs": batch["next_obs"] * signs,
     }

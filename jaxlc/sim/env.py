@@ -80,7 +80,6 @@ from jaxlc.sim.state import (  # noqa: F401 (the state types and phases re-expor
     EnvState,
     Traffic,
     action_dim,
-    action_mirror,
     between,
 )
 from jaxlc.sim.traffic import inflow, traffic_accel

@@ -75,11 +75,6 @@ def action_dim(p: Any) -> int:
     return 2 if p.longitudinal == "policy" else 1
 
 
-def action_mirror(p: Any) -> tuple[float, ...]:
-    """``ACTION_MIRROR`` for ``p``'s action."""
-    return ACTION_MIRROR[: action_dim(p)]
-
-
 def curvature_range(value: float | tuple[float, float]) -> tuple[float, float]:
     """``(min, max)`` of a config's ``env.curvature``: a number (a constant road) or a range."""
     if isinstance(value, tuple | list):
