@@ -168,6 +168,11 @@ class DDPGConfig:
     td3_target_clip: float = _f(0.5, 0.0, 2.0, doc="TD3 target smoothing noise clip")
     td3_policy_delay: int = _f(2, 1, 100, doc="TD3: critic updates per actor/target update")
     mirror: bool = _f(True, doc="reflect half of each batch across the road's axis")
+    mirror_pairs: bool = _f(
+        False,
+        doc="with mirror: a batch is batch_size/2 transitions and their reflections, so the "
+        "odd actor runs its trunk once per row (the plain actor's FLOPs)",
+    )
     huber_delta: float = _f(10.0, 0.0, doc="critic loss Huber at this TD error; 0 = squared")
     symmetric_actor: bool = _f(
         True, doc="actor odd under the road's reflection: mu(s) = (f(s) - f(Ms)) / 2"
@@ -364,6 +369,11 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError("config key 'env.command_distance': must be < env.gap_x_limit")
     if not d.hidden:
         raise ConfigError("config key 'ddpg.hidden': must list at least one layer width")
+    if d.mirror_pairs and (not d.mirror or d.batch_size % 2):
+        raise ConfigError(
+            "config key 'ddpg.mirror_pairs': needs ddpg.mirror = true and an even "
+            f"ddpg.batch_size, got mirror = {str(d.mirror).lower()}, batch_size = {d.batch_size}"
+        )
     for name in ("k", "memory"):
         if not getattr(g, name):
             raise ConfigError(f"config key 'grid.{name}': the grid needs at least one value")

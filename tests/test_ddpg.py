@@ -12,7 +12,7 @@ import pytest
 from jaxlc import config
 from jaxlc.config import DDPGConfig
 from jaxlc.learn import ddpg, learners
-from jaxlc.learn.networks import make_networks
+from jaxlc.learn.networks import Actor, make_networks
 from jaxlc.sim.observation import MIRROR_SIGNS
 from jaxlc.sim.observation import OBS_DIM as FULL_OBS
 
@@ -142,6 +142,48 @@ def test_symmetric_actor_is_odd_under_the_road_reflection():
     assert np.abs(a).max() > 0.1 and np.abs(np.asarray(plain.apply(params, s)) - a).max() > 0.01
     own_image = np.where(np.asarray(MIRROR_SIGNS) < 0, 0.0, s).astype(np.float32)
     np.testing.assert_array_equal(np.asarray(sym.apply(params, own_image)), 0.0)
+
+
+def test_the_paired_actor_reads_f_of_ms_off_the_batch():
+    """``Actor.paired`` on a batch [s; Ms] equals the odd actor on the same rows (one trunk
+    pass instead of two: rounding may differ), mu(Ms) = -mu(s) exactly; a plain actor's
+    ``paired`` is its ``__call__``; and an update on a paired batch with ``mirror_pairs`` on
+    equals the update with it off (same losses and params within float32 rounding)."""
+    cfg = dataclasses.replace(CFG, symmetric_actor=True, mirror=True, mirror_pairs=True)
+    sym, _ = make_networks(cfg)
+    params = jax.tree.map(
+        lambda p: p * 40.0, sym.init(jax.random.key(4), np.zeros((1, FULL_OBS), np.float32))
+    )
+    s = np.random.default_rng(4).normal(size=(16, FULL_OBS)).astype(np.float32)
+    pair = np.concatenate([s, s * np.asarray(MIRROR_SIGNS, np.float32)])
+    paired = np.asarray(sym.apply(params, pair, method=Actor.paired))
+    np.testing.assert_allclose(paired, np.asarray(sym.apply(params, pair)), rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(paired[16:], -paired[:16])
+    assert np.abs(paired).max() > 0.1
+    plain, _ = make_networks(CFG)
+    np.testing.assert_array_equal(
+        np.asarray(plain.apply(params, pair, method=Actor.paired)), plain.apply(params, pair)
+    )
+    learner = ddpg.init_learner(jax.random.key(5), FULL_OBS, cfg)
+    rng = np.random.default_rng(5)
+    half = {
+        "obs": s,
+        "action": rng.uniform(-1, 1, (16, 1)).astype(np.float32),
+        "reward": rng.normal(size=16).astype(np.float32),
+        "next_obs": rng.normal(size=(16, FULL_OBS)).astype(np.float32),
+        "terminated": np.zeros(16, np.float32),
+    }
+    sign = {"obs": MIRROR_SIGNS, "next_obs": MIRROR_SIGNS, "action": (-1.0,)}
+    batch = {
+        k: np.concatenate([v, v * np.asarray(sign.get(k, 1.0), np.float32)])
+        for k, v in half.items()
+    }
+    hyper = ddpg.Hyper.from_config(cfg)
+    off = dataclasses.replace(cfg, mirror_pairs=False)
+    (new_on, m_on), (new_off, m_off) = (ddpg.update(learner, batch, hyper, c) for c in (cfg, off))
+    _close(m_on, m_off)
+    _close(new_on.actor, new_off.actor)
+    _close(new_on.critic, new_off.critic)
 
 
 @pytest.fixture(scope="module")
@@ -290,13 +332,14 @@ def _dot_flops(jaxpr) -> int:
     return total
 
 
-@pytest.mark.parametrize("symmetric", [False, True])
-def test_benchmark_counts_the_products_that_the_update_computes(symmetric):
+@pytest.mark.parametrize("symmetric, pairs", [(False, False), (True, False), (True, True)])
+def test_benchmark_counts_the_products_that_the_update_computes(symmetric, pairs):
     """The benchmark's FLOP count against the dot_generals in the traced ``ddpg.update`` at
     the paper's sizes. JAX also forms the first critic layer's input gradient for the
     observation columns (the benchmark counts only the action columns, the ones the actor
-    needs): 2 x 64 x 300 x 14 FLOPs, 0.2% of the update."""
-    cfg, obs_dim, batch = DDPGConfig(symmetric_actor=symmetric), 14, 64
+    needs): 2 x 64 x 300 x 14 FLOPs, 0.2% of the update. On paired batches the odd actor's
+    update costs the plain actor's."""
+    cfg, obs_dim, batch = DDPGConfig(symmetric_actor=symmetric, mirror_pairs=pairs), 14, 64
     learner = jax.eval_shape(lambda k: ddpg.init_learner(k, obs_dim, cfg), jax.random.key(0))
     data = {
         "obs": jnp.zeros((batch, obs_dim)),
@@ -308,9 +351,12 @@ def test_benchmark_counts_the_products_that_the_update_computes(symmetric):
     traced = jax.make_jaxpr(lambda lrn: ddpg.update(lrn, data, ddpg.Hyper.from_config(cfg), cfg))
     in_update = _dot_flops(traced(learner).jaxpr)
     counted = load_benchmark("update_throughput").update_flops(
-        obs_dim, cfg.hidden, batch, 1, cfg.symmetric_actor
+        obs_dim, cfg.hidden, batch, 1, cfg.symmetric_actor, cfg.mirror_pairs
     )
     assert in_update - counted == 2 * batch * cfg.hidden[0] * obs_dim
+    if pairs:
+        plain = load_benchmark("update_throughput").update_flops(obs_dim, cfg.hidden, batch)
+        assert counted == plain
 
 
 # ---- TD3, the option -------------------------------------------------------------------

@@ -12,6 +12,7 @@ import pytest
 
 from jaxlc import config
 from jaxlc.evaluation import cases, heldout, safety
+from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.sim.env import EnvParams, LaneChangeEnv
 
 
@@ -136,8 +137,9 @@ def test_keys_for_lane_changes_hold_exactly_that_many(smoke_cfg: config.Config) 
 
 def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -> None:
     """A constant full-left policy on held-out cases; one case replayed with env.step: the
-    rollout's peak windowed jerks (lateral and longitudinal), peak longitudinal acceleration
-    and minimum lag TTC equal those computed from the replay."""
+    rollout's peak windowed jerks (lateral and longitudinal), peak longitudinal acceleration,
+    minimum lag TTC and UN R79's manoeuvre (the step the body first reaches into the target
+    lane, the first after it with no corner left in the origin lane) equal the replay's."""
     keys = cases.keys_for_lane_changes(smoke_cfg, 3, seed=0, batch=8)
     out = cases.evaluate_act(smoke_cfg, lambda obs: jnp.ones((obs.shape[0], 1)), keys=keys)
     start, _ = cases.programs(smoke_cfg, 1500)
@@ -148,13 +150,18 @@ def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -
     step = jax.jit(lambda k, s: env.step(k, s, jnp.ones(1), p))
     a_y, lag_ttc, entered = [float(state.ego.v * state.ego.omega)], [], False
     a_x = [float(state.ego.accel)]
-    for _ in range(200):
+    origin, lcm = p.lanes // 2, [-1, -1]  # R79's manoeuvre: first step in, first step across
+    for n in range(1, 201):
         # the lag counts from the step the body's corners first reach into the target lane
         entered = entered or _reaches(state, int(state.ego.target), p)
         lag_ttc.append(lag_ttc_of(state, p) if entered else math.inf)
         _, state, _, term, trunc, info = step(jax.random.fold_in(cs.key[c], state.time), state)
         a_y.append(float(state.ego.v * state.ego.omega))
         a_x.append(float(state.ego.accel))
+        if lcm[0] < 0 and _reaches(state, int(state.ego.target), p):
+            lcm[0] = n
+        if lcm[0] >= 0 and lcm[1] < 0 and not _reaches(state, origin, p):
+            lcm[1] = n
         if int(info["reason"]) != 0:
             break
     entered = entered or _reaches(state, int(state.ego.target), p)
@@ -172,6 +179,8 @@ def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -
     assert out["peak_long_acc"][0][c] == pytest.approx(np.max(np.abs(a_x[1:])), rel=1e-6)
     assert out["peak_long_jerk"][0][c] > 0  # the IDM ego's speed changes in the manoeuvre
     assert out["min_ttc"][0][c][1] == pytest.approx(min(lag_ttc), rel=1e-4)
+    assert 0 < lcm[0] < lcm[1]  # the body crossed over in the replay, so the test can fail
+    assert [int(out["lcm_start"][0][c]), int(out["lcm_end"][0][c])] == lcm
 
 
 def lag_ttc_of(state, p) -> float:
@@ -230,3 +239,29 @@ def test_headway_counts_once_the_body_overlaps_the_lane() -> None:
     assert not bool(safety.counted(at(y), p, jnp.bool_(False))[1])
     assert bool(safety.counted(at(y, 0.1), p, jnp.bool_(False))[1])
     assert _reaches(at(y, 0.1), origin + 1, p) and not _reaches(at(y), origin + 1, p)
+
+
+def test_the_r79_norm_times_the_manoeuvre_line_to_line() -> None:
+    """Hand-worked, dt = 0.1 s: a success whose body enters the target lane at RL step 12 and
+    leaves the origin lane at step 52 took 4.0 s over the lines (inside R79's 5 s) although the
+    whole RL phase took 8.0 s; from 12 to 63 it is 5.1 s (outside); a timeout that entered but
+    never crossed has no manoeuvre duration (inf), and its start counts."""
+    success, timeout = OUTCOMES.index("success"), OUTCOMES.index("timeout")
+    one = np.ones((1, 3), np.float32)
+    out = {
+        "reason": np.array([[success, success, timeout]]),
+        "steps": np.array([[80, 80, 150]]),
+        "lcm_start": np.array([[12, 12, 30]]),
+        "lcm_end": np.array([[52, 63, -1]]),
+        "peak_lat_acc": one,
+        "peak_lat_jerk": one,
+        "min_ttc": np.full((1, 3, 3), 9.0, np.float32),
+        "min_thw": np.full((1, 3, 3), 9.0, np.float32),
+        **{k: one for k in heldout.LONGITUDINAL},
+    }
+    m = heldout.lane_change_measures(out, 0, 0.1)
+    np.testing.assert_allclose(m["duration_s"], [8.0, 8.0, np.inf])
+    np.testing.assert_allclose(m["lcm_s"], [4.0, 5.1, np.inf])
+    np.testing.assert_allclose(m["lcm_start_s"], [1.2, 1.2, 3.0])
+    assert m["norm_lcm_s"].tolist() == [True, False, False]
+    assert m["norm_all"].tolist() == [True, False, False]

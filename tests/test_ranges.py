@@ -98,6 +98,11 @@ def test_scripted_controller_completes_lane_changes_at_every_edge(run, edge):
         (["env.desired_speed_min=5.0"], "'env.desired_speed_min': must be >= 10"),
         (["env.inflow_min=30.0"], "'env.inflow_min': must be >= 60"),
         (["env.entry_speed_max=201.0"], "'env.entry_speed_max': must be >= 0 and <= 200"),
+        (["ddpg.mirror_pairs=true", "ddpg.mirror=false"], "'ddpg.mirror_pairs': needs ddpg.mirror"),
+        (
+            ["ddpg.mirror_pairs=true", "ddpg.batch_size=63"],
+            "'ddpg.mirror_pairs': needs ddpg.mirror",
+        ),
     ],
 )
 def test_values_that_cannot_work_are_refused_with_one_message(overrides, words):

@@ -102,3 +102,32 @@ def test_mirrored_sampling_reflects_about_half_the_rows_and_draws_the_same_slots
         np.testing.assert_array_equal(np.asarray(mirrored[name]), np.asarray(plain[name]) * want)
     kept = np.asarray(mirrored["action"][~flipped, 0]) == np.asarray(plain["action"][~flipped, 0])
     assert kept.all()
+
+
+def test_paired_sampling_holds_each_drawn_transition_and_its_reflection(fns):
+    """``ddpg.mirror_pairs``: a batch of 2n rows is n stored transitions, then the same n
+    reflected in the same order (obs and next obs times the signs, each action entry times
+    its sign, reward and end kept): the layout ``Actor.paired`` reads."""
+    add, _, mem = fns
+    ids = np.arange(1, len(CAPS) * N + 1).reshape(len(CAPS), N)
+    mem = add(mem, *_rows(ids), jnp.ones((len(CAPS), N), bool))
+    one = jax.tree.map(lambda x: x[1], mem)  # model 1
+    signs = (-1.0, 1.0)
+    batch = {
+        k: np.asarray(v)
+        for k, v in replay.sample(one, jax.random.key(5), 64, signs, None, True).items()
+    }
+    half = {k: v[:32] for k, v in batch.items()}
+    assert set(half["obs"][:, 0].astype(int)) <= set(ids[1].tolist())  # written rows only
+    assert len(set(half["obs"][:, 0].astype(int))) > 1  # several transitions drawn
+    for name in ("obs", "next_obs"):
+        np.testing.assert_array_equal(batch[name][32:], half[name] * np.asarray(signs))
+    np.testing.assert_array_equal(batch["action"][32:], -half["action"])
+    for name in ("reward", "terminated"):
+        np.testing.assert_array_equal(batch[name][32:], half[name])
+    # an even second action entry keeps its sign
+    two = one.replace(action=jnp.concatenate([one.action, one.action + 1.0], axis=-1))
+    b2 = replay.sample(two, jax.random.key(5), 64, signs, (-1.0, 1.0), True)
+    np.testing.assert_array_equal(
+        np.asarray(b2["action"][32:]), np.asarray(b2["action"][:32]) * [-1, 1]
+    )

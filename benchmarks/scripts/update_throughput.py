@@ -62,12 +62,18 @@ from jaxlc import config  # noqa: E402
 from jaxlc.config import DDPGConfig  # noqa: E402
 from jaxlc.learn import ddpg, replay  # noqa: E402
 from jaxlc.sim.env import OBS_DIM  # noqa: E402
+from jaxlc.sim.observation import MIRROR_SIGNS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
 
 def update_products(
-    obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int = 1, symmetric: bool = False
+    obs_dim: int,
+    hidden: Sequence[int],
+    batch: int,
+    act_dim: int = 1,
+    symmetric: bool = False,
+    pairs: bool = False,
 ) -> list[tuple[int, int, int]]:
     """The matrix products ``(m, k, n)`` (an ``(m, k) @ (k, n)``) of one ``ddpg.update`` of
     one model.
@@ -84,7 +90,8 @@ def update_products(
       weight gradients of every actor layer.
 
     A symmetric actor (``ddpg.symmetric_actor``) runs its trunk twice, on s and on Ms: every
-    actor product above counts twice.
+    actor product above counts twice; on a paired batch (``ddpg.mirror_pairs``, ``pairs``)
+    Ms is a row of the batch already and ``Actor.paired`` runs it once.
     """
     actor = list(zip((obs_dim, *hidden), (*hidden, act_dim), strict=True))
     critic = list(zip((obs_dim + act_dim, *hidden), (*hidden, 1), strict=True))
@@ -98,7 +105,7 @@ def update_products(
     def igrad(layers: list[tuple[int, int]]) -> list[tuple[int, int, int]]:
         return [(batch, o, i) for i, o in layers]
 
-    trunks = 2 if symmetric else 1
+    trunks = 2 if symmetric and not pairs else 1
     target = fwd(actor) * trunks + fwd(critic)
     critic_step = fwd(critic) + wgrad(critic) + igrad(critic[1:])
     actor_step = (
@@ -112,11 +119,16 @@ def update_products(
 
 
 def update_flops(
-    obs_dim: int, hidden: Sequence[int], batch: int, act_dim: int = 1, symmetric: bool = False
+    obs_dim: int,
+    hidden: Sequence[int],
+    batch: int,
+    act_dim: int = 1,
+    symmetric: bool = False,
+    pairs: bool = False,
 ) -> int:
     """Matmul FLOPs of one ``ddpg.update`` of one model: 2 per multiply-add of
     ``update_products``."""
-    products = update_products(obs_dim, hidden, batch, act_dim, symmetric)
+    products = update_products(obs_dim, hidden, batch, act_dim, symmetric, pairs)
     return sum(2 * m * k * n for m, k, n in products)
 
 
@@ -233,8 +245,11 @@ def grid_update_call(
         done = np.zeros((models, n), np.float32)
         memory = add(memory, obs, action, reward, next_obs, done, np.ones((models, n), bool))
 
+    mirror = MIRROR_SIGNS if cfg.mirror else None
+
     def one(learner: ddpg.Learner, mem: replay.Replay, h: ddpg.Hyper, key: jax.Array):
-        return ddpg.update(learner, replay.sample(mem, key, cfg.batch_size), h, cfg)
+        batch = replay.sample(mem, key, cfg.batch_size, mirror, None, cfg.mirror_pairs)
+        return ddpg.update(learner, batch, h, cfg)
 
     def scan(learners: ddpg.Learner, memory: replay.Replay, hyper: ddpg.Hyper, keys: jax.Array):
         def body(carry: ddpg.Learner, k: jax.Array) -> tuple[ddpg.Learner, jax.Array]:
@@ -268,12 +283,17 @@ def sweep_rate(overrides: Sequence[str], out: Path) -> dict[str, float]:
     }
 
 
+# The actors ``actors`` compares: (ddpg.symmetric_actor, ddpg.mirror_pairs).
+ACTORS = {"plain": (False, False), "odd": (True, False), "paired": (True, True)}
+
+
 def actors(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
-    """The plain actor against the reflection-odd one (``ddpg.symmetric_actor``), side by
-    side in one run: MFLOP per model update, grid-updates/s of the default's update (nine
-    models, batch 64) and the default sweep's env-steps/s over ``--episodes`` episodes, each
-    with the matmul peak measured next to it. Runs alternate (plain, odd, plain, odd, ...) so
-    both see the same machine state; writes ``--out`` (CSV, one row per run)."""
+    """The plain actor, the reflection-odd one (``ddpg.symmetric_actor``) and the odd one on
+    paired batches (``ddpg.mirror_pairs``), side by side in one run: MFLOP per model update,
+    grid-updates/s of the default's update (nine models, batch 64, mirrored batches) and the
+    default sweep's env-steps/s over ``--episodes`` episodes, each with the matmul peak
+    measured next to it. Runs alternate (plain, odd, paired, plain, ...) so all see the same
+    machine state; writes ``--out`` (CSV, one row per run)."""
     p = argparse.ArgumentParser(description=actors.__doc__.splitlines()[0])
     p.add_argument("--rounds", type=int, default=2, help="alternating rounds of both actors")
     p.add_argument("--episodes", type=int, default=600, help="episodes of each default sweep")
@@ -290,21 +310,23 @@ def actors(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
 
     rows: list[dict[str, object]] = []
     for rnd in range(args.rounds):
-        for odd in (False, True):
-            cfg = dataclasses.replace(base, symmetric_actor=odd)
+        for actor, (odd, pairs) in ACTORS.items():
+            cfg = dataclasses.replace(base, symmetric_actor=odd, mirror_pairs=pairs)
             time_grid = _timed(grid_update_call(cfg, 9, (2000, 4000, 8000), args.updates))
             before = peak()
             rate = args.updates / statistics.median([time_grid() for _ in range(args.repeats)])
             after = peak()
-            flops = update_flops(OBS_DIM, cfg.hidden, cfg.batch_size, 1, odd)
-            sweep = sweep_rate(
-                [f"train.episodes={args.episodes}", f"ddpg.symmetric_actor={str(odd).lower()}"],
-                RESULTS / "actors_sweep",
-            )
+            flops = update_flops(OBS_DIM, cfg.hidden, cfg.batch_size, 1, odd, pairs)
+            overrides = [
+                f"train.episodes={args.episodes}",
+                f"ddpg.symmetric_actor={str(odd).lower()}",
+                f"ddpg.mirror_pairs={str(pairs).lower()}",
+            ]
+            sweep = sweep_rate(overrides, RESULTS / "actors_sweep")
             rows.append(
                 {
                     "round": rnd,
-                    "actor": "odd" if odd else "plain",
+                    "actor": actor,
                     "mflop_per_model_update": round(flops / 1e6, 3),
                     "grid_updates_per_s": round(rate, 2),
                     "peak_gflops_before_update": round(before, 1),

@@ -87,6 +87,11 @@ class Outcome:
     peak_lat_jerk: Array  # max |lateral jerk| over a 0.5 s moving average, m/s^3
     peak_long_acc: Array  # max |longitudinal acceleration|, m/s^2
     peak_long_jerk: Array  # max |longitudinal jerk| over a 0.5 s moving average, m/s^3
+    # UN R79's lane change manoeuvre (jaxlc.evaluation.safety): the RL step at which the body
+    # first overlaps the target lane, and the first after it with the body wholly past the
+    # origin lane; -1 until then.
+    lcm_start: Array  # int32
+    lcm_end: Array  # int32
     # Headway and TTC only where they count (safety.counted), else inf.
     min_ttc: Array  # (policies, cases, 3) min time-to-collision to lead, lag, own leader, s
     min_thw: Array  # (policies, cases, 3) min time headway, s
@@ -215,8 +220,10 @@ def _empty_outcome(cs: Cases, n_pol: int, p: EnvParams) -> Outcome:
     pc = (n_pol, cs.reason.shape[0])
     f0, i0, nan = jnp.zeros(pc, jnp.float32), jnp.zeros(pc, jnp.int32), jnp.full(pc, jnp.nan)
     ttc, thw = safety.conflicts(cs.state, p)  # (cases, 3): the manoeuvre's start state
-    counted, _ = safety.counted(cs.state, p, jnp.zeros(cs.reason.shape, bool))
+    counted, entered = safety.counted(cs.state, p, jnp.zeros(cs.reason.shape, bool))
     ttc, thw = (jnp.where(counted, x, jnp.inf) for x in (ttc, thw))
+    start = jnp.broadcast_to(jnp.where(entered, 0, -1).astype(jnp.int32), pc)
+    end = jnp.where(entered & safety.crossed(cs.state, p), start, -1)
     return Outcome(
         reason=jnp.broadcast_to(cs.reason, pc),
         performed=jnp.broadcast_to(cs.performed, pc),
@@ -232,6 +239,8 @@ def _empty_outcome(cs: Cases, n_pol: int, p: EnvParams) -> Outcome:
         peak_lat_jerk=f0,
         peak_long_acc=f0,
         peak_long_jerk=f0,
+        lcm_start=start,
+        lcm_end=end,
         min_ttc=jnp.broadcast_to(ttc, pc + (3,)),
         min_thw=jnp.broadcast_to(thw, pc + (3,)),
         partner=i0,
@@ -270,6 +279,9 @@ def _accumulate(
     yaw = ego_yaw_rate(new.ego, jnp.broadcast_to(road_curvature(new, p), live.shape), p)
     ttc, thw = (jnp.where(counted, x, jnp.inf) for x in safety.conflicts(new, p))
     hit = live & (info["reason"] == COLLISION)
+    step, entered = info["episode_steps"], counted[..., 0]  # counted: (lead, lag, own)
+    starts = live & entered & (out.lcm_start < 0)
+    ends = live & entered & safety.crossed(new, p) & (out.lcm_end < 0)
     kappa = jnp.broadcast_to(road_curvature(new, p), live.shape)  # (policies, cases)
     overlap = jax.vmap(jax.vmap(overlaps, (0, 0, None, 0)), (0, 0, None, 0))(
         new.traffic, new.ego, p, kappa
@@ -288,6 +300,8 @@ def _accumulate(
         peak_lat_jerk=peak(out.peak_lat_jerk, jnp.abs(jerk[0])),
         peak_long_acc=peak(out.peak_long_acc, jnp.abs(new.ego.accel)),
         peak_long_jerk=peak(out.peak_long_jerk, jnp.abs(jerk[1])),
+        lcm_start=jnp.where(starts, step, out.lcm_start),
+        lcm_end=jnp.where(ends, step, out.lcm_end),
         min_ttc=jnp.where(live[..., None], jnp.minimum(out.min_ttc, ttc), out.min_ttc),
         min_thw=jnp.where(live[..., None], jnp.minimum(out.min_thw, thw), out.min_thw),
         partner=jnp.where(hit, safety.partner(overlap, new.traffic.x, new.ego, p), out.partner),

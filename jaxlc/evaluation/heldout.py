@@ -48,7 +48,8 @@ HELDOUT_FIELDS = (
     + ENDS
     + ("success_rate", "success_lo", "success_hi", "failure_bound")
     + ("collision_rate", "collision_lo", "collision_hi")
-    + ("duration_s", "peak_lat_acc", "peak_lat_jerk", "min_ttc_s", "min_thw_s")
+    + ("duration_s", "lcm_s", "lcm_start_s", "peak_lat_acc", "peak_lat_jerk")
+    + ("min_ttc_s", "min_thw_s")
     + LONGITUDINAL
     + NORM_KEYS
     + CRIT_KEYS
@@ -84,10 +85,17 @@ def upper_bound(k: int, n: int, confidence: float = CONFIDENCE) -> float:
 
 def lane_change_measures(out: dict[str, np.ndarray], p: int, dt: float) -> dict[str, np.ndarray]:
     """Policy ``p``'s measures per case ``(cases,)``: the NORMS' measures (a failed lane change
-    has no duration: inf) and whether each norm, and all of them with success, hold."""
+    has no duration: inf) and whether each norm, and all of them with success, hold.
+
+    ``duration_s`` is the whole RL phase, ``lcm_s`` UN R79's lane change manoeuvre (the body
+    from first over the line to wholly across it) and ``lcm_start_s`` when it began after the
+    command (``jaxlc.evaluation.safety``)."""
     ok = out["reason"][p] == OUTCOMES.index("success")
+    start, end = out["lcm_start"][p], out["lcm_end"][p]
     m = {
         "duration_s": np.where(ok, out["steps"][p] * dt, np.inf),
+        "lcm_s": np.where(ok & (start >= 0) & (end >= 0), (end - start) * dt, np.inf),
+        "lcm_start_s": np.where(start >= 0, start * dt, np.inf),
         "peak_lat_acc": out["peak_lat_acc"][p],
         "peak_lat_jerk": out["peak_lat_jerk"][p],
         "min_ttc_s": out["min_ttc"][p].min(axis=-1),
@@ -135,6 +143,8 @@ def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, d
         "collision_rate": hits / n if n else math.nan,
         **dict(zip(("collision_lo", "collision_hi"), clopper_pearson(hits, n), strict=True)),
         "duration_s": _mean(m["duration_s"][ok]),
+        "lcm_s": _mean(m["lcm_s"][ok]),
+        "lcm_start_s": _mean(m["lcm_start_s"][ok]),
         "peak_lat_acc": _mean(m["peak_lat_acc"][ok]),
         "peak_lat_jerk": _mean(m["peak_lat_jerk"][ok]),
         **{k: _mean(m[k][ok]) for k in LONGITUDINAL},

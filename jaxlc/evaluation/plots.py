@@ -623,7 +623,7 @@ def heldout_norms(run_dir: Path) -> Path | None:
         ax.set_title(name.replace("_", " "), fontsize=9)
     fig.suptitle(
         f"{doc['lane_changes']} held-out lane changes per model (whiskers 1-99%; successes "
-        f"only for duration; TTC/THW drawn at most {TTC_SHOWN:g} s)",
+        f"only for the R79 manoeuvre; TTC/THW drawn at most {TTC_SHOWN:g} s)",
         fontsize=9,
     )
     fig.tight_layout()

@@ -325,19 +325,19 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
     norms = [n["measure"] for n in doc["norms"]]
     lines += [
         "| model | seed | success [95% CP] | out of bounds | collision | timeout | "
-        "duration s | peak lat. acc. m/s² | peak lat. jerk m/s³ | peak long. acc. m/s² | "
-        "peak long. jerk m/s³ | min TTC s, 5th pct. | min THW s, 5th pct. | "
-        + " | ".join(f"{m} ok" for m in norms)
-        + " | all norms |",
-        "|---" * (14 + len(norms)) + "|",
+        "duration s | R79 manoeuvre s | peak lat. acc. m/s² | peak lat. jerk m/s³ | "
+        "peak long. acc. m/s² | peak long. jerk m/s³ | min TTC s, 5th pct. | "
+        "min THW s, 5th pct. | " + " | ".join(f"{m} ok" for m in norms) + " | all norms |",
+        "|---" * (15 + len(norms)) + "|",
     ]
     for r in doc["rows"]:
         lines.append(
             f"| {r['label']} | {'' if r['seed'] is None else r['seed']} | "
             f"{_pct(r['success_rate'])} [{_pct(r['success_lo'])}, {_pct(r['success_hi'])}] "
             f"| {r['out_of_bounds']} | {r['collision']} | {r['timeout']} | "
-            f"{_f(r['duration_s'])} | {_f(r['peak_lat_acc'])} | {_f(r['peak_lat_jerk'])} | "
-            f"{_f(r.get('peak_long_acc'))} | {_f(r.get('peak_long_jerk'))} | "
+            f"{_f(r['duration_s'])} | {_f(r.get('lcm_s'))} | {_f(r['peak_lat_acc'])} | "
+            f"{_f(r['peak_lat_jerk'])} | {_f(r.get('peak_long_acc'))} | "
+            f"{_f(r.get('peak_long_jerk'))} | "
             f"{_tail(r, 'min_ttc_s')} | {_tail(r, 'min_thw_s')} | "
             + " | ".join(_pct(r[f"norm_{m}"]) for m in norms)
             + f" | {_pct(r['norm_all'])} |"

@@ -11,7 +11,15 @@ Measured on every step of the RL phase (the manoeuvre), the start state included
   vehicle is missing), 0 once the boxes overlap along the road; critical below ~1.5 s;
 - time headway, ``net gap / follower's speed`` (the ego behind a leader, the lag behind the
   ego): critical below ~0.9 s;
-- duration, against UN R79's 5 s for a lane change (ACSF category C).
+- the lane change manoeuvre's duration against UN R79's 5 s (ACSF category C, 5.6.4.6.5: the
+  manoeuvre "shall be completed in less than 5 seconds" for M1/N1 vehicles). R79's manoeuvre
+  is the part of the lane change procedure from the front wheel touching the lane marking to
+  the rear wheels wholly across it; here, from the step the ego's body first overlaps the
+  target lane to the step it first leaves the origin lane (``crossed``: the body's corners
+  stand in for the wheels, which makes it a little longer). The whole RL phase, from the
+  command to the success test holding in the target lane, is reported beside it
+  (``duration_s``) with no norm of its own, and so is the manoeuvre's start after the command
+  (``lcm_start_s``: R79 5.6.4.6.4 has the manoeuvre begin within 5 s of the procedure's start).
 
 Headway and time-to-collision count where the vehicles share a lane (``counted``): to the
 target lane's lead and lag from the step the ego's body first overlaps the target lane (from
@@ -36,7 +44,7 @@ from jaxlc.sim.road import body_in_lane, current_lane
 
 # Each norm: (measure, bound, True when the measure must stay below the bound, source).
 NORMS = (
-    ("duration_s", 5.0, True, "UN R79 (ACSF C): lane change in under 5 s"),
+    ("lcm_s", 5.0, True, "UN R79 (ACSF C): lane change manoeuvre (line to line) in under 5 s"),
     ("peak_lat_acc", 3.0, True, "ISO 11270: lateral acceleration <= 3 m/s²"),
     ("peak_lat_jerk", 5.0, True, "ISO 11270: lateral jerk (0.5 s average) <= 5 m/s³"),
     ("min_ttc_s", 1.5, False, "time-to-collision >= 1.5 s (critical below)"),
@@ -102,6 +110,12 @@ def counted(state, p, entered: Array) -> tuple[Array, Array]:
     # state.leader_* is the leader of the lane holding the centre: the origin lane's till then
     own = body_in_lane(eg, origin, p) & (current_lane(eg, p) == origin)
     return jnp.stack([entered, entered, own], axis=-1), entered
+
+
+def crossed(state, p) -> Array:
+    """``(...)`` bool: the ego's body is wholly out of the origin lane ``lanes // 2`` (UN R79's
+    lane change manoeuvre ends at the first such step after the body entered the target lane)."""
+    return ~body_in_lane(state.ego, p.lanes // 2, p)
 
 
 def lateral_acc(state) -> Array:

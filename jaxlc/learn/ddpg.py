@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import optax
 
 from jaxlc.config import DDPGConfig
-from jaxlc.learn.networks import make_networks
+from jaxlc.learn.networks import batch_actor, make_networks
 
 Params = dict
 
@@ -125,8 +125,9 @@ def update(
     del key
     actor, critic = make_networks(cfg, batch["action"].shape[-1])
     obs, act, next_obs = batch["obs"], batch["action"], batch["next_obs"]
+    policy = batch_actor(actor, cfg)  # (batch, obs_dim) -> (batch, act_dim)
 
-    next_act = actor.apply(learner.actor_target, next_obs)
+    next_act = policy(learner.actor_target, next_obs)
     next_q = critic.apply(learner.critic_target, next_obs, next_act)
     y = batch["reward"] + cfg.gamma * (1.0 - batch["terminated"]) * next_q  # (batch,)
 
@@ -135,7 +136,7 @@ def update(
         return jnp.sum(jnp.mean(critic_error(q, y, cfg), axis=-1)), q
 
     def actor_loss(params: Params) -> jax.Array:
-        return -jnp.mean(critic.apply(learner.critic, obs, actor.apply(params, obs)))
+        return -jnp.mean(critic.apply(learner.critic, obs, policy(params, obs)))
 
     (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(learner.critic)
     a_loss, a_grads = jax.value_and_grad(actor_loss)(learner.actor)

@@ -7,7 +7,8 @@ small and tanh does not saturate.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import functools
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import flax.linen as nn
@@ -65,21 +66,39 @@ class Actor(nn.Module):
     final_init: float = 3e-3
     mirror: tuple[float, ...] | None = None
 
-    @nn.compact
+    def setup(self) -> None:
+        self.mlp = _Trunk(self.hidden, self.act_dim, self.final_init)
+
     def __call__(self, obs: jax.Array) -> jax.Array:
-        trunk = _Trunk(self.hidden, self.act_dim, self.final_init, name="mlp")
         if self.mirror is None:
-            return jnp.tanh(trunk(obs))
+            return jnp.tanh(self.mlp(obs))
         signs = jnp.asarray(self.mirror, obs.dtype)  # (obs_dim,)
         # One trunk call on (2, ..., obs_dim): each layer is one product over s and Ms
         # together (twice the rows of the plain actor's) instead of two, which XLA's CPU
         # kernels run faster than two half-height products; the FLOPs stay twice the plain
         # actor's (benchmarks/scripts/update_throughput.py).
-        both = jnp.tanh(trunk(jnp.stack([obs, obs * signs])))  # (2, ..., act_dim)
+        both = jnp.tanh(self.mlp(jnp.stack([obs, obs * signs])))  # (2, ..., act_dim)
         # mu(s) = (f(s) + A f(Ms)) / 2, A the action's signs: the yaw acceleration odd, the
         # longitudinal acceleration even (mu(Ms) = A mu(s)); A's entries are +-1, so for the
         # yaw action alone this is (f(s) - f(Ms)) / 2 to the bit.
-        return 0.5 * (both[0] + jnp.asarray(ACTION_MIRROR[: self.act_dim], obs.dtype) * both[1])
+        return 0.5 * (both[0] + self._signs(obs) * both[1])
+
+    def paired(self, obs: jax.Array) -> jax.Array:
+        """mu of a paired batch ``(batch, obs_dim)`` = ``[s; Ms]`` (``replay.sample(pairs=True)``)
+        from one trunk pass over its rows: f(Ms) is a row of the batch already, so the odd
+        actor costs the plain actor's FLOPs. Equal to ``__call__`` on the same rows (the
+        trunk's rounding may differ with the product's height); a plain actor is ``__call__``.
+        """
+        if self.mirror is None:
+            return self(obs)
+        f = jnp.tanh(self.mlp(obs))  # (batch, act_dim): f(s) then f(Ms)
+        half = obs.shape[0] // 2
+        a = self._signs(obs)
+        mu = 0.5 * (f[:half] + a * f[half:])  # mu(s), (batch / 2, act_dim)
+        return jnp.concatenate([mu, a * mu])  # mu(Ms) = A mu(s): exact, A's entries are +-1
+
+    def _signs(self, obs: jax.Array) -> jax.Array:
+        return jnp.asarray(ACTION_MIRROR[: self.act_dim], obs.dtype)  # (act_dim,)
 
 
 class Critic(nn.Module):
@@ -99,6 +118,14 @@ def actor_out_dim(actor_params: Any) -> int:
     layers = actor_params["params"]["mlp"]
     last = max(layers, key=lambda name: int(name.rsplit("_", 1)[1]))
     return int(layers[last]["kernel"].shape[-1])
+
+
+def batch_actor(actor: Actor, cfg: DDPGConfig) -> Callable[[Any, jax.Array], jax.Array]:
+    """``actor.apply`` as an update applies it to a replay batch: ``Actor.paired`` when the
+    batches are reflection pairs (``ddpg.mirror_pairs``)."""
+    if cfg.mirror and cfg.mirror_pairs:
+        return functools.partial(actor.apply, method=Actor.paired)
+    return actor.apply
 
 
 def make_networks(cfg: DDPGConfig, act_dim: int = 1) -> tuple[Actor, Critic]:

@@ -83,6 +83,7 @@ def sample(
     batch_size: int,
     mirror: tuple[float, ...] | None = None,
     action_mirror: tuple[float, ...] | None = None,
+    pairs: bool = False,
 ) -> dict[str, jax.Array]:
     """``batch_size`` transitions drawn uniformly, with replacement, from the filled slots.
 
@@ -95,7 +96,15 @@ def sample(
     action times ``action_mirror`` (default: negated, the yaw acceleration; a longitudinal
     entry keeps its sign, ``jaxlc.sim.state.ACTION_MIRROR``); reward and end unchanged. The
     draw of the slots is the same either way.
+
+    With ``pairs`` (``ddpg.mirror_pairs``) ``batch_size // 2`` transitions are drawn and the
+    batch is those rows, then each one reflected, in that order: ``[s; Ms]``, the layout
+    ``Actor.paired`` reads so that the odd actor runs its trunk once per row.
     """
+    if pairs and mirror is not None:
+        half = sample(replay, key, batch_size // 2)
+        flipped = _reflect(half, mirror, action_mirror, True)
+        return {n: jnp.concatenate([v, flipped[n]]) for n, v in half.items()}
     idx = jax.random.randint(key, (batch_size,), 0, jnp.maximum(replay.size, 1))
     batch = {
         "obs": replay.obs[idx],
@@ -107,10 +116,22 @@ def sample(
     if mirror is None:
         return batch
     flip = jax.random.bernoulli(jax.random.fold_in(key, 1), 0.5, (batch_size, 1))
-    signs = jnp.where(flip, jnp.asarray(mirror, jnp.float32), 1.0)  # (batch, obs_dim)
+    return _reflect(batch, mirror, action_mirror, flip)
+
+
+def _reflect(
+    batch: dict[str, jax.Array],
+    mirror: tuple[float, ...],
+    action_mirror: tuple[float, ...] | None,
+    flip: jax.Array | bool,
+) -> dict[str, jax.Array]:
+    """The rows where ``flip`` (``(batch, 1)`` or one bool) reflected: obs and next obs times
+    the observation's signs, the action times ``action_mirror`` (default: every entry
+    negated); reward and end unchanged."""
     if action_mirror is None:
         action_mirror = (-1.0,) * batch["action"].shape[-1]
-    a_signs = jnp.where(flip, jnp.asarray(action_mirror, jnp.float32), 1.0)  # (batch, act_dim)
+    signs = jnp.where(flip, jnp.asarray(mirror, jnp.float32), 1.0)  # (batch | 1, obs_dim)
+    a_signs = jnp.where(flip, jnp.asarray(action_mirror, jnp.float32), 1.0)  # (batch | 1, act)
     return batch | {
         "obs": batch["obs"] * signs,
         "action": batch["action"] * a_signs,

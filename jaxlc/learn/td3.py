@@ -24,7 +24,7 @@ from jaxlc.learn.ddpg import (
     explore,
     fresh,
 )
-from jaxlc.learn.networks import make_networks
+from jaxlc.learn.networks import batch_actor, make_networks
 
 __all__ = ["Hyper", "Learner", "explore", "init_learner", "update"]
 
@@ -52,9 +52,10 @@ def update(
         raise ValueError("td3.update: TD3 needs a key for its target-action noise")
     actor, critic = make_networks(cfg, batch["action"].shape[-1])
     obs, act, next_obs = batch["obs"], batch["action"], batch["next_obs"]
+    policy = batch_actor(actor, cfg)  # (batch, obs_dim) -> (batch, act_dim)
     q_twins = jax.vmap(critic.apply, (0, None, None))  # (2, batch) from (2, ...) params
 
-    next_act = actor.apply(learner.actor_target, next_obs)
+    next_act = policy(learner.actor_target, next_obs)
     noise = cfg.td3_target_noise * jax.random.normal(key, next_act.shape, next_act.dtype)
     clip = cfg.td3_target_clip
     next_act = jnp.clip(next_act + jnp.clip(noise, -clip, clip), -1.0, 1.0)
@@ -68,7 +69,7 @@ def update(
     first = jax.tree.map(lambda x: x[0], learner.critic)  # the actor ascends the first twin
 
     def actor_loss(params: Params) -> jax.Array:
-        return -jnp.mean(critic.apply(first, obs, actor.apply(params, obs)))
+        return -jnp.mean(critic.apply(first, obs, policy(params, obs)))
 
     (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(learner.critic)
     a_loss, a_grads = jax.value_and_grad(actor_loss)(learner.actor)

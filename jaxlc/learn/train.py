@@ -244,6 +244,7 @@ def _learn(
             d.batch_size,
             MIRROR_SIGNS if d.mirror else None,
             ACTION_MIRROR[: memory.action.shape[-1]],
+            d.mirror_pairs,
         )
         return algo.update(learner, batch, h, d, key=jax.random.fold_in(k, 1))
 

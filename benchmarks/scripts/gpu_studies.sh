@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# The GPU studies of one device call, in order of priority, each trained, evaluated and packed
+# under $OUT before the next starts, so a call stopped at its limit returns what finished:
+#   bash benchmarks/scripts/gpu_studies.sh DEADLINE_S NAME "SWEEP ARGS" [NAME "SWEEP ARGS" ...]
+# Each study: python -m jaxlc.sweep ARGS --out runs/NAME, then python -m jaxlc.evaluate
+# runs/NAME --no-figures; packed as NAME_eval.tgz (config, summaries, report, eval/ without
+# traces, the commands' output and timing) and NAME_metrics.tgz (metrics/episodes.npz).
+set -u
+export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD
+end=$(( $(date +%s) + $1 )); shift
+OUT=${OUT:-out}; mkdir -p "$OUT"
+{ date -u; nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
+  python3 -c "import sys, jax, flax, optax; print(sys.version.split()[0], 'jax', jax.__version__, 'flax', flax.__version__, 'optax', optax.__version__, jax.devices())"
+} > "$OUT/machine.txt" 2>&1
+while [ $# -ge 2 ]; do
+  name=$1; args=$2; shift 2; run=runs/$name; mkdir -p "$run"
+  left=$(( end - $(date +%s) )); [ "$left" -gt 60 ] || break
+  t0=$(date +%s)
+  timeout "$left" python3 -m jaxlc.sweep --no-progress --out "$run" $args > "$run/sweep_output.txt" 2>&1
+  rc=$?; t1=$(date +%s)
+  echo "sweep $args: rc=$rc ${rc:+}$((t1 - t0)) s" >> "$run/timing.txt"
+  [ $rc -eq 0 ] || { tail -5 "$run/sweep_output.txt"; tar czf "$OUT/${name}_eval.tgz" "$run"/*.txt "$run"/*.toml 2>/dev/null; break; }
+  left=$(( end - $(date +%s) ))
+  timeout "$left" python3 -m jaxlc.evaluate "$run" --no-figures > "$run/evaluate_output.txt" 2>&1
+  rc=$?; t2=$(date +%s)
+  echo "evaluate: rc=$rc $((t2 - t1)) s" >> "$run/timing.txt"
+  cat "$run/timing.txt"
+  tar czf "$OUT/${name}_eval.tgz" --exclude=traces.npz "$run"/*.txt "$run"/*.toml "$run"/*.md "$run"/*.json "$run"/eval 2>/dev/null
+  tar czf "$OUT/${name}_metrics.tgz" "$run"/metrics/episodes.npz
+  ls -la "$OUT"
+done
