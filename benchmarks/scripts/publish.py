@@ -177,19 +177,20 @@ def _per_cell(rows: tuple[dict[str, str], ...], column: str) -> dict[str, float]
     return {label: float(np.mean(v)) for label, v in cells.items()}
 
 
-def joint_table(default: Path, joint: Path) -> str:
+def joint_table(default: Path, joint: Path, name: str = "joint") -> str:
     """Per cell, the joint policies (``configs/joint.toml``, evaluated in ``joint``) beside
     today's default's on the same seeds (``default``), held-out lane changes under the same
     rules: success (mean over seeds, the two-level interval), collisions with their one-sided
     95% bound, the share inside every norm, and each norm's share (headway, UN R79's
-    manoeuvre time, lateral acceleration and jerk; TTC holds in every lane change)."""
+    manoeuvre time, lateral acceleration and jerk; TTC holds in every lane change). ``name``
+    labels the second study's rows."""
     lines = [
         "| cell | policy | lane changes | success | 95% interval | collisions (bound) "
         "| inside every norm | headway ≥ 0.9 s | R79 manoeuvre < 5 s | lat. acc. ≤ 3 m/s² "
         "| lat. jerk ≤ 5 m/s³ |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    studies = (("default", default), ("joint", joint))
+    studies = (("default", default), (name, joint))
     docs = {
         name: {c["label"]: c for c in _load(study, "heldout.json")["cells"]}
         for name, study in studies
@@ -199,7 +200,7 @@ def joint_table(default: Path, joint: Path) -> str:
         name: [_per_cell(_csv(study / "eval" / "heldout.csv"), n) for n in norms]
         for name, study in studies
     }
-    for label in docs["joint"]:
+    for label in docs[name]:
         for name, _ in studies:
             c = docs[name][label]
             shares = " | ".join(f"{100 * m[label]:.1f}%" for m in means[name])
@@ -903,6 +904,9 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "roads": roads_table,
     "joint": lambda: joint_table(JOINT_STUDY / "default_s3", JOINT_STUDY),
     "joint-gpu": lambda: joint_table(JOINT_GPU / "default8", JOINT_GPU / "joint8"),
+    "idm-reward": lambda: joint_table(
+        JOINT_STUDY / "default_s3", JOINT_STUDY / "idm_reward_s3", "idm + reward"
+    ),
     "pairs": pairs_table,
     "joint-weights": joint_weights_table,
     "sim": sim_table,
