@@ -18,7 +18,7 @@ while [ $# -ge 2 ]; do
   t0=$(date +%s)
   timeout "$left" python3 -m jaxlc.sweep --no-progress --out "$run" $args > "$run/sweep_output.txt" 2>&1
   rc=$?; t1=$(date +%s)
-  echo "sweep $args: rc=$rc ${rc:+}$((t1 - t0)) s" >> "$run/timing.txt"
+  echo "sweep $args: rc=$rc $((t1 - t0)) s" >> "$run/timing.txt"
   [ $rc -eq 0 ] || { tail -5 "$run/sweep_output.txt"; tar czf "$OUT/${name}_eval.tgz" "$run"/*.txt "$run"/*.toml 2>/dev/null; break; }
   left=$(( end - $(date +%s) ))
   timeout "$left" python3 -m jaxlc.evaluate "$run" --no-figures > "$run/evaluate_output.txt" 2>&1

@@ -168,13 +168,18 @@ def _csv(path: Path) -> tuple[dict[str, str], ...]:
         return tuple(csv.DictReader(f))
 
 
-def _per_cell(rows: tuple[dict[str, str], ...], column: str) -> dict[str, float]:
-    """A heldout.csv column's mean over each cell's seeds, by the cell's label."""
+def _per_seed(rows: tuple[dict[str, str], ...], column: str) -> dict[str, np.ndarray]:
+    """A heldout.csv column's values over each cell's seeds, by the cell's label."""
     cells: dict[str, list[float]] = {}
     for r in rows:
         if r["cell"] != "":
             cells.setdefault(r["label"], []).append(float(r[column]))
-    return {label: float(np.mean(v)) for label, v in cells.items()}
+    return {label: np.asarray(v) for label, v in cells.items()}
+
+
+def _per_cell(rows: tuple[dict[str, str], ...], column: str) -> dict[str, float]:
+    """A heldout.csv column's mean over each cell's seeds, by the cell's label."""
+    return {label: float(np.mean(v)) for label, v in _per_seed(rows, column).items()}
 
 
 def joint_table(default: Path, joint: Path, name: str = "joint") -> str:
@@ -191,33 +196,30 @@ def joint_table(default: Path, joint: Path, name: str = "joint") -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     studies = (("default", default), (name, joint))
-    docs = {
-        name: {c["label"]: c for c in _load(study, "heldout.json")["cells"]}
-        for name, study in studies
-    }
+    drawn = {policy: _load(study, "heldout.json") for policy, study in studies}
+    docs = {policy: {c["label"]: c for c in d["cells"]} for policy, d in drawn.items()}
     norms = ("norm_min_thw_s", "norm_lcm_s", "norm_peak_lat_acc", "norm_peak_lat_jerk")
     means = {
-        name: [_per_cell(_csv(study / "eval" / "heldout.csv"), n) for n in norms]
-        for name, study in studies
+        policy: [_per_cell(_csv(study / "eval" / "heldout.csv"), n) for n in norms]
+        for policy, study in studies
     }
     for label in docs[name]:
-        for name, _ in studies:
-            c = docs[name][label]
-            shares = " | ".join(f"{100 * m[label]:.1f}%" for m in means[name])
+        for policy, _ in studies:
+            c = docs[policy][label]
+            shares = " | ".join(f"{100 * m[label]:.1f}%" for m in means[policy])
             lines.append(
-                f"| {label} | {name} | {c['lane_changes']:,} | {100 * c['success_mean']:.2f}% | "
+                f"| {label} | {policy} | {c['lane_changes']:,} | {100 * c['success_mean']:.2f}% | "
                 f"[{100 * c['success_lo']:.2f}, {100 * c['success_hi']:.2f}]% | "
                 f"{c['collisions']} (< {100 * c['collision_bound']:.2f}%) | "
                 f"{100 * c['norm_all']:.1f}% | {shares} |"
             )
-    counted = _load(joint, "heldout.json")["conflicts_counted"]
-    drawn = {name: _load(study, "heldout.json") for name, study in studies}
+    counted = drawn[name]["conflicts_counted"]
     gaps = "; ".join(
-        f"{name}: {d['cases']:,} cases drawn for {d['lane_changes']:,} lane changes, "
+        f"{policy}: {d['cases']:,} cases drawn for {d['lane_changes']:,} lane changes, "
         f"{100 * (1 - d['lane_changes'] / d['cases']):.1f}% with no lane change"
-        for name, d in drawn.items()
+        for policy, d in drawn.items()
     )
-    rule = _duration_rule(_load(joint, "heldout.json"))
+    rule = _duration_rule(drawn[name])
     return "\n".join(
         [*lines, "", f"Headway and time-to-collision counted {counted}. {rule} Gaps found: {gaps}."]
     )
@@ -240,12 +242,7 @@ def pairs_table() -> str:
         "| auc (rows; pairs) | converged, episode (rows; pairs) |",
         "|---|---|---|---|---|",
     ]
-    per_seed: dict[str, dict[str, np.ndarray]] = {r: {} for r in runs}
-    for r in runs:
-        for row in held[r]:
-            if row["cell"] != "":
-                cell = per_seed[r].setdefault(row["label"], np.zeros(0))
-                per_seed[r][row["label"]] = np.append(cell, float(row["success_rate"]))
+    per_seed = {r: _per_seed(held[r], "success_rate") for r in runs}
     success = {r: _per_cell(held[r], "success_rate") for r in runs}
     auc = {r: _per_cell(conv[r], "auc") for r in runs}
     converged = {r: _per_cell(conv[r], "converged") for r in runs}
