@@ -142,6 +142,13 @@ class EnvConfig:
     long_acc_bound: float = _f(
         2.0, 0.0, 10.0, open_lo=True, doc="m/s^2, the policy's longitudinal authority"
     )
+    assist: str = _f(
+        "none",
+        doc="'none' (the policy's action is executed) or 'fitting' (a driver-assist layer adds "
+        "jaxlc.sim.controller.fitting_action, which holds the origin lane and adjusts the "
+        "speed until the gap fits the headway norm, to the policy's action in the RL phase: "
+        "the policy learns a residual on it)",
+    )
 
 
 @dataclass(frozen=True)
@@ -255,6 +262,7 @@ class Config:
 CHOICES: dict[str, tuple[str, ...]] = {
     "ddpg.learner": ("ddpg", "td3"),
     "env.longitudinal": ("idm", "policy"),
+    "env.assist": ("none", "fitting"),
 }
 
 _TABLES: dict[str, type] = {

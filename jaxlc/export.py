@@ -118,6 +118,7 @@ def sidecar(path: Path, meta: dict[str, Any], run_dir: Path, fmt: str) -> dict[s
             "k": meta["k"],
             "dt_s": float(params.dt),
             **_longitudinal(params),
+            **_assist(params),
         },
         "symmetric_actor": bool(meta.get("symmetric_actor", False)),
         "checkpoint": str(path.relative_to(run_dir)),
@@ -153,6 +154,18 @@ def _longitudinal(params: EnvParams) -> dict[str, Any]:
                 "mirror_sign": ACTION_MIRROR[1],
             },
         ],
+    }
+
+
+def _assist(params: EnvParams) -> dict[str, Any]:
+    """What the run's env adds to the graph's action (``env.assist``), where it adds any: the
+    graph alone is then a residual, not the driving policy."""
+    if params.assist == "none":
+        return {}
+    return {
+        "assist": params.assist,
+        "assist_note": "the executed action is clip(action + jaxlc.sim.controller."
+        "fitting_action(obs, params, time=manoeuvre time), -1, 1): this graph is the residual",
     }
 
 

@@ -86,10 +86,19 @@ class LaneChangeState(environment.EnvState):
 
 
 class LaneChangeGymnax(environment.Environment):
-    """The lane-change task for gymnax-based learners; pure, jittable, vmaps over envs."""
+    """The lane-change task for gymnax-based learners; pure, jittable, vmaps over envs.
+
+    ``params`` (``params_for(...)``) become the env's ``default_params``, which gymnax's
+    parameterless ``num_actions`` reads: the joint ego's is 2."""
+
+    def __init__(self, params: LaneChangeParams | None = None) -> None:
+        super().__init__()
+        self._params = params
 
     @property
     def default_params(self) -> LaneChangeParams:
+        if self._params is not None:
+            return self._params
         return params_for(EnvParams())  # the paper's: EnvParams' defaults are the config's
 
     def reset_env(self, key: Array, params: LaneChangeParams) -> tuple[Array, LaneChangeState]:

@@ -143,3 +143,16 @@ def test_update_ratio_divides_transitions_by_updates_per_phase():
     u[5:, 0] = 3  # more updates in model 0's second half: fewer transitions per update there
     (a, _) = ratios(t, u)
     assert a["second_half"] == 1.0 and a["first_10pct"] == 3.0
+
+
+def test_gap_fitting_runs_both_controllers_on_the_same_lane_changes():
+    gap_fitting = load_benchmark("gap_fitting")
+    rows = gap_fitting.rows_for(str(config.CONFIG_DIR / "joint.toml"), True, 0, 10, 1500)
+    scripted, fitting = rows
+    assert (scripted["controller"], fitting["controller"]) == ("scripted", "fitting")
+    assert scripted["lane_changes"] == fitting["lane_changes"] >= 10
+    for r in rows:
+        ends = sum(r[c] for c in ("success", "timeout", "out_of_bounds", "collision"))
+        assert ends == r["lane_changes"] and 0.0 <= r["norm_all"] <= r["norm_min_thw_s"] <= 1.0
+    # it waits for the lead's headway, which the baseline does not
+    assert fitting["thw_crit_lead"] <= scripted["thw_crit_lead"]

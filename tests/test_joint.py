@@ -163,6 +163,9 @@ def test_the_wrappers_spaces_follow_the_action() -> None:
     np.testing.assert_array_equal(info["action"], [0.25, -0.5])  # both executed, in order
     assert LaneChangeGymnax().action_space(params_for(p)).shape == (2,)
     assert LaneChangeGymnax().action_space().shape == (1,)
+    joint = LaneChangeGymnax(params_for(p))
+    assert joint.num_actions == 2 and joint.action_space().shape == (2,)
+    assert LaneChangeGymnax().num_actions == 1
 
 
 def test_joint_toml_is_the_default_with_the_joint_keys() -> None:

@@ -315,6 +315,32 @@ def joint_weights_table() -> str:
     return "\n".join(lines)
 
 
+GAP_FITTING = ROOT / "benchmarks" / "gap_fitting_probe"
+
+
+def gap_fitting_table() -> str:
+    """The gap-fitting controller against the scripted baseline (``gap_fitting.py``): per
+    config, whether the manoeuvre time is observed, held-out seed and controller, the
+    outcomes and the shares inside every norm and inside the headway norm."""
+    lines = [
+        "| config | time observed | held-out seed | controller | lane changes | success "
+        "| collisions | timeouts | inside every norm | headway ≥ 0.9 s | lead / lag under 0.9 s "
+        "| manoeuvre starts after |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in _csv(GAP_FITTING / "results.csv"):
+        n = int(r["lane_changes"])
+        lines.append(
+            f"| `{Path(r['config']).name}` | {'yes' if r['time_observed'] == 'True' else 'no'} "
+            f"| {r['seed']} | {r['controller']} | {n:,} | {100 * int(r['success']) / n:.1f}% "
+            f"| {r['collision']} | {r['timeout']} | {100 * float(r['norm_all']):.1f}% "
+            f"| {100 * float(r['norm_min_thw_s']):.1f}% "
+            f"| {100 * float(r['thw_crit_lead']):.1f}% / {100 * float(r['thw_crit_lag']):.1f}% "
+            f"| {float(r['lcm_start_s']):.2f} s |"
+        )
+    return "\n".join(lines)
+
+
 def roads_table() -> str:
     """The roads study's policies (``configs/roads.toml``) and the straight-trained default's
     on the same held-out lane changes of straight and curved roads (``benchmarks/scripts/probe.py
@@ -904,6 +930,13 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "idm-reward": lambda: joint_table(
         JOINT_STUDY / "default_s3", JOINT_STUDY / "idm_reward_s3", "idm + reward"
     ),
+    "joint-assist": lambda: joint_table(
+        JOINT_STUDY / "default_s3", JOINT_STUDY / "assist_s3", "joint + assist"
+    ),
+    "joint-assist-w200": lambda: joint_table(
+        JOINT_STUDY / "default_s3", JOINT_STUDY / "assist_w200_s3", "assist + w200"
+    ),
+    "gap-fitting": gap_fitting_table,
     "pairs": pairs_table,
     "joint-weights": joint_weights_table,
     "sim": sim_table,

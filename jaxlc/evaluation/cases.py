@@ -35,7 +35,7 @@ from jaxlc.learn import tree
 from jaxlc.learn.networks import make_networks
 from jaxlc.learn.train import check_devices
 from jaxlc.sim.collision import overlaps
-from jaxlc.sim.controller import scripted_action
+from jaxlc.sim.controller import baseline_action
 from jaxlc.sim.env import RL, EnvParams, EnvState, LaneChangeEnv, action_dim
 from jaxlc.sim.observation import OBS_DIM, observation, target_gaps
 from jaxlc.sim.reward import COLLISION
@@ -51,7 +51,7 @@ class Policies:
 
     actor: Any  # actor params pytree
     k: Array  # (policies,) int32 action-update step
-    scripted: Array  # (policies,) bool: act with controller.scripted_action, not the actor
+    scripted: Array  # (policies,) bool: act with controller.baseline_action, not the actor
 
 
 @flax.struct.dataclass
@@ -328,7 +328,7 @@ def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Call
         def body(c: tuple) -> tuple:
             i, state, obs, done, out, trace, hist, entered = c
             mu = jax.vmap(actor_apply)(pol.actor, obs)  # (policies, cases, action_dim)
-            action = jnp.where(pol.scripted[:, None, None], scripted_action(obs, base), mu)
+            action = jnp.where(pol.scripted[:, None, None], baseline_action(obs, base), mu)
             keys = jax.vmap(jax.vmap(jax.random.fold_in))(bcast(cs.key), state.time)
             new_obs, new, r, _, _, info = jax.vmap(step_policy)(pol.k, keys, state, action)
             live = ~done  # (policies, cases); only live cases are in the RL phase

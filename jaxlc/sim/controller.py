@@ -21,7 +21,9 @@ With kappa in place of kappa_d the yaw rate of the target lane would be off by
 v*kappa^2*d/(1 - kappa*d), which the feedback turns into a standing offset of
 3*v^2*kappa^2*d/p^2 (0.9 m at kappa = 0.01, v = 33 m/s, d = 3.7 m): no success.
 It reads only the observation and the params, so it is a drop-in baseline for a learned
-actor.
+actor. ``fitting_action`` drives the same law toward the origin lane's centre, and adjusts
+the speed, until the accepted gap fits the headway norm (a reference for joint control), and
+``assist_action`` adds it under a policy (``env.assist = "fitting"``).
 """
 
 from __future__ import annotations
@@ -29,8 +31,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.sim.env import EnvParams, action_dim
-from jaxlc.sim.observation import INDEX, scale
+from jaxlc.sim.observation import INDEX, observation, scale
+from jaxlc.sim.state import RL, EnvParams, EnvState, action_dim
 
 DEFAULT_POLE = 1.2  # 1/s: a lane change of about 4-5 s, inside the 3-8 s of human drivers
 _READ = ("v", "accel", "psi", "omega", "offset", "curvature")
@@ -41,16 +43,96 @@ def scripted_action(obs: Array, params: EnvParams, pole: float = DEFAULT_POLE) -
     with ``longitudinal = "policy"`` its second entry is 0: the IDM's acceleration, unchanged
     (the baseline drives as the paper's ego does)."""
     raw = {n: obs[..., INDEX[n]] * scale(n, params) for n in _READ}
+    lateral = _pole_placement(raw, raw["offset"], params, pole)
+    if action_dim(params) == 1:
+        return lateral
+    return jnp.concatenate([lateral, jnp.zeros_like(lateral)], axis=-1)
+
+
+def _pole_placement(raw: dict[str, Array], e: Array, params: EnvParams, pole: float) -> Array:
+    """``(..., 1)`` yaw action of the law above toward the lane at offset ``e`` (m) from the
+    ego; the ego's own position is read from the observed offset to the target lane."""
     v = jnp.maximum(raw["v"], 1.0)
-    psi, e, kappa = raw["psi"], raw["offset"], raw["curvature"]
-    target = params.lanes // 2 - jnp.sign(e)  # the target lies across the offset
-    d = (target + 0.5) * params.lane_width - 0.5 * params.lanes * params.lane_width + e
+    psi, kappa = raw["psi"], raw["curvature"]
+    target = params.lanes // 2 - jnp.sign(raw["offset"])  # the target lies across the offset
+    d = (target + 0.5) * params.lane_width - 0.5 * params.lanes * params.lane_width
+    d = d + raw["offset"]  # the ego's distance from the road's centre line
     kappa_d = kappa / (1.0 - kappa * d)  # exactly 0 on a straight road
     cos_psi = jnp.cos(psi)
     omega_r = raw["omega"] - kappa_d * raw["v"] * cos_psi  # relative to the lane's yaw rate
     feed_forward = kappa_d * raw["accel"] * cos_psi
     a_lat = feed_forward - (pole**3 * e + 3 * pole**2 * v * psi + 3 * pole * v * omega_r) / v
-    lateral = jnp.clip(a_lat / params.max_yaw_acc, -1.0, 1.0)[..., None]
+    return jnp.clip(a_lat / params.max_yaw_acc, -1.0, 1.0)[..., None]
+
+
+# The gap-fitting controller's constants (``fitting_action``), chosen by hand from a few trials
+# on held-out cases (benchmarks/gap_fitting_probe/).
+FIT_HEADWAY = 1.0  # s: the 0.9 s headway norm plus a margin for the prediction
+FIT_LOOKAHEAD = 0.8  # s: the gaps are predicted at today's speeds this far ahead
+FIT_GO_AFTER = 3.0  # s after the command: from then on a gap at the acceptance's headway will do
+_FIT_READ = _READ + ("time", "lead_gap", "lead_dv", "lag_gap", "lag_dv")
+
+
+def fitting_action(
+    obs: Array,
+    params: EnvParams,
+    pole: float = DEFAULT_POLE,
+    headway: float = FIT_HEADWAY,
+    lookahead: float = FIT_LOOKAHEAD,
+    go_after: float = FIT_GO_AFTER,
+    time: Array | None = None,
+) -> Array:
+    """``(..., OBS_DIM) -> (..., action_dim)``: a scripted reference for joint control that
+    fits the ego into the accepted gap before it crosses. It holds the origin lane (the same
+    pole placement toward the origin lane's centre) until the time headways to the target
+    lane's lead and lag, predicted ``lookahead`` s ahead at today's speeds, are both at least
+    ``headway``, then changes lane as ``scripted_action`` does; once its body overlaps the
+    target lane it goes on whatever the gaps. A gap too short to hold the ego at ``headway``
+    from both (lead gap + lag gap < ``headway`` * (ego's speed + lag's)) is not waited for:
+    the ego goes at once, as ``scripted_action`` does. While the gap does not fit, the
+    longitudinal action (``longitudinal = "policy"``) brakes fully for a short lead or a
+    faster lag (which then passes) and accelerates fully away from a slower lag. From
+    ``go_after`` s after the command a gap at the acceptance's own headway
+    (``gap_time_headway``) is enough. The manoeuvre time is ``time`` (s), else the observed
+    one, which reads 0 unless ``env.terminal_timeout``: then the fallback never comes. Odd
+    under the road's reflection in the lateral action, even in the longitudinal one, as a
+    learned policy is."""
+    raw = {n: obs[..., INDEX[n]] * scale(n, params) for n in _FIT_READ}
+    v = jnp.maximum(raw["v"], 1.0)
+    v_lag = jnp.maximum(raw["v"] + raw["lag_dv"], 1.0)
+    lead_h = (raw["lead_gap"] + raw["lead_dv"] * lookahead) / v  # a missing vehicle: 100 m
+    lag_h = (raw["lag_gap"] - raw["lag_dv"] * lookahead) / v_lag
+    fits = (lead_h >= headway) & (lag_h >= headway)
+    too_short = raw["lead_gap"] + raw["lag_gap"] < headway * (v + v_lag)
+    now = raw["time"] if time is None else time
+    late = (now >= go_after) & (jnp.minimum(lead_h, lag_h) >= params.gap_time_headway)
+    e = raw["offset"]  # from the target lane's centre; about a lane width while waiting
+    entered = jnp.abs(e) < 0.5 * (params.lane_width + params.vehicle_width)  # heading ~ 0
+    go = fits | too_short | late | entered
+    toward = jnp.where(go, e, e - jnp.sign(e) * params.lane_width)  # target or origin centre
+    lateral = _pole_placement(raw, toward, params, pole)
     if action_dim(params) == 1:
         return lateral
-    return jnp.concatenate([lateral, jnp.zeros_like(lateral)], axis=-1)
+    short_lead, short_lag = lead_h < headway, lag_h < headway
+    brake = short_lead | (short_lag & (raw["lag_dv"] > 0.0))
+    longitudinal = jnp.where(fits, 0.0, jnp.where(brake, -1.0, jnp.where(short_lag, 1.0, 0.0)))
+    return jnp.concatenate([lateral, longitudinal[..., None]], axis=-1)
+
+
+def assist_action(state: EnvState, params: EnvParams) -> Array:
+    """``(action_dim,)``: what the driver-assist layer of ``env.assist = "fitting"`` adds to
+    the policy's executed action in the RL phase (0 before it): ``fitting_action`` on the
+    state's observation, with the manoeuvre time it has run (the assist keeps its own clock,
+    whether or not the policy observes the time)."""
+    obs = observation(state, params)
+    a = fitting_action(obs, params, time=state.ego.steps * params.dt)
+    return jnp.where(state.ego.phase == RL, a, 0.0)
+
+
+def baseline_action(obs: Array, params: EnvParams) -> Array:
+    """The held-out evaluation's baseline row: ``scripted_action``, or with a driver-assist
+    layer (``env.assist``) nothing on top of it (the assist alone, itself a scripted
+    controller)."""
+    if params.assist != "none":
+        return jnp.zeros(obs.shape[:-1] + (action_dim(params),), obs.dtype)
+    return scripted_action(obs, params)

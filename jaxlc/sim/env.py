@@ -47,6 +47,7 @@ from jax import Array
 from jaxlc.config import Config, EnvConfig
 from jaxlc.sim import reward
 from jaxlc.sim.collision import collided
+from jaxlc.sim.controller import assist_action
 from jaxlc.sim.ego import ego_accel, ego_phase, gap_decision, held_action, held_long_action
 from jaxlc.sim.motion import move
 from jaxlc.sim.observation import (  # noqa: F401 (OBS_DIM, MIRROR_SIGNS, GAP_CLIP re-exported)
@@ -119,8 +120,13 @@ def _advance(
     in_rl = eg.phase == RL
     held = held_action(eg, action, p)
     held_long = held_long_action(eg, action, p)  # None unless longitudinal = "policy"
-    a_lat = p.max_yaw_acc * held
-    a_ego = ego_accel(state, p, held_long)
+    lat, lon = held, held_long  # executed: the policy's, plus the assist's (env.assist)
+    if p.assist != "none":  # static: the default's program has no assist in it
+        extra = assist_action(state, p)  # (action_dim,)
+        lat = jnp.clip(held + extra[0], -1.0, 1.0)
+        lon = None if held_long is None else jnp.clip(held_long + extra[1], -1.0, 1.0)
+    a_lat = p.max_yaw_acc * lat
+    a_ego = ego_accel(state, p, lon)
     m = move(tr, eg, traffic_accel(state, p), a_ego, a_lat, p, kappa)
     occupied = ego_lanes(eg, p)
     traffic, spawned = inflow(tr, m, occupied, (eg.phase == WAIT) & spawn, u, p, kappa)

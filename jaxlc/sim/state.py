@@ -42,7 +42,7 @@ CONVERSIONS: dict[str, Callable[[Any], Any]] = {
 }
 # Fields that fix array shapes or loop lengths: static (``pytree_node=False``), so a change
 # compiles a new program; every other field is traced and may differ between vmapped models.
-STATIC = frozenset({"lanes", "slots_per_lane", "longitudinal"})
+STATIC = frozenset({"lanes", "slots_per_lane", "longitudinal", "assist"})
 # EnvConfig fields that EnvParams holds as other fields, declared in the class below.
 DERIVED = frozenset({"warmup_time", "curvature", "reward_terms"})
 
