@@ -350,12 +350,13 @@ def test_benchmark_counts_the_products_that_the_update_computes(symmetric, pairs
     }
     traced = jax.make_jaxpr(lambda lrn: ddpg.update(lrn, data, ddpg.Hyper.from_config(cfg), cfg))
     in_update = _dot_flops(traced(learner).jaxpr)
-    counted = load_benchmark("update_throughput").update_flops(
-        obs_dim, cfg.hidden, batch, 1, cfg.symmetric_actor, cfg.mirror_pairs
+    bench = load_benchmark("update_throughput")
+    counted = bench.matmul_flops(
+        bench.update_products(obs_dim, cfg.hidden, batch, 1, cfg.symmetric_actor, cfg.mirror_pairs)
     )
     assert in_update - counted == 2 * batch * cfg.hidden[0] * obs_dim
     if pairs:
-        plain = load_benchmark("update_throughput").update_flops(obs_dim, cfg.hidden, batch)
+        plain = bench.matmul_flops(bench.update_products(obs_dim, cfg.hidden, batch))
         assert counted == plain
 
 

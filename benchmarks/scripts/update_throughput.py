@@ -8,7 +8,7 @@ Measured in one run, so that both figures see the same machine state:
    a batch from the model's replay memory (capacities cycle through ``--memories`` under a
    cap_max of their maximum) and runs ``ddpg.update``; ``--updates`` steps run in one
    ``lax.scan``; median over ``--repeats`` calls after a compiling call;
-3. achieved GFLOP/s of the update = grid-updates/s x models x ``update_flops`` and its share of
+3. achieved GFLOP/s of the update = grid-updates/s x models x ``matmul_flops`` and its share of
    the peak. Only matmul FLOPs count (see ``update_products``); elementwise work, Adam and the
    sampling gather are the overhead that keeps the share below 100 %;
 4. where one grid update's time goes: its matrix products timed alone at their own shapes
@@ -118,17 +118,8 @@ def update_products(
     return target + critic_step + actor_step
 
 
-def update_flops(
-    obs_dim: int,
-    hidden: Sequence[int],
-    batch: int,
-    act_dim: int = 1,
-    symmetric: bool = False,
-    pairs: bool = False,
-) -> int:
-    """Matmul FLOPs of one ``ddpg.update`` of one model: 2 per multiply-add of
-    ``update_products``."""
-    products = update_products(obs_dim, hidden, batch, act_dim, symmetric, pairs)
+def matmul_flops(products: Sequence[tuple[int, int, int]]) -> int:
+    """Matmul FLOPs of ``update_products``' list: 2 per multiply-add."""
     return sum(2 * m * k * n for m, k, n in products)
 
 
@@ -316,7 +307,9 @@ def actors(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
             before = peak()
             rate = args.updates / statistics.median([time_grid() for _ in range(args.repeats)])
             after = peak()
-            flops = update_flops(OBS_DIM, cfg.hidden, cfg.batch_size, 1, odd, pairs)
+            flops = matmul_flops(
+                update_products(OBS_DIM, cfg.hidden, cfg.batch_size, 1, odd, pairs)
+            )
             overrides = [
                 f"train.episodes={args.episodes}",
                 f"ddpg.symmetric_actor={str(odd).lower()}",
@@ -403,7 +396,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
         stream_s.append(time_stream())
     peak = 2 * args.matmul_n**3 / statistics.median(dot_s) / 1e9
     rate = args.updates / statistics.median(grid_s)
-    flops = update_flops(OBS_DIM, cfg.hidden, cfg.batch_size, 1, cfg.symmetric_actor)
+    flops = matmul_flops(products)
     achieved = rate * args.models * flops / 1e9
     # the decomposition of one grid update's time, ms: its products alone (the ceiling of the
     # share with these kernels), its Adam/target pass alone, and what remains
