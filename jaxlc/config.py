@@ -147,7 +147,15 @@ class EnvConfig:
         doc="'none' (the policy's action is executed) or 'fitting' (a driver-assist layer adds "
         "jaxlc.sim.controller.fitting_action, which holds the origin lane and adjusts the "
         "speed until the gap fits the headway norm, to the policy's action in the RL phase: "
-        "the policy learns a residual on it)",
+        "the policy learns a residual on it), or 'fitting_hold' (the same, but while the "
+        "assist holds the origin lane its lateral action is executed alone)",
+    )
+    assist_authority: float = _f(
+        1.0,
+        0.0,
+        1.0,
+        doc="with an assist, the share of each action bound the policy's residual may take: "
+        "the executed action is clip(assist + assist_authority * action)",
     )
 
 
@@ -262,7 +270,7 @@ class Config:
 CHOICES: dict[str, tuple[str, ...]] = {
     "ddpg.learner": ("ddpg", "td3"),
     "env.longitudinal": ("idm", "policy"),
-    "env.assist": ("none", "fitting"),
+    "env.assist": ("none", "fitting", "fitting_hold"),
 }
 
 _TABLES: dict[str, type] = {

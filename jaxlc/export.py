@@ -164,8 +164,15 @@ def _assist(params: EnvParams) -> dict[str, Any]:
         return {}
     return {
         "assist": params.assist,
-        "assist_note": "the executed action is clip(action + jaxlc.sim.controller."
-        "fitting_action(obs, params, time=manoeuvre time), -1, 1): this graph is the residual",
+        "assist_authority": float(params.assist_authority),
+        "assist_note": "the executed action is clip(assist_authority * action + jaxlc.sim."
+        "controller.fitting_action(obs, params, time=manoeuvre time), -1, 1): this graph is "
+        "the residual"
+        + (
+            "; while the assist holds the origin lane, the lateral entry is the assist's alone"
+            if params.assist == "fitting_hold"
+            else ""
+        ),
     }
 
 

@@ -24,6 +24,25 @@ def load_benchmark(name: str) -> ModuleType:
     return module
 
 
+def changed_env_keys(name: str, base: config.Config) -> set[str]:
+    """The ``env`` keys where ``configs/NAME`` differs from ``base``, after checking that the
+    file spells out every key of every table (a config read beside another is like for like
+    only where it says so)."""
+    import dataclasses
+    import tomllib
+
+    written = tomllib.loads((config.CONFIG_DIR / name).read_text())
+    loaded = config.load(config.CONFIG_DIR / name)
+    for table in dataclasses.fields(loaded):
+        keys = {f.name for f in dataclasses.fields(getattr(loaded, table.name))}
+        assert set(written[table.name]) == keys, table.name
+    return {
+        f.name
+        for f in dataclasses.fields(loaded.env)
+        if getattr(loaded.env, f.name) != getattr(base.env, f.name)
+    }
+
+
 def wait_for_line(proc, start: str) -> None:
     """Read ``proc``'s stderr until a line starts with ``start`` (``sweep.HOLD_LINE``: the
     run holds); fail with what it printed if it ends first."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -18,7 +19,10 @@ from jaxlc.sim.controller import (
     fitting_action,
     scripted_action,
 )
+from jaxlc.sim.env import RL
 from jaxlc.sim.observation import INDEX, MIRROR_SIGNS, OBS_DIM, scale
+
+from .conftest import changed_env_keys
 
 JOINT = config.load(config.CONFIG_DIR / "joint.toml")
 
@@ -126,3 +130,85 @@ def test_an_export_of_an_assisted_run_says_its_graph_is_a_residual() -> None:
     assert _assist(P) == {}
     said = _assist(_params(assist="fitting"))
     assert said["assist"] == "fitting" and "residual" in said["assist_note"]
+    assert "holds" not in said["assist_note"] and said["assist_authority"] == 1.0
+    held = _assist(_params(assist="fitting_hold", assist_authority=0.1))
+    assert "holds the origin lane" in held["assist_note"]
+    assert held["assist_authority"] == pytest.approx(0.1)
+
+
+ENV = jaxlc.make(JOINT)[0]
+
+
+@jax.jit
+def _drive(p, scale: jax.Array) -> tuple[jax.Array, ...]:
+    """``(envs, steps)`` phase, lateral position and speed of 16 envs over 600 steps of random
+    joint actions ``scale * U(-1, 1)^2`` (``scale`` (2,)); one compile per static config."""
+
+    def one(key):
+        k_reset, k_run = jax.random.split(key)
+        _, s = ENV.reset(k_reset, p)
+
+        def body(s, k):
+            k_a, k_s = jax.random.split(k)
+            a = scale * jax.random.uniform(k_a, (2,), minval=-1.0, maxval=1.0)
+            s2 = ENV.step(k_s, s, a, p)[1]
+            return s2, (s2.ego.phase, s2.ego.y, s2.ego.v)
+
+        return jax.lax.scan(body, s, jax.random.split(k_run, 600))[1]
+
+    return jax.vmap(one)(jax.random.split(jax.random.key(7), 16))
+
+
+def _rollout(assist: str, authority: float, lat: float, lon: float) -> list[np.ndarray]:
+    p = _params(assist=assist, assist_authority=authority)
+    return [np.asarray(x) for x in _drive(p, jnp.asarray([lat, lon]))]
+
+
+def test_the_residual_acts_through_its_authority_alone() -> None:
+    """``env.assist_authority`` w scales the policy's residual: (w, a) drives as (1, w a), bit
+    for bit (w a power of 2), and w = 0 drives as a zero policy; the same actions at full
+    authority drive elsewhere (the authority is traced: one compile)."""
+    quarter, full_scaled = _rollout("fitting", 0.25, 1, 1), _rollout("fitting", 1, 0.25, 0.25)
+    for got, want in zip(quarter, full_scaled, strict=True):
+        np.testing.assert_array_equal(got, want)
+    for got, want in zip(_rollout("fitting", 0, 1, 1), _rollout("fitting", 1, 0, 0), strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert (quarter[0] == RL).sum() > 100  # the residual acted on many RL steps
+    full = _rollout("fitting", 1, 1, 1)
+    assert np.abs(full[1] - quarter[1]).max() > 0.1  # m: a residual at full authority moves the ego
+
+
+def test_a_holding_assist_executes_its_own_lateral_action_alone() -> None:
+    """Under ``"fitting_hold"`` a lateral residual at full authority changes nothing while the
+    assist holds the origin lane: each env drives as under a zero policy until the zero
+    policy's ego first leaves its lateral position in the RL phase (the assist goes); under
+    ``"fitting"`` the same residual moves the ego off it at once."""
+    zero = _rollout("fitting_hold", 1, 0, 0)
+    held, unheld = _rollout("fitting_hold", 1, 1, 0), _rollout("fitting", 1, 1, 0)
+    holds, moved = 0, 0
+    for env in range(16):
+        phase, y = zero[0][env], zero[1][env]
+        first = int(np.argmax(phase == RL))  # the first RL step
+        assert phase[first] == RL
+        go = first + int(np.argmax(y[first:] != y[first]))  # the first step it moved
+        holds += go - first - 1  # the first RL step is the acceptance's
+        for got, want in zip(held, zero, strict=True):
+            np.testing.assert_array_equal(got[env, :go], want[env, :go])
+        if go > first + 1:
+            moved += unheld[1][env, first + 1] != y[first + 1]  # the residual moves it at once
+    assert holds >= 6  # steps held in the first manoeuvres: the property was exercised
+    assert moved >= 1
+
+
+def test_joint_assist_toml_is_joint_toml_with_the_assist_keys() -> None:
+    """configs/joint_assist.toml spells out every key and differs from configs/joint.toml
+    only in the assist, its authority and the headway weight (the study beside it is like
+    for like with the joint study)."""
+    assert changed_env_keys("joint_assist.toml", JOINT) == {
+        "assist",
+        "assist_authority",
+        "w_headway",
+    }
+    on = config.load(config.CONFIG_DIR / "joint_assist.toml")
+    assert (on.env.assist, on.env.assist_authority) == ("fitting_hold", 0.1)
+    assert all(getattr(on, t) == getattr(JOINT, t) for t in ("ddpg", "train", "grid"))

@@ -4,7 +4,6 @@ action's physics, its reflection, and everything that follows the action's lengt
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 
 import jax
 import jax.numpy as jnp
@@ -20,6 +19,8 @@ from jaxlc.sim.ego import ego_accel
 from jaxlc.sim.env import RL, action_dim
 from jaxlc.sim.idm import NO_LEADER_GAP
 from jaxlc.sim.observation import MIRROR_SIGNS, OBS_DIM
+
+from .conftest import changed_env_keys
 
 JOINT = config.load(config.CONFIG_DIR / "joint.toml")
 STEPS = 1500
@@ -172,16 +173,8 @@ def test_joint_toml_is_the_default_with_the_joint_keys() -> None:
     """configs/joint.toml spells out every key and differs from the default only in the
     second action and the whole manoeuvre's reward: the rest of the comparison is like for
     like."""
-    written = tomllib.loads((config.CONFIG_DIR / "joint.toml").read_text())
     default = config.Config()
-    for table in dataclasses.fields(default):
-        keys = {f.name for f in dataclasses.fields(getattr(default, table.name))}
-        assert set(written[table.name]) == keys, table.name
-    changed = {
-        f.name
-        for f in dataclasses.fields(default.env)
-        if getattr(JOINT.env, f.name) != getattr(default.env, f.name)
-    }
+    changed = changed_env_keys("joint.toml", default)
     joint_keys = {"longitudinal", "reward_terms", "w_long_acc", "w_long_jerk", "w_lat_acc"}
     assert changed <= joint_keys | {"w_lat_jerk", "w_headway"}, changed
     assert "longitudinal" in changed

@@ -936,6 +936,12 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "joint-assist-w200": lambda: joint_table(
         JOINT_STUDY / "default_s3", JOINT_STUDY / "assist_w200_s3", "assist + w200"
     ),
+    "joint-assist-a25": lambda: joint_table(
+        JOINT_STUDY / "default_s3", JOINT_STUDY / "assist_a25_s3", "assist + w200, a=0.25"
+    ),
+    "joint-assist-hold": lambda: joint_table(
+        JOINT_STUDY / "default_s3", JOINT_STUDY / "assist_hold_s3", "joint_assist.toml"
+    ),
     "gap-fitting": gap_fitting_table,
     "pairs": pairs_table,
     "joint-weights": joint_weights_table,

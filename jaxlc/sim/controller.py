@@ -23,10 +23,12 @@ v*kappa^2*d/(1 - kappa*d), which the feedback turns into a standing offset of
 It reads only the observation and the params, so it is a drop-in baseline for a learned
 actor. ``fitting_action`` drives the same law toward the origin lane's centre, and adjusts
 the speed, until the accepted gap fits the headway norm (a reference for joint control), and
-``assist_action`` adds it under a policy (``env.assist = "fitting"``).
+``assist_action`` adds it under a policy (``env.assist = "fitting"`` or ``"fitting_hold"``).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import jax.numpy as jnp
 from jax import Array
@@ -73,15 +75,7 @@ FIT_GO_AFTER = 3.0  # s after the command: from then on a gap at the acceptance'
 _FIT_READ = _READ + ("time", "lead_gap", "lead_dv", "lag_gap", "lag_dv")
 
 
-def fitting_action(
-    obs: Array,
-    params: EnvParams,
-    pole: float = DEFAULT_POLE,
-    headway: float = FIT_HEADWAY,
-    lookahead: float = FIT_LOOKAHEAD,
-    go_after: float = FIT_GO_AFTER,
-    time: Array | None = None,
-) -> Array:
+def fitting_action(obs: Array, params: EnvParams, **options: Any) -> Array:
     """``(..., OBS_DIM) -> (..., action_dim)``: a scripted reference for joint control that
     fits the ego into the accepted gap before it crosses. It holds the origin lane (the same
     pole placement toward the origin lane's centre) until the time headways to the target
@@ -96,7 +90,22 @@ def fitting_action(
     (``gap_time_headway``) is enough. The manoeuvre time is ``time`` (s), else the observed
     one, which reads 0 unless ``env.terminal_timeout``: then the fallback never comes. Odd
     under the road's reflection in the lateral action, even in the longitudinal one, as a
-    learned policy is."""
+    learned policy is. ``options``: ``fitting_and_go``'s keywords (``pole``, ``headway``,
+    ``lookahead``, ``go_after``, ``time``)."""
+    return fitting_and_go(obs, params, **options)[0]
+
+
+def fitting_and_go(
+    obs: Array,
+    params: EnvParams,
+    pole: float = DEFAULT_POLE,
+    headway: float = FIT_HEADWAY,
+    lookahead: float = FIT_LOOKAHEAD,
+    go_after: float = FIT_GO_AFTER,
+    time: Array | None = None,
+) -> tuple[Array, Array]:
+    """``fitting_action`` with its keywords spelled out, and ``(...)`` bool, whether it goes
+    (False while it holds the origin lane for the gap to fit)."""
     raw = {n: obs[..., INDEX[n]] * scale(n, params) for n in _FIT_READ}
     v = jnp.maximum(raw["v"], 1.0)
     v_lag = jnp.maximum(raw["v"] + raw["lag_dv"], 1.0)
@@ -112,21 +121,23 @@ def fitting_action(
     toward = jnp.where(go, e, e - jnp.sign(e) * params.lane_width)  # target or origin centre
     lateral = _pole_placement(raw, toward, params, pole)
     if action_dim(params) == 1:
-        return lateral
+        return lateral, go
     short_lead, short_lag = lead_h < headway, lag_h < headway
     brake = short_lead | (short_lag & (raw["lag_dv"] > 0.0))
     longitudinal = jnp.where(fits, 0.0, jnp.where(brake, -1.0, jnp.where(short_lag, 1.0, 0.0)))
-    return jnp.concatenate([lateral, longitudinal[..., None]], axis=-1)
+    return jnp.concatenate([lateral, longitudinal[..., None]], axis=-1), go
 
 
-def assist_action(state: EnvState, params: EnvParams) -> Array:
-    """``(action_dim,)``: what the driver-assist layer of ``env.assist = "fitting"`` adds to
-    the policy's executed action in the RL phase (0 before it): ``fitting_action`` on the
-    state's observation, with the manoeuvre time it has run (the assist keeps its own clock,
-    whether or not the policy observes the time)."""
+def assist_action(state: EnvState, params: EnvParams) -> tuple[Array, Array]:
+    """``(action_dim,)``: what the driver-assist layer of ``env.assist`` adds to the policy's
+    executed action in the RL phase (0 before it): ``fitting_action`` on the state's
+    observation, with the manoeuvre time it has run (the assist keeps its own clock, whether
+    or not the policy observes the time); and ``()`` bool, whether it holds the origin lane
+    (in the RL phase, the gap not fitting yet)."""
     obs = observation(state, params)
-    a = fitting_action(obs, params, time=state.ego.steps * params.dt)
-    return jnp.where(state.ego.phase == RL, a, 0.0)
+    a, go = fitting_and_go(obs, params, time=state.ego.steps * params.dt)
+    in_rl = state.ego.phase == RL
+    return jnp.where(in_rl, a, 0.0), in_rl & ~go
 
 
 def baseline_action(obs: Array, params: EnvParams) -> Array:

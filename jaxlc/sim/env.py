@@ -122,9 +122,14 @@ def _advance(
     held_long = held_long_action(eg, action, p)  # None unless longitudinal = "policy"
     lat, lon = held, held_long  # executed: the policy's, plus the assist's (env.assist)
     if p.assist != "none":  # static: the default's program has no assist in it
-        extra = assist_action(state, p)  # (action_dim,)
-        lat = jnp.clip(held + extra[0], -1.0, 1.0)
-        lon = None if held_long is None else jnp.clip(held_long + extra[1], -1.0, 1.0)
+        extra, holding = assist_action(state, p)  # (action_dim,), ()
+        w = p.assist_authority  # the residual's share of each bound
+        lat = jnp.clip(w * held + extra[0], -1.0, 1.0)
+        if p.assist == "fitting_hold":
+            # The hold sits on the out-of-bounds border (the origin lane's centre, a lane
+            # width from the target's): any outward residual would end the manoeuvre there.
+            lat = jnp.where(holding, extra[0], lat)
+        lon = None if held_long is None else jnp.clip(w * held_long + extra[1], -1.0, 1.0)
     a_lat = p.max_yaw_acc * lat
     a_ego = ego_accel(state, p, lon)
     m = move(tr, eg, traffic_accel(state, p), a_ego, a_lat, p, kappa)
