@@ -27,8 +27,12 @@ from .conftest import changed_env_keys
 JOINT = config.load(config.CONFIG_DIR / "joint.toml")
 
 
+def _cfg(**env) -> config.Config:
+    return dataclasses.replace(JOINT, env=dataclasses.replace(JOINT.env, **env))
+
+
 def _params(**env):
-    return jaxlc.make(dataclasses.replace(JOINT, env=dataclasses.replace(JOINT.env, **env)))[1]
+    return jaxlc.make(_cfg(**env))[1]
 
 
 def _obs(p, **raw: float) -> jnp.ndarray:
@@ -111,8 +115,7 @@ def test_the_assist_drives_as_the_controller_does_under_a_zero_policy() -> None:
     """A zero policy under ``env.assist = "fitting"`` runs the same lane changes as the
     controller acting itself with the manoeuvre time observed: the same ends, steps and the
     manoeuvre's start, on held-out cases."""
-    assisted = dataclasses.replace(JOINT, env=dataclasses.replace(JOINT.env, assist="fitting"))
-    timed = dataclasses.replace(JOINT, env=dataclasses.replace(JOINT.env, terminal_timeout=True))
+    assisted, timed = _cfg(assist="fitting"), _cfg(terminal_timeout=True)
     keys = cases.heldout_keys(0, 24)
     p = _params(terminal_timeout=True)
     zero = cases.evaluate_act(assisted, lambda o: jnp.zeros(o.shape[:-1] + (2,)), keys=keys)

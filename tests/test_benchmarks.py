@@ -156,3 +156,33 @@ def test_gap_fitting_runs_both_controllers_on_the_same_lane_changes():
         assert ends == r["lane_changes"] and 0.0 <= r["norm_all"] <= r["norm_min_thw_s"] <= 1.0
     # it waits for the lead's headway, which the baseline does not
     assert fitting["thw_crit_lead"] <= scripted["thw_crit_lead"]
+
+
+def test_failed_cases_lists_each_failed_lane_change_of_each_policy(tmp_path):
+    """Two policies on four drawn cases (one case with no lane change): only out of bounds,
+    collision and timeout are rows, under their policy's label, with where the ego ended."""
+    from jaxlc.sim.reward import COLLISION, NO_GAP, OUT_OF_BOUNDS, SUCCESS, TIMEOUT
+
+    reason = np.array(
+        [[SUCCESS, OUT_OF_BOUNDS, NO_GAP, SUCCESS], [TIMEOUT, SUCCESS, NO_GAP, COLLISION]]
+    )
+    np.savez(
+        tmp_path / "heldout_cases.npz",
+        reason=reason,
+        performed=np.array([True, True, False, True]),
+        case=np.array([10, 11, 12, 13]),
+        side=np.array([1, -1, 1, -1]),
+        steps=np.array([[40, 1, 0, 45], [100, 41, 0, 30]]),
+        final_offset=np.array([[0.1, 3.7, 0.0, 0.0], [0.4, 0.0, 0.0, 1.5]]),
+        final_psi=np.zeros((2, 4)),
+        final_omega=np.zeros((2, 4)),
+    )
+    (tmp_path / "heldout.csv").write_text("label,seed\nscripted controller,\nmodel,0\n")
+    rows = load_benchmark("failed_cases").main([str(tmp_path)])
+    got = [(r["label"], r["case"], r["reason"], r["rl_steps"], r["final_offset_m"]) for r in rows]
+    assert got == [
+        ("scripted controller", 11, "out_of_bounds", 1, 3.7),
+        ("model", 10, "timeout", 100, 0.4),
+        ("model", 13, "collision", 30, 1.5),
+    ]
+    assert (tmp_path / "failed_cases.csv").read_text().count("\n") == 4  # header + 3 rows

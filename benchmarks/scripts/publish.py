@@ -920,6 +920,15 @@ def targets_table() -> str:
     return "\n".join(lines)
 
 
+# Studies of study_joint_cpu_s3 set beside the default's seeds 0-2: block, folder, row label.
+BESIDE_DEFAULT_S3 = {
+    "idm-reward": ("idm_reward_s3", "idm + reward"),
+    "joint-assist": ("assist_s3", "joint + assist"),
+    "joint-assist-w200": ("assist_w200_s3", "assist + w200"),
+    "joint-assist-a25": ("assist_a25_s3", "assist + w200, a=0.25"),
+    "joint-assist-hold": ("assist_hold_s3", "joint_assist.toml"),
+}
+
 BLOCKS: dict[str, Callable[[], str]] = {
     "verdict": verdict_table,
     "heldout-cells": heldout_cells,
@@ -927,21 +936,12 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "roads": roads_table,
     "joint": lambda: joint_table(JOINT_STUDY / "default_s3", JOINT_STUDY),
     "joint-gpu": lambda: joint_table(JOINT_GPU / "default8", JOINT_GPU / "joint8"),
-    "idm-reward": lambda: joint_table(
-        JOINT_STUDY / "default_s3", JOINT_STUDY / "idm_reward_s3", "idm + reward"
-    ),
-    "joint-assist": lambda: joint_table(
-        JOINT_STUDY / "default_s3", JOINT_STUDY / "assist_s3", "joint + assist"
-    ),
-    "joint-assist-w200": lambda: joint_table(
-        JOINT_STUDY / "default_s3", JOINT_STUDY / "assist_w200_s3", "assist + w200"
-    ),
-    "joint-assist-a25": lambda: joint_table(
-        JOINT_STUDY / "default_s3", JOINT_STUDY / "assist_a25_s3", "assist + w200, a=0.25"
-    ),
-    "joint-assist-hold": lambda: joint_table(
-        JOINT_STUDY / "default_s3", JOINT_STUDY / "assist_hold_s3", "joint_assist.toml"
-    ),
+    **{
+        name: functools.partial(
+            joint_table, JOINT_STUDY / "default_s3", JOINT_STUDY / folder, label
+        )
+        for name, (folder, label) in BESIDE_DEFAULT_S3.items()
+    },
     "gap-fitting": gap_fitting_table,
     "pairs": pairs_table,
     "joint-weights": joint_weights_table,
