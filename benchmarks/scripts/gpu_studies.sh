@@ -4,7 +4,10 @@
 #   bash benchmarks/scripts/gpu_studies.sh DEADLINE_S NAME "SWEEP ARGS" [NAME "SWEEP ARGS" ...]
 # Each study: python -m jaxlc.sweep ARGS --out runs/NAME, then python -m jaxlc.evaluate
 # runs/NAME --no-figures; packed as NAME_eval.tgz (config, summaries, report, eval/ without
-# traces, the commands' output and timing) and NAME_metrics.tgz (metrics/episodes.npz).
+# its per-case files, the commands' output and timing), NAME_heldout_cases.npz (the held-out
+# per-case file, for benchmarks/scripts/failed_cases.py) and, unless METRICS=0,
+# NAME_metrics.tgz (metrics/episodes.npz). Studies run side by side when the script is
+# started once per study, each in the background.
 set -u
 export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD
 end=$(( $(date +%s) + $1 )); shift
@@ -25,7 +28,9 @@ while [ $# -ge 2 ]; do
   rc=$?; t2=$(date +%s)
   echo "evaluate: rc=$rc $((t2 - t1)) s" >> "$run/timing.txt"
   cat "$run/timing.txt"
-  tar czf "$OUT/${name}_eval.tgz" --exclude=traces.npz "$run"/*.txt "$run"/*.toml "$run"/*.md "$run"/*.json "$run"/eval 2>/dev/null
-  tar czf "$OUT/${name}_metrics.tgz" "$run"/metrics/episodes.npz
+  tar czf "$OUT/${name}_eval.tgz" --exclude=traces.npz --exclude=cases.npz \
+    --exclude=heldout_cases.npz "$run"/*.txt "$run"/*.toml "$run"/*.md "$run"/*.json "$run"/eval 2>/dev/null
+  cp "$run"/eval/heldout_cases.npz "$OUT/${name}_heldout_cases.npz" 2>/dev/null
+  [ "${METRICS:-1}" = 0 ] || tar czf "$OUT/${name}_metrics.tgz" "$run"/metrics/episodes.npz
   ls -la "$OUT"
 done
