@@ -184,9 +184,10 @@ class DDPGConfig:
     td3_policy_delay: int = _f(2, 1, 100, doc="TD3: critic updates per actor/target update")
     mirror: bool = _f(True, doc="reflect half of each batch across the road's axis")
     mirror_pairs: bool = _f(
-        False,
+        True,
         doc="with mirror: a batch is batch_size/2 transitions and their reflections, so the "
-        "odd actor runs its trunk once per row (the plain actor's FLOPs)",
+        "odd actor runs its trunk once per row (the plain actor's FLOPs); false reflects "
+        "each drawn row with probability 1/2; ignored without mirror",
     )
     huber_delta: float = _f(10.0, 0.0, doc="critic loss Huber at this TD error; 0 = squared")
     symmetric_actor: bool = _f(
@@ -385,10 +386,12 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError("config key 'env.command_distance': must be < env.gap_x_limit")
     if not d.hidden:
         raise ConfigError("config key 'ddpg.hidden': must list at least one layer width")
-    if d.mirror_pairs and (not d.mirror or d.batch_size % 2):
+    # without mirrored batches there is nothing to pair: mirror_pairs is then ignored, so
+    # ddpg.mirror=false alone gives the unmirrored batches back
+    if d.mirror and d.mirror_pairs and d.batch_size % 2:
         raise ConfigError(
-            "config key 'ddpg.mirror_pairs': needs ddpg.mirror = true and an even "
-            f"ddpg.batch_size, got mirror = {str(d.mirror).lower()}, batch_size = {d.batch_size}"
+            "config key 'ddpg.batch_size': reflection pairs (ddpg.mirror_pairs, the default) "
+            f"need an even batch, got {d.batch_size}; or set ddpg.mirror_pairs = false"
         )
     for name in ("k", "memory"):
         if not getattr(g, name):

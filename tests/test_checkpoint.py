@@ -253,20 +253,24 @@ def test_interrupted_resave_is_incomplete_not_mismatched(
 
 
 def test_a_run_written_before_a_key_keeps_the_behaviour_it_had(tmp_path):
-    """A resolved config spells every key; one without ``symmetric_actor`` or ``gap_min_ttc``
-    ran with a plain actor and no time-to-collision test, whatever today's defaults are."""
+    """A resolved config spells every key; one without ``symmetric_actor``, ``mirror_pairs`` or
+    ``gap_min_ttc`` ran with a plain actor, rows reflected at random and no time-to-collision
+    test, whatever today's defaults are."""
     from jaxlc import config
     from jaxlc.study.rundir import RunDir
 
     today = config.Config()
-    assert today.ddpg.symmetric_actor and today.env.gap_min_ttc > 0  # else nothing is tested
+    d = today.ddpg
+    assert d.symmetric_actor and d.mirror_pairs and today.env.gap_min_ttc > 0  # else no test
     run = RunDir(tmp_path)
     run.write_config(today)
     assert run.load_config() == today
     lines = run.config.read_text().splitlines()
-    old = [x for x in lines if not x.startswith(("symmetric_actor", "gap_min_ttc"))]
-    assert len(old) == len(lines) - 2
+    keys = ("symmetric_actor", "mirror_pairs", "gap_min_ttc")
+    old = [x for x in lines if not x.startswith(keys)]
+    assert len(old) == len(lines) - 3
     run.config.write_text("\n".join(old) + "\n")
     cfg = run.load_config()
     assert not cfg.ddpg.symmetric_actor and cfg.env.gap_min_ttc == 0.0
+    assert not cfg.ddpg.mirror_pairs
     assert cfg.ddpg.hidden == today.ddpg.hidden and cfg.train == today.train

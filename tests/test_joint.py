@@ -178,4 +178,7 @@ def test_joint_toml_is_the_default_with_the_joint_keys() -> None:
     joint_keys = {"longitudinal", "reward_terms", "w_long_acc", "w_long_jerk", "w_lat_acc"}
     assert changed <= joint_keys | {"w_lat_jerk", "w_headway"}, changed
     assert "longitudinal" in changed
-    assert all(getattr(JOINT, t) == getattr(default, t) for t in ("ddpg", "train", "grid"))
+    # the batches its studies trained with: rows reflected at random (the default's pairs
+    # came after them, docs/decisions.md)
+    assert JOINT.ddpg == dataclasses.replace(default.ddpg, mirror_pairs=False)
+    assert all(getattr(JOINT, t) == getattr(default, t) for t in ("train", "grid"))

@@ -184,7 +184,8 @@ def test_paper_toml_is_the_papers_method():
         for f in dataclasses.fields(getattr(default, t.name))
         if getattr(getattr(paper, t.name), f.name) != getattr(getattr(default, t.name), f.name)
     }
-    aids = ("huber_delta", "mirror", "symmetric_actor", "tau", "updates_per_transition")
+    aids = ("huber_delta", "mirror", "mirror_pairs", "symmetric_actor", "tau")
+    aids += ("updates_per_transition",)
     allowed = {("ddpg", k) for k in aids}
     assert changed <= allowed | {("env", "gap_min_ttc")}, changed
 
@@ -276,3 +277,12 @@ def test_tree_where_picks_whole_trees_or_rows():
     np.testing.assert_array_equal(rows["a"], [[1, 1], [0, 0], [1, 1]])
     np.testing.assert_array_equal(rows["b"], [1, 0, 1])
     assert rows["b"].dtype == jnp.int32
+
+
+def test_configs_of_studies_before_the_pairs_keep_their_batches():
+    """The default draws reflection pairs (``ddpg.mirror_pairs``); the configs whose committed
+    studies trained on rows reflected at random keep those batches, so their published
+    numbers come from the config a user runs."""
+    assert config.Config().ddpg.mirror_pairs
+    for name in ("roads.toml", "joint.toml", "joint_assist.toml"):
+        assert not config.load(config.CONFIG_DIR / name).ddpg.mirror_pairs, name
