@@ -157,6 +157,46 @@ class EnvConfig:
         doc="with an assist, the share of each action bound the policy's residual may take: "
         "the executed action is clip(assist + assist_authority * action)",
     )
+    # Traffic that cuts in and brakes ([D], SPEC "Beyond the paper"): off in the paper's
+    # traffic. The switches are static (they add state); every number below is traced.
+    mobil: bool = _f(
+        False,
+        doc="true: the other vehicles change lanes by MOBIL on the IDM (jaxlc.sim.mobil); "
+        "false: they keep their lane (the paper's traffic)",
+    )
+    mobil_politeness: float = _f(0.2, 0.0, 1.0, doc="MOBIL's p: weight of the others' gain")
+    mobil_threshold: float = _f(0.1, 0.0, 5.0, doc="MOBIL's switching threshold, m/s^2")
+    mobil_bias_right: float = _f(
+        0.0,
+        -2.0,
+        2.0,
+        doc="m/s^2 added to the incentive toward the lower lanes (the right), taken from "
+        "the one toward the left; 0 keeps the traffic symmetric under the road's reflection",
+    )
+    mobil_rate: float = _f(
+        0.5,
+        0.0,
+        10.0,
+        open_lo=True,
+        doc="1/s: a driver acts on an allowed lane change at this rate (a drawn latency)",
+    )
+    mobil_interval: float = _f(
+        10.0, 0.0, 600.0, doc="s, least time between a vehicle's lane change starts"
+    )
+    lane_change_time_min: float = _f(3.0, 0.5, 20.0, doc="s, a lane change lasts U(min, max)")
+    lane_change_time_max: float = _f(6.0, 0.5, 20.0, doc="s")
+    braking: bool = _f(
+        False,
+        doc="true: every vehicle brakes hard now and then (a Poisson process, "
+        "jaxlc.sim.braking); false: only for its leader (the paper's traffic)",
+    )
+    braking_rate: float = _f(
+        2.0, 0.0, 3600.0, doc="braking events per vehicle-hour (a Poisson process)"
+    )
+    braking_decel_min: float = _f(3.0, 0.0, 9.0, doc="m/s^2, an event brakes at U(min, max)")
+    braking_decel_max: float = _f(7.0, 0.0, 9.0, doc="m/s^2 (at most the IDM's idm_b_max)")
+    braking_time_min: float = _f(1.0, 0.1, 60.0, doc="s, an event lasts U(min, max)")
+    braking_time_max: float = _f(3.0, 0.1, 60.0, doc="s")
 
 
 @dataclass(frozen=True)
@@ -239,6 +279,11 @@ class EvalConfig:
     traced: int = _f(4, 0, 1000, doc="cases whose trajectories the figures draw")
     lane_changes: int = _f(1000, 0, doc="held-out lane changes per final checkpoint (0: none)")
     heldout_seed: int = _f(0, 0, 2**31 - 1, doc="seed of the held-out cases")
+    traffic: tuple[str, ...] = _f(
+        [],
+        doc='[env] overrides ("env.KEY=VALUE") of the traffic the held-out lane changes are '
+        "driven in, when it is not the training's (written to eval/heldout_traffic/)",
+    )
 
 
 @dataclass(frozen=True)
@@ -294,6 +339,12 @@ def _allowed(meta: dict[str, Any]) -> str:
 
 
 def _check_scalar(key: str, value: Any, typ: type, meta: dict[str, Any]) -> Any:
+    if key == "eval.traffic":  # overrides, each checked as a config value where it is applied
+        if not (isinstance(value, str) and value.startswith("env.") and "=" in value):
+            raise ConfigError(
+                f"config key '{key}': each entry must be env.KEY=VALUE, got {value!r}"
+            )
+        return value
     if typ is str and key not in CHOICES:  # a name another layer resolves (a reward term)
         if not (isinstance(value, str) and value.isidentifier()):
             raise ConfigError(
@@ -375,6 +426,18 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError("config key 'env.desired_speed_min': must be <= env.desired_speed_max")
     if e.inflow_min > e.inflow_max:
         raise ConfigError("config key 'env.inflow_min': must be <= env.inflow_max")
+    for lo, hi in (
+        ("lane_change_time_min", "lane_change_time_max"),
+        ("braking_decel_min", "braking_decel_max"),
+        ("braking_time_min", "braking_time_max"),
+    ):
+        if getattr(e, lo) > getattr(e, hi):
+            raise ConfigError(f"config key 'env.{lo}': must be <= env.{hi}")
+    if e.braking_decel_max > e.idm_b_max:
+        raise ConfigError(
+            f"config key 'env.braking_decel_max': must be <= env.idm_b_max ({e.idm_b_max:g} "
+            "m/s^2): a follower must be able to brake as hard as its leader"
+        )
     if e.lane_width > e.border:
         raise ConfigError(
             f"config key 'env.lane_width': must be <= env.border ({e.border:g} m): the ego "

@@ -3,32 +3,28 @@
     python -m jaxlc.evaluate runs/smoke                        # default checkpoints, 100 cases
     python -m jaxlc.evaluate runs/paper --episodes 100,5000 --model 3
     python -m jaxlc.evaluate --checkpoint runs/paper/checkpoints/m03_s0/ep05000.msgpack
+    python -m jaxlc.evaluate runs/smoke --heldout-only --traffic env.mobil=true env.braking=true
 
 The cases and the program that runs every policy on them are ``jaxlc.evaluation.cases``; what
 a result row holds is ``jaxlc.evaluation.results``. This module is the command: it picks the
-checkpoints, runs them and writes the files.
-
-Outcome buckets are the reason codes of ``jaxlc.sim.reward`` with 0 read as "unfinished" (hit
-the step cap), so every case lands in exactly one bucket. Writes ``RUN_DIR/eval/eval.json``,
-``eval.csv``, ``cases.npz`` (per policy and case) and ``traces.npz`` (the few drawn cases),
-the statistics over seeds (``jaxlc.evaluation.stats``: ``cells.json``, ``cells.csv``,
-``improvement.csv``), then the figures and ``RUN_DIR/report.md`` (skip figures with
-``--no-figures``).
+checkpoints, runs them and writes the files. Outcome buckets are the reason codes of
+``jaxlc.sim.reward`` with 0 read as "unfinished" (hit the step cap). Writes
+``RUN_DIR/eval/eval.json``, ``eval.csv``, ``cases.npz``, ``traces.npz``, the statistics over
+seeds (``jaxlc.evaluation.stats``), then the figures and ``RUN_DIR/report.md``.
 
 Beside the paper's 100 cases, each model's final checkpoint (and those of
-``--heldout-episodes``) drives ``--lane-changes`` held-out lane changes (1,000 by default; 0
-skips them), on cases of a key stream of their own (``--heldout-seed``): failure rates with
-binomial intervals, the safety and comfort norms, every collision attributed
-(``jaxlc.evaluation.heldout``). Writes ``eval/heldout.json``, ``heldout.csv``,
-``heldout_cells.csv``, ``collisions.csv`` and ``heldout_cases.npz``.
+``--heldout-episodes``) drives ``--lane-changes`` held-out lane changes (``--heldout-seed``):
+failure rates with binomial intervals, the safety and comfort norms, every collision
+attributed (``jaxlc.evaluation.heldout``), into ``eval/heldout.json``, ``heldout*.csv``,
+``collisions.csv`` and ``heldout_cases.npz``; with ``--traffic env.KEY=VALUE ...`` (or
+``[eval] traffic``) driven in that traffic instead of the training's, into
+``eval/heldout_TAG/``.
 
     python -m jaxlc.evaluate --compare RUN_A RUN_B [--out DIR]
 
-compares two runs that are already evaluated (their ``eval/eval.json``; nothing is
-re-evaluated): per cell and checkpoint, B - A of the mean success rate with a bootstrap
-interval, into ``DIR`` (default ``RUN_B/compare_<name of RUN_A>/``): ``compare.md``,
-``compare.csv``, ``compare.png``, over the checkpoint episodes both runs evaluated. Runs
-whose cells differ, or that share no checkpoint episode, are refused (exit status 2).
+compares two evaluated runs (their ``eval/eval.json``): per cell and checkpoint, B - A of the
+mean success rate with a bootstrap interval, into ``DIR`` (default ``RUN_B/compare_<name of
+RUN_A>/``); runs whose cells differ, or that share no checkpoint episode, are refused (exit 2).
 """
 
 from __future__ import annotations
@@ -115,6 +111,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="held-out lane changes per final checkpoint (eval.lane_changes; 0 skips them)",
     )
     ap.add_argument("--heldout-seed", type=int, help="seed of the held-out cases")
+    ap.add_argument("--traffic", nargs="+", metavar="env.KEY=VALUE", help="eval.traffic")
+    ap.add_argument("--tag", default="traffic", help="--traffic: eval/heldout_TAG/")
+    ap.add_argument("--heldout-only", action="store_true", help="held-out lane changes only")
     ap.add_argument(
         "--heldout-episodes",
         type=_episodes_arg,
@@ -145,20 +144,19 @@ def _evaluate_run_dir(args: argparse.Namespace, ev: config.EvalConfig, devices: 
     if args.run_dir is None:
         raise EvalError("give a run directory (or --checkpoint FILE)")
     kw = dict(max_steps=ev.max_steps, chunk=ev.chunk, devices=devices)
+    held = dict(lane_changes=ev.lane_changes, seed=ev.heldout_seed, traffic=ev.traffic, **kw)
+    if args.heldout_only:
+        result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)
+        print(heldout.format_rows(result["rows"]))
+        return 0
     result = evaluate_run(
         args.run_dir, args.episodes, cases=ev.cases, model=args.model, seed=ev.seed, **kw
     )
     print(format_table(result["rows"]))
     write_convergence(args.run_dir)
     if ev.lane_changes > 0:
-        held = evaluate_heldout(
-            args.run_dir,
-            args.heldout_episodes,
-            lane_changes=ev.lane_changes,
-            seed=ev.heldout_seed,
-            **kw,
-        )
-        print(heldout.format_rows(held["rows"]))
+        result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)
+        print(heldout.format_rows(result["rows"]))
     from jaxlc.evaluation import plots, report
 
     made = [] if args.no_figures else plots.make_all(args.run_dir)

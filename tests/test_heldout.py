@@ -51,6 +51,7 @@ def test_collision_partner_by_lane_and_side() -> None:
     ego = type("E", (), {"x": jnp.float32(100.0), "target": jnp.int32(2)})
     x = jnp.zeros((3, 4)).at[2, 0].set(103.0).at[2, 1].set(98.0).at[1, 2].set(104.0)
     x = x.at[1, 3].set(97.0)
+    tr = type("T", (), {"x": x, "lane": None})  # the paper's traffic: rows are lanes
     for (lane, slot), name in {
         (2, 0): "target_lead",
         (2, 1): "target_lag",
@@ -58,8 +59,8 @@ def test_collision_partner_by_lane_and_side() -> None:
         (1, 3): "own_follower",
     }.items():
         mask = jnp.zeros((3, 4), bool).at[lane, slot].set(True)
-        assert safety.PARTNERS[int(safety.partner(mask, x, ego, p))] == name
-    assert int(safety.partner(jnp.zeros((3, 4), bool), x, ego, p)) == 0
+        assert safety.PARTNERS[int(safety.partner(mask, tr, ego, p))] == name
+    assert int(safety.partner(jnp.zeros((3, 4), bool), tr, ego, p)) == 0
 
 
 def test_clopper_pearson_matches_the_closed_forms() -> None:

@@ -2,10 +2,13 @@
 
 Each measurement is one jitted ``lax.scan`` of ``--steps`` steps of ``vmap(env.step)`` over
 N envs (random actions and per-env keys drawn inside the scan, as a trainer would), timed
-after compilation; the figure is the median of ``--repeats`` runs.
+after compilation; the figure is the median of ``--repeats`` runs. ``--traffic`` names the
+traffics measured side by side: ``paper`` (the vehicles keep their lane and brake only for
+their leader) and ``hazards`` (``env.mobil`` and ``env.braking`` on, at their defaults).
 
     python benchmarks/scripts/sim_throughput.py                       # N = 1, 64, 1024, 4096, 16384
     python benchmarks/scripts/sim_throughput.py --envs 1 64 --steps 200 --repeats 2
+    python benchmarks/scripts/sim_throughput.py --envs 4096 --traffic paper hazards
 """
 
 from __future__ import annotations
@@ -22,8 +25,11 @@ import jax
 import jax.numpy as jnp
 
 import jaxlc
+from jaxlc import config
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
+# The traffics by name: the config overrides that make each.
+TRAFFIC = {"paper": (), "hazards": ("env.mobil=true", "env.braking=true")}
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:
@@ -53,8 +59,8 @@ def make_runner(env, params, n_envs: int, steps: int):
     return run
 
 
-def measure(n_envs: int, steps: int, repeats: int) -> dict[str, float]:
-    env, params = jaxlc.make()
+def measure(n_envs: int, steps: int, repeats: int, traffic: str = "paper") -> dict[str, float]:
+    env, params = jaxlc.make(config.load(overrides=TRAFFIC[traffic]))
     _, state = jax.jit(jax.vmap(env.reset, (0, None)))(
         jax.random.split(jax.random.PRNGKey(0), n_envs), params
     )
@@ -69,6 +75,7 @@ def measure(n_envs: int, steps: int, repeats: int) -> dict[str, float]:
         times.append(time.perf_counter() - t0)
     med = statistics.median(times)
     return {
+        "traffic": traffic,
         "envs": n_envs,
         "steps": steps,
         "median_s": med,
@@ -83,6 +90,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     ap.add_argument("--envs", type=int, nargs="+", default=[1, 64, 1024, 4096, 16384])
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--traffic", nargs="+", choices=list(TRAFFIC), default=["paper"])
     ap.add_argument("--csv", type=Path, default=RESULTS / "sim_throughput.csv")
     args = ap.parse_args(argv)
 
@@ -91,16 +99,20 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
         f"{jax.devices()[0].device_kind} x{jax.device_count()} | jax {jax.__version__} | "
         f"{date.today()}"
     )
-    print(f"{'envs':>7} {'env-steps/s':>14} {'median s':>9} {'RL share':>9} {'first call s':>13}")
+    print(
+        f"{'traffic':>8} {'envs':>7} {'env-steps/s':>14} {'median s':>9} {'RL share':>9} "
+        f"{'first call s':>13}"
+    )
     rows = []
     for n in args.envs:
-        row = measure(n, args.steps, args.repeats)
-        rows.append(row)
-        print(
-            f"{n:>7} {row['env_steps_per_s']:>14,.0f} {row['median_s']:>9.3f} "
-            f"{row['rl_share']:>9.2f} {row['first_call_s']:>13.1f}",
-            flush=True,
-        )
+        for traffic in args.traffic:
+            row = measure(n, args.steps, args.repeats, traffic)
+            rows.append(row)
+            print(
+                f"{traffic:>8} {n:>7} {row['env_steps_per_s']:>14,.0f} {row['median_s']:>9.3f} "
+                f"{row['rl_share']:>9.2f} {row['first_call_s']:>13.1f}",
+                flush=True,
+            )
     best = max(rows, key=lambda r: r["env_steps_per_s"])
     print(f"best: {best['env_steps_per_s']:,.0f} env-steps/s at N = {best['envs']}")
     write_csv(args.csv, rows)

@@ -98,6 +98,12 @@ class Outcome:
     # The collision, if any: the vehicle hit (index of safety.PARTNERS) and the ego's speed.
     partner: Array  # int32
     hit_speed: Array  # m/s (NaN without a collision)
+    # The traffic's hazards (env.mobil, env.braking; 0 in the paper's traffic): cut-ins met
+    # and braking events of the vehicles around the ego over the manoeuvre, and what the
+    # vehicle hit was doing (index of safety.HAZARDS).
+    cut_ins: Array  # int32
+    brakes_near: Array  # int32
+    hit_hazard: Array  # int32
     # The terms' order (a pytree's dict comes back with its keys sorted).
     names: tuple[str, ...] = flax.struct.field(pytree_node=False, default=())
 
@@ -245,6 +251,9 @@ def _empty_outcome(cs: Cases, n_pol: int, p: EnvParams) -> Outcome:
         min_thw=jnp.broadcast_to(thw, pc + (3,)),
         partner=i0,
         hit_speed=nan,
+        cut_ins=i0,
+        brakes_near=i0,
+        hit_hazard=i0,
         names=reward_names(p),
     )
 
@@ -304,8 +313,11 @@ def _accumulate(
         lcm_end=jnp.where(ends, step, out.lcm_end),
         min_ttc=jnp.where(live[..., None], jnp.minimum(out.min_ttc, ttc), out.min_ttc),
         min_thw=jnp.where(live[..., None], jnp.minimum(out.min_thw, thw), out.min_thw),
-        partner=jnp.where(hit, safety.partner(overlap, new.traffic.x, new.ego, p), out.partner),
+        partner=jnp.where(hit, safety.partner(overlap, new.traffic, new.ego, p), out.partner),
         hit_speed=jnp.where(hit, new.ego.v, out.hit_speed),
+        cut_ins=out.cut_ins + (live & info.get("cut_in", False)),
+        brakes_near=out.brakes_near + jnp.where(live, info.get("brake_near", 0), 0),
+        hit_hazard=jnp.where(hit, safety.hazard(overlap, new.traffic), out.hit_hazard),
     )
 
 

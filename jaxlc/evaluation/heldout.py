@@ -25,13 +25,15 @@ Intervals:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import scipy.stats
 
+from jaxlc import config
 from jaxlc.evaluation.results import OUTCOMES
-from jaxlc.evaluation.safety import NORMS, PARTNERS, VEHICLES
+from jaxlc.evaluation.safety import HAZARDS, NORMS, PARTNERS, VEHICLES
 from jaxlc.evaluation.stats import CELL_AXES, CONFIDENCE, RESAMPLES, cell_key, expanded_level
 from jaxlc.paper.claims import CLAIM_D, SOLVED
 from jaxlc.paper.grid import BEST_TAG, is_best
@@ -43,6 +45,9 @@ LONGITUDINAL = ("peak_long_acc", "peak_long_jerk")
 ENDS = ("success", "out_of_bounds", "collision", "timeout", "unfinished")
 NORM_KEYS = tuple(f"norm_{name}" for name, *_ in NORMS) + ("norm_all",)
 CRIT_KEYS = tuple(f"{m}_crit_{v}" for m in ("ttc", "thw") for v in VEHICLES)
+# The traffic's hazards met (env.mobil, env.braking): cut-ins, lane changes that met one,
+# braking events of the vehicles around the ego; 0 in the paper's traffic.
+HAZARD_KEYS = ("cut_ins", "met_cut_in", "brakes_near", "met_braking")
 HELDOUT_FIELDS = (
     ("label", "model", "cell", "seed", "k", "memory", "episode", "lane_changes")
     + ENDS
@@ -53,6 +58,7 @@ HELDOUT_FIELDS = (
     + LONGITUDINAL
     + NORM_KEYS
     + CRIT_KEYS
+    + HAZARD_KEYS
 )
 COLLISION_FIELDS = (
     "label",
@@ -61,6 +67,7 @@ COLLISION_FIELDS = (
     "episode",
     "case",
     "partner",
+    "hazard",
     "yielding",
     "hit_speed",
 ) + ("time_s", "accept_v", "accept_lead_gap", "accept_lag_gap", "accept_lag_v")
@@ -153,6 +160,10 @@ def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, d
         "min_thw_s": _p5(m["min_thw_s"]),
         **{k: _mean(m[k]) for k in NORM_KEYS},
         **crit,
+        "cut_ins": int(out["cut_ins"][p][perf].sum()),
+        "met_cut_in": int((out["cut_ins"][p][perf] > 0).sum()),
+        "brakes_near": int(out["brakes_near"][p][perf].sum()),
+        "met_braking": int((out["brakes_near"][p][perf] > 0).sum()),
     }
 
 
@@ -170,6 +181,7 @@ def collisions(
                     **{k: meta.get(k) for k in ("label", "model", "seed", "episode")},
                     "case": int(c),
                     "partner": PARTNERS[int(out["partner"][p][c])],
+                    "hazard": HAZARDS[int(out["hit_hazard"][p][c])],
                     "yielding": bool(info["yielding"][c]),
                     "hit_speed": float(out["hit_speed"][p][c]),
                     "time_s": float(out["steps"][p][c] * dt),
@@ -177,6 +189,45 @@ def collisions(
                 }
             )
     return rows
+
+
+def in_traffic(cfg: config.Config, overrides: Sequence[str]) -> config.Config:
+    """``cfg`` with ``[env]`` overrides (``env.KEY=VALUE``), validated as a config file's
+    values are; any other table is refused (the policies are the run's)."""
+    data = cfg.to_dict()
+    for text in overrides:
+        table, key, value = config.parse_override(text)
+        if table != "env":
+            raise config.ConfigError(
+                f"traffic override '{text}': only [env] keys (env.KEY=VALUE) set the traffic"
+            )
+        data["env"][key] = value
+    return config.from_dict(data)
+
+
+def traffic_of(env: config.EnvConfig) -> str:
+    """One line naming the traffic of ``env``: the paper's, or its lane changes and braking
+    events with their settings."""
+    parts = []
+    if env.mobil:
+        parts.append(
+            f"MOBIL lane changes (politeness {env.mobil_politeness:g}, threshold "
+            f"{env.mobil_threshold:g} m/s², right bias {env.mobil_bias_right:g} m/s², acting at "
+            f"{env.mobil_rate:g}/s, {env.lane_change_time_min:g}–{env.lane_change_time_max:g} s, "
+            f"one per {env.mobil_interval:g} s)"
+        )
+    if env.braking:
+        parts.append(
+            f"braking events ({env.braking_rate:g} per vehicle-hour, "
+            f"{env.braking_decel_min:g}–{env.braking_decel_max:g} m/s² for "
+            f"{env.braking_time_min:g}–{env.braking_time_max:g} s)"
+        )
+    if not parts:
+        return (
+            "the paper's traffic (the other vehicles keep their lane and brake only for "
+            "their leader)"
+        )
+    return "traffic with " + " and ".join(parts)
 
 
 def _two_level(k: np.ndarray, n: np.ndarray, seed: int = 0) -> tuple[float, float]:
@@ -226,6 +277,7 @@ def cell_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 "collision_bound": upper_bound(hits, total),
                 "models_without_failure": int(np.sum(k == n)),
                 "norm_all": float(np.mean([r["norm_all"] for r in mine])),
+                **{k: sum(r.get(k, 0) for r in mine) for k in HAZARD_KEYS},
             }
         )
     return cells

@@ -162,14 +162,24 @@ def evaluate_heldout(
     max_steps: int = PROTOCOL.max_steps,
     chunk: int = PROTOCOL.chunk,
     devices: int = 1,
+    traffic: Sequence[str] = (),
+    tag: str = "",
 ) -> dict[str, Any]:
     """Every model's final checkpoint (and those of ``episodes``) and the scripted baseline
     on ``lane_changes`` held-out lane changes (``jaxlc.evaluation.heldout``); writes
     ``eval/heldout.json``, ``heldout.csv``, ``heldout_cells.csv``, ``collisions.csv`` and
-    ``heldout_cases.npz``; returns the JSON's content."""
+    ``heldout_cases.npz``; returns the JSON's content.
+
+    ``traffic``: ``[env]`` overrides (``env.KEY=VALUE``) under which the lane changes are
+    driven, in place of the training's traffic, checked as any config value; the files then
+    go to ``eval/heldout_TAG/`` (``tag``, default ``traffic``)."""
     run_dir, rd = Path(run_dir), RunDir(run_dir)
     chosen = final_checkpoints(run_dir, episodes)
     cfg, actors, metas = load_rows(run_dir, chosen)
+    out_dir = rd.eval
+    if traffic:
+        cfg = heldout.in_traffic(cfg, traffic)
+        out_dir = rd.eval / f"heldout_{tag or 'traffic'}"
     keys = keys_for_lane_changes(cfg, lane_changes, seed, max_steps)
     out, _, info = evaluate_policies(
         cfg,
@@ -194,17 +204,19 @@ def evaluate_heldout(
             dict(zip(("measure", "bound", "below", "source"), n, strict=True)) for n in NORMS
         ],
         "conflicts_counted": COUNTED,
+        "traffic": heldout.traffic_of(cfg.env),
+        "traffic_overrides": list(traffic),
         "rows": rows,
         "cells": cells,
         "claim_d": heldout.claim_d(cells),
         "collisions": heldout.collisions(out, info, metas, dt),
     }
-    _write_json(rd.heldout_json, result)
-    _write_table(rd.eval / "heldout.csv", rows, heldout.HELDOUT_FIELDS)
-    _write_table(rd.eval / "heldout_cells.csv", cells)
-    _write_table(rd.eval / "collisions.csv", result["collisions"], heldout.COLLISION_FIELDS)
+    _write_json(out_dir / rd.heldout_json.name, result)
+    _write_table(out_dir / "heldout.csv", rows, heldout.HELDOUT_FIELDS)
+    _write_table(out_dir / "heldout_cells.csv", cells)
+    _write_table(out_dir / "collisions.csv", result["collisions"], heldout.COLLISION_FIELDS)
     ids = _policy_ids(metas)
-    rd.save_npz(rd.heldout_cases, {**out, **ids, **info})
+    rd.save_npz(out_dir / rd.heldout_cases.name, {**out, **ids, **info})
     return result
 
 

@@ -354,21 +354,27 @@ def _collision_tally(doc: dict[str, Any]) -> list[str]:
     hits = doc["collisions"]
     if not hits:
         return ["No held-out lane change of any policy ended in a collision.", ""]
-    groups: dict[tuple[str, bool], list[dict[str, Any]]] = {}
+    hazards = any("hazard" in h for h in hits)  # evaluated where the traffic has hazards
+    groups: dict[tuple[str, str, bool], list[dict[str, Any]]] = {}
     for h in hits:
-        groups.setdefault((h["partner"], h["yielding"]), []).append(h)
+        groups.setdefault((h["partner"], h.get("hazard", ""), h["yielding"]), []).append(h)
     lines = [
-        f"{len(hits)} collisions. By the vehicle hit and whether the target lane's lag was "
-        "drawn yielding (medians):",
+        f"{len(hits)} collisions. By the vehicle hit"
+        + (", what it was doing" if hazards else "")
+        + " and whether the target lane's lag was drawn yielding (medians):",
         "",
-        "| vehicle hit | lag yields | collisions | ego speed m/s | time into manoeuvre s | "
+        "| vehicle hit |"
+        + (" it was |" if hazards else "")
+        + " lag yields | collisions | ego speed m/s | time into manoeuvre s | "
         "lag gap at acceptance m | lag speed at acceptance m/s | ego speed at acceptance m/s |",
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|" + ("---|" if hazards else ""),
     ]
-    for (who, ylds), hs in sorted(groups.items(), key=lambda kv: -len(kv[1])):
+    for (who, hz, ylds), hs in sorted(groups.items(), key=lambda kv: -len(kv[1])):
         med = {k: _median([h[k] for h in hs]) for k in COLLISION_MEDIANS}
         lines.append(
-            f"| {who.replace('_', ' ')} | {'yes' if ylds else 'no'} | {len(hs)} | "
+            f"| {who.replace('_', ' ')} | "
+            + (f"{hz.replace('_', ' ')} | " if hazards else "")
+            + f"{'yes' if ylds else 'no'} | {len(hs)} | "
             + " | ".join(_f(med[k], ".1f") for k in COLLISION_MEDIANS)
             + " |"
         )
@@ -392,14 +398,27 @@ EVERY_STEP = "on every step from the manoeuvre's start"
 COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
 
 
-def _heldout_section(doc: dict[str, Any] | None) -> list[str]:
-    """``eval/heldout.json``'s content (``doc``; None: the run has no held-out evaluation)."""
+def _heldout_section(doc: dict[str, Any] | None, tag: str = "") -> list[str]:
+    """``eval/heldout.json``'s content (``doc``; None: the run has no held-out evaluation),
+    or that of ``eval/heldout_TAG/heldout.json``, driven in another traffic."""
     if doc is None:
         return []
     norms = "; ".join(n["source"] for n in doc["norms"])
     d = doc["claim_d"]
+    where = f" in another traffic (`{tag}`)" if tag else ""
+    overrides = ", ".join(f"`{o}`" for o in doc.get("traffic_overrides", []))
     return [
-        "## Held-out lane changes",
+        f"## Held-out lane changes{where}",
+        "",
+        f"Measured in {doc.get('traffic', 'the training traffic')}"
+        + (f" (overrides {overrides})." if overrides else ".")
+        + (
+            " Cut-ins met and braking events of the vehicles around the ego are counted per "
+            "lane change (`cut_ins`, `met_cut_in`, `brakes_near`, `met_braking` in "
+            "`heldout.csv`); each collision names what the vehicle hit was doing."
+            if overrides
+            else ""
+        ),
         "",
         f"Each model's final checkpoint and the scripted controller on {doc['lane_changes']} "
         f"held-out lane changes ({doc['cases']} cases of `{doc['key_stream']}`, a key stream "
@@ -524,6 +543,11 @@ def build_report(run_dir: Path) -> str:
         "",
         *_claims_section(run_dir, held),
         *_heldout_section(held),
+        *[
+            line
+            for path in sorted(RunDir(run_dir).eval.glob("heldout_*/heldout.json"))
+            for line in _heldout_section(json.loads(path.read_text()), path.parent.name[8:])
+        ],
         *_seed_section(rows),
         "## The paper's other figures beside this run",
         "",

@@ -58,6 +58,8 @@ COUNTED = (
 )
 VEHICLES = ("lead", "lag", "own")  # target lane's lead and lag, the own-lane leader
 PARTNERS = ("none", "target_lead", "target_lag", "own_leader", "own_follower")
+# What the vehicle hit was doing (env.mobil, env.braking): a bit each.
+HAZARDS = ("none", "braking", "changing_lanes", "braking_and_changing_lanes")
 
 
 def ttc(gap: Array, v_follower: Array, v_leader: Array, present: Array) -> Array:
@@ -137,12 +139,31 @@ def windowed_jerk(history: Array, a_y: Array, dt: float) -> tuple[Array, Array]:
     return jerk, jnp.concatenate([history[..., 1:], a_y[..., None]], axis=-1)
 
 
-def partner(overlap: Array, traffic_x: Array, ego, p) -> Array:
+def partner(overlap: Array, traffic, ego, p) -> Array:
     """``(...)`` int32 index into ``PARTNERS`` of the vehicle an ego box overlaps (the
-    ``(..., lanes, slots)`` mask ``overlap``); 0 when none."""
+    ``(..., lanes, slots)`` mask ``overlap``; ``traffic`` the ``Traffic`` after the step); 0
+    when none. A vehicle changing lanes is in the target lane when it counts there."""
+    traffic_x = traffic.x
     lanes = jnp.arange(p.lanes)[:, None]
-    in_target = lanes == ego.target[..., None, None]
+    if traffic.lane is None:
+        in_target = lanes == ego.target[..., None, None]
+    else:
+        changing = traffic.active & (traffic.lc_time < traffic.lc_dur)
+        target = ego.target[..., None, None]
+        in_target = (traffic.lane == target) | (changing & (traffic.lane_from == target))
     # Centres along the road: the ego's box is heading-aligned, front bumper at x.
     ahead = traffic_x - 0.5 * p.vehicle_length > (ego.x - 0.5 * p.vehicle_length)[..., None, None]
     code = jnp.where(in_target, jnp.where(ahead, 1, 2), jnp.where(ahead, 3, 4))
     return jnp.max(jnp.where(overlap, code, 0), axis=(-2, -1)).astype(jnp.int32)
+
+
+def hazard(overlap: Array, traffic) -> Array:
+    """``(...)`` int32 index into ``HAZARDS`` of what the vehicles an ego box overlaps
+    (``(..., lanes, slots)``) were doing: braking in an event, changing lanes, both."""
+    code = jnp.zeros(overlap.shape[:-2], jnp.int32)
+    if traffic.brake_left is not None:
+        code += jnp.any(overlap & (traffic.brake_left > 0.0), axis=(-2, -1))
+    if traffic.lane is not None:
+        changing = traffic.lc_time < traffic.lc_dur
+        code += 2 * jnp.any(overlap & changing, axis=(-2, -1))
+    return code

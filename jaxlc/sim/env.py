@@ -45,7 +45,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxlc.config import Config, EnvConfig
-from jaxlc.sim import reward
+from jaxlc.sim import braking, leaders, mobil, reward
 from jaxlc.sim.collision import collided
 from jaxlc.sim.controller import assist_action
 from jaxlc.sim.ego import ego_accel, ego_phase, gap_decision, held_action, held_long_action
@@ -63,6 +63,7 @@ from jaxlc.sim.road import (
     ego_lanes,
     ego_yaw_rate,
     lane_keeping_yaw_rate,
+    lane_scales,
     lateral_offset,
     origin_y,
     road_curvature,
@@ -80,6 +81,7 @@ from jaxlc.sim.state import (  # noqa: F401 (the state types and phases re-expor
     EnvParams,
     EnvState,
     Traffic,
+    TrafficDraws,
     action_dim,
     between,
 )
@@ -109,18 +111,12 @@ def end_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) ->
     return jnp.where(in_rl, rl_reason, before_rl).astype(jnp.int32)
 
 
-def _advance(
-    key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool
-) -> tuple[EnvState, Array, dict[str, Array]]:
-    """One dt of traffic and ego; returns ``(state, reward, info)`` (no observation); ``info``
-    holds each of ``p.reward_terms`` under its name."""
-    tr, eg = state.traffic, state.ego
-    u = Draws.draw(key, p.lanes)
-    kappa = road_curvature(state, p)
-    in_rl = eg.phase == RL
-    held = held_action(eg, action, p)
-    held_long = held_long_action(eg, action, p)  # None unless longitudinal = "policy"
-    lat, lon = held, held_long  # executed: the policy's, plus the assist's (env.assist)
+def _executed(state: EnvState, action: Array, p: EnvParams) -> tuple:
+    """``(held, held_long, lat, lon)``: the policy's held actions (``held_long`` None unless
+    longitudinal = "policy") and the executed ones, with the assist's (env.assist) added."""
+    held = held_action(state.ego, action, p)
+    held_long = held_long_action(state.ego, action, p)
+    lat, lon = held, held_long
     if p.assist != "none":  # static: the default's program has no assist in it
         extra, holding = assist_action(state, p)  # (action_dim,), ()
         w = p.assist_authority  # the residual's share of each bound
@@ -130,12 +126,38 @@ def _advance(
             # width from the target's): any outward residual would end the manoeuvre there.
             lat = jnp.where(holding, extra[0], lat)
         lon = None if held_long is None else jnp.clip(w * held_long + extra[1], -1.0, 1.0)
+    return held, held_long, lat, lon
+
+
+def _advance(
+    key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool
+) -> tuple[EnvState, Array, dict[str, Array]]:
+    """One dt of traffic and ego; returns ``(state, reward, info)`` (no observation); ``info``
+    holds each of ``p.reward_terms`` under its name."""
+    tr, eg = state.traffic, state.ego
+    u = Draws.draw(key, p.lanes)
+    kappa = road_curvature(state, p)
+    in_rl = eg.phase == RL
+    held, held_long, lat, lon = _executed(state, action, p)
     a_lat = p.max_yaw_acc * lat
     a_ego = ego_accel(state, p, lon)
-    m = move(tr, eg, traffic_accel(state, p), a_ego, a_lat, p, kappa)
+    hazards: dict[str, Array] = {}
+    if p.mobil or p.braking:  # static: the paper's traffic draws and computes none of this
+        ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane)
+    around = leaders.around(tr, eg, p, lane_scales(kappa, p)) if p.mobil else None
+    m = move(tr, eg, traffic_accel(state, p, around), a_ego, a_lat, p, kappa)
+    if p.mobil:  # lanes change before inflow, so an entrant sees who moved into its lane
+        lc = mobil.decide(tr, around, ut, p)
+        tr = mobil.advance(tr, m.active, lc, ut, p)
+        hazards = mobil.counts(lc, around, eg, p)
     occupied = ego_lanes(eg, p)
     traffic, spawned = inflow(tr, m, occupied, (eg.phase == WAIT) & spawn, u, p, kappa)
+    if p.braking:
+        events = braking.advance(traffic, ut, p)
+        traffic = events.traffic
     ego = ego_phase(eg, m, a_ego, held, held_long, spawned, tr, u, p)
+    if p.braking:
+        hazards |= braking.counts(events, ego, p)
     if p.curvature_drawn:  # a new episode, a new road (the traffic keeps its s and lanes)
         kappa = jnp.where(spawned, between(u.curvature, p.curvature_min, p.curvature_max), kappa)
     nb, leader_gap, leader_v = observe_lanes(traffic, ego, p, kappa)
@@ -177,6 +199,7 @@ def _advance(
         "episode_return": ep_return,
         "episode_steps": ego.steps,
         "offset": offset,
+        **hazards,  # with env.mobil / env.braking: the traffic's events of this step
     }
     return state, r, info
 
@@ -213,6 +236,13 @@ class LaneChangeEnv:
             next_v0=between(u[2], p.desired_speed_min, p.desired_speed_max),
             inflow=inflow,
         )
+        if p.mobil:
+            rows = jnp.broadcast_to(jnp.arange(lanes, dtype=jnp.int32)[:, None], (lanes, slots))
+            traffic = traffic.replace(
+                lane=rows, lane_from=rows, lc_time=zeros + mobil.NEVER, lc_dur=zeros
+            )
+        if p.braking:
+            traffic = traffic.replace(brake_left=zeros, brake_acc=zeros)
         f0 = jnp.float32(0.0)
         ego = Ego(
             phase=jnp.int32(WAIT),

@@ -48,7 +48,9 @@ def move(
     kappa = p.curvature if kappa is None else kappa
     dt = p.dt
     v_new = jnp.maximum(tr.v + acc * dt, 0.0)
-    x_new = tr.x + 0.5 * (tr.v + v_new) * dt / lane_scales(kappa, p)[:, None]
+    scale = lane_scales(kappa, p)  # a vehicle's s advances along the lane it drives in
+    scale = scale[:, None] if tr.lane is None else scale[tr.lane]
+    x_new = tr.x + 0.5 * (tr.v + v_new) * dt / scale
     ev = jnp.maximum(eg.v + a_ego * dt, 0.0)
     v_ego = 0.5 * (eg.v + ev)
     k_ego = jnp.where(eg.phase == WAIT, 0.0, kappa)

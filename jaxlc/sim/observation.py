@@ -21,6 +21,7 @@ from jax import Array
 
 from jaxlc.sim import gap, kinematics
 from jaxlc.sim.idm import NO_LEADER_GAP
+from jaxlc.sim.leaders import occupancy
 from jaxlc.sim.road import (
     current_lane,
     lane_offset,
@@ -127,13 +128,23 @@ def observe_lanes(
     tr: Traffic, eg: Ego, p: EnvParams, kappa: Array | None = None
 ) -> tuple[gap.Neighbours, Array, Array]:
     """Target-lane neighbours (positions in s) and the net gap (metres along the lane) and
-    speed of the leader in the ego's current lane (meaningless in WAIT)."""
+    speed of the leader in the ego's current lane (meaningless in WAIT). With ``env.mobil``
+    they are found by position among the bodies that count in the lane (``b1_mask`` is then
+    ``(rows * slots,)``)."""
     kappa = p.curvature if kappa is None else kappa
-    row = lambda a: lane_row(a, eg.target, p.lanes)  # noqa: E731
-    nb = gap.neighbours(row(tr.x), row(tr.v), row(tr.v0), row(tr.active), eg.x)
     cur = current_lane(eg, p)
-    cx, cv = lane_row(tr.x, cur, p.lanes), lane_row(tr.v, cur, p.lanes)  # (slots,)
-    ahead = lane_row(tr.active, cur, p.lanes) & (cx > eg.x)
+    if tr.lane is None:  # rows are lanes
+        row = lambda a: lane_row(a, eg.target, p.lanes)  # noqa: E731
+        nb = gap.neighbours(row(tr.x), row(tr.v), row(tr.v0), row(tr.active), eg.x)
+        cx, cv = lane_row(tr.x, cur, p.lanes), lane_row(tr.v, cur, p.lanes)  # (slots,)
+        in_cur = lane_row(tr.active, cur, p.lanes)
+    else:  # every body that counts in the lane, a vehicle changing lanes in both
+        occ = occupancy(tr, p).reshape(p.lanes, -1)  # (lanes, rows * slots)
+        flat = lambda a: a.reshape(-1)  # noqa: E731
+        in_target = lane_row(occ, eg.target, p.lanes)
+        nb = gap.neighbours(flat(tr.x), flat(tr.v), flat(tr.v0), in_target, eg.x)
+        cx, cv, in_cur = flat(tr.x), flat(tr.v), lane_row(occ, cur, p.lanes)
+    ahead = in_cur & (cx > eg.x)
     lx = jnp.min(jnp.where(ahead, cx, gap.FAR))
     lv = jnp.max(jnp.where(ahead & (cx == lx), cv, -gap.FAR))
     has = jnp.any(ahead)

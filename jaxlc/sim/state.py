@@ -39,10 +39,11 @@ CONVERSIONS: dict[str, Callable[[Any], Any]] = {
     "desired_speed_max": lambda v: v * KMH,
     "inflow_min": lambda v: v / 3600.0,  # veh/h -> veh/s
     "inflow_max": lambda v: v / 3600.0,
+    "braking_rate": lambda v: v / 3600.0,  # per vehicle-hour -> per vehicle-second
 }
 # Fields that fix array shapes or loop lengths: static (``pytree_node=False``), so a change
 # compiles a new program; every other field is traced and may differ between vmapped models.
-STATIC = frozenset({"lanes", "slots_per_lane", "longitudinal", "assist"})
+STATIC = frozenset({"lanes", "slots_per_lane", "longitudinal", "assist", "mobil", "braking"})
 # EnvConfig fields that EnvParams holds as other fields, declared in the class below.
 DERIVED = frozenset({"warmup_time", "curvature", "reward_terms"})
 
@@ -145,6 +146,15 @@ class Traffic:
     next_v: Array  # (lanes,) entry speed of the next entrant
     next_v0: Array  # (lanes,) desired speed of the next entrant
     inflow: Array  # (lanes,) veh/s, drawn per episode
+    # With env.mobil (None, no leaf, otherwise: the paper's traffic, whose rows are lanes).
+    # A slot's row is then the lane it entered; the lane it drives in is ``lane``.
+    lane: Array | None = None  # (lanes, slots) int32 lane driven in (the target while changing)
+    lane_from: Array | None = None  # (lanes, slots) int32 lane of the last lane change's start
+    lc_time: Array | None = None  # (lanes, slots) s since the last lane change started
+    lc_dur: Array | None = None  # (lanes, slots) s that lane change lasts
+    # With env.braking (None otherwise): the braking event under way, if any.
+    brake_left: Array | None = None  # (lanes, slots) s of braking left (0: none)
+    brake_acc: Array | None = None  # (lanes, slots) its deceleration, m/s^2 (> 0)
 
 
 @flax.struct.dataclass
@@ -199,6 +209,23 @@ class Draws(NamedTuple):
         u = jax.random.uniform(key, (4 * lanes + 3,))
         headway, entry_v, entry_v0, inflow = jnp.split(u[: 4 * lanes], 4)
         return cls(headway, entry_v, entry_v0, inflow, *u[4 * lanes :])
+
+
+class TrafficDraws(NamedTuple):
+    """The step's uniform numbers of the traffic's own decisions, ``(lanes, slots)`` each, one
+    per vehicle slot: drawn from ``fold_in(step key, 1)`` only with ``env.mobil`` or
+    ``env.braking``, so the paper's traffic draws exactly what it drew before."""
+
+    lc_fire: Array  # acts on an allowed lane change this step (< 1 - exp(-mobil_rate*dt))
+    lc_time: Array  # the lane change's duration in [lane_change_time_min, _max)
+    brake_fire: Array  # a braking event starts (< 1 - exp(-braking_rate*dt))
+    brake_acc: Array  # its deceleration in [braking_decel_min, _max)
+    brake_time: Array  # its duration in [braking_time_min, _max)
+
+    @classmethod
+    def draw(cls, key: Array, lanes: int, slots: int) -> TrafficDraws:
+        u = jax.random.uniform(jax.random.fold_in(key, 1), (5, lanes, slots))
+        return cls(*u)
 
 
 def between(u: Array, lo: Array, hi: Array) -> Array:

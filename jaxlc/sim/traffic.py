@@ -1,7 +1,10 @@
 """The traffic: who follows whom, every vehicle's IDM acceleration, and the inflow at x = 0.
 
-Only the ego changes lanes, so vehicles of a lane never pass each other and a vehicle's leader
-is simply the slot written before it in its lane's ring buffer: no search (``ring_leaders``).
+In the paper's traffic only the ego changes lanes, so vehicles of a lane never pass each other
+and a vehicle's leader is simply the slot written before it in its lane's ring buffer: no
+search (``ring_leaders``). With ``env.mobil`` the other vehicles change lanes too, and every
+leader is found by position in each lane the vehicle counts in (``leaders.around``); with
+``env.braking`` a braking event lowers a vehicle's acceleration (``braking.braked``).
 """
 
 from __future__ import annotations
@@ -9,8 +12,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.sim import gap, kinematics
+from jaxlc.sim import braking, gap, kinematics, mobil
 from jaxlc.sim.idm import NO_LEADER_GAP, idm_with_params
+from jaxlc.sim.leaders import Around, occupancy
 from jaxlc.sim.motion import Motion
 from jaxlc.sim.road import ego_lanes, lane_scales, road_curvature
 from jaxlc.sim.state import CRUISE, RL, Draws, EnvParams, EnvState, Traffic, between
@@ -27,12 +31,44 @@ def ring_leaders(tr: Traffic, p: EnvParams, scale: Array) -> tuple[Array, Array]
     return jnp.where(has, gap_m, NO_LEADER_GAP), jnp.where(has, pv, tr.v)
 
 
-def traffic_accel(state: EnvState, p: EnvParams) -> Array:
+def traffic_accel(state: EnvState, p: EnvParams, a: Around | None = None) -> Array:
     """``(lanes, slots)`` IDM acceleration of every vehicle (0 for empty slots).
 
     A vehicle's leader is its ring predecessor, or the ego when the ego is ahead and its body
     overlaps the vehicle's lane (or, for a yielding lag, from the moment the gap is chosen).
-    Gaps are metres along the vehicle's lane."""
+    Gaps are metres along the vehicle's lane. With ``env.mobil`` (``a``: the state's
+    ``leaders.around``) the leaders are found by position, in each lane the vehicle counts in,
+    and the lowest of those accelerations is taken; a braking event (``env.braking``) lowers
+    it further."""
+    tr = state.traffic
+    acc = _ring_accel(state, p) if a is None else _position_accel(state, a, p)
+    return acc if tr.brake_left is None else braking.braked(acc, tr)
+
+
+def _position_accel(state: EnvState, a: Around, p: EnvParams) -> Array:
+    tr, eg, nb = state.traffic, state.ego, state.nb
+    n = tr.x.size
+    subject = jnp.broadcast_to(jnp.arange(a.x.shape[0]), a.lead.shape)  # (lanes, V)
+    c = a.scale[:, None]
+    gap_l = jnp.where(
+        a.has_lead, a.x[a.lead] * c - a.length[a.lead] - a.x[subject] * c, NO_LEADER_GAP
+    )
+    lead_v = jnp.where(a.has_lead, a.v[a.lead], a.v)
+    # The yielding lag takes the ego as its leader from the gap's acceptance, before the
+    # ego's body is in its lane (SPEC, "yield or overpass").
+    hx, _ = kinematics.half_extents(eg.psi, p.vehicle_length, p.vehicle_width)
+    ego_gap = (eg.x * c - 2.0 * hx - a.x * c)[:, :n]  # (lanes, N)
+    yields = (eg.phase == RL) & eg.yielding & nb.b1_mask.reshape(-1)  # (N,)
+    yields = (jnp.arange(p.lanes) == eg.target)[:, None] & yields[None, :]
+    use_ego = yields & (eg.x > a.x[:n]) & (ego_gap < gap_l[:, :n])
+    gap_l = jnp.where(use_ego, ego_gap, gap_l[:, :n])
+    lead_v = jnp.where(use_ego, eg.v, lead_v[:, :n])
+    acc = idm_with_params(a.v[:n], a.v0[:n], gap_l, lead_v, p)  # (lanes, N)
+    acc = jnp.min(jnp.where(a.occ[:, :n], acc, jnp.inf), axis=0).reshape(tr.x.shape)
+    return jnp.where(tr.active, acc, 0.0)
+
+
+def _ring_accel(state: EnvState, p: EnvParams) -> Array:
     tr, eg, nb = state.traffic, state.ego, state.nb
     on, in_rl = eg.phase >= CRUISE, eg.phase == RL
     c = lane_scales(road_curvature(state, p), p)  # (lanes,)
@@ -64,20 +100,28 @@ def inflow(
     a slot, and the episode it starts draws the lanes' inflow anew."""
     lanes, slots, origin = p.lanes, p.slots_per_lane, p.lanes // 2
     lane_ids, slot_ids = jnp.arange(lanes), jnp.arange(slots)
-    at_tail = slot_ids[None, :] == tr.tail[:, None]
-    at_last = slot_ids[None, :] == ((tr.tail - 1) % slots)[:, None]
-    last_on = jnp.any(at_last & m.active, axis=-1)
-    front = jnp.where(last_on, jnp.sum(jnp.where(at_last, m.x, 0.0), axis=-1), gap.FAR)
+    if tr.lane is None:
+        at_tail = slot_ids[None, :] == tr.tail[:, None]
+        at_last = slot_ids[None, :] == ((tr.tail - 1) % slots)[:, None]
+        last_on = jnp.any(at_last & m.active, axis=-1)
+        front = jnp.where(last_on, jnp.sum(jnp.where(at_last, m.x, 0.0), axis=-1), gap.FAR)
+        room = ~jnp.any(at_tail & m.active, axis=-1)
+    else:  # rows are not lanes: the rearmost body in the lane; an entrant takes a free slot
+        occ = occupancy(tr.replace(x=m.x, active=m.active), p).reshape(lanes, -1)
+        front = jnp.min(jnp.where(occ, m.x.reshape(-1)[None, :], gap.FAR), axis=-1)
+        free = ~m.active
+        at_tail = free & (jnp.cumsum(free, axis=-1) == 1)  # the first free slot of each row
+        room = jnp.any(free, axis=-1)
     front = jnp.where(occupied, jnp.minimum(front, m.ego_x), front)
     front = front * lane_scales(p.curvature if kappa is None else kappa, p)  # m along the lane
     timer = tr.timer - p.dt
     due = (timer <= 0.0) & (front >= p.idm_s0 + tr.next_v * p.idm_time_headway + p.vehicle_length)
     spawned_lane = due & (lane_ids == origin) & can_spawn
-    enter = due & ~spawned_lane & ~jnp.any(at_tail & m.active, axis=-1)
+    enter = due & ~spawned_lane & room
     entered = enter | spawned_lane
     write = at_tail & enter[:, None]
     spawned = spawned_lane[origin]
-    traffic = Traffic(
+    traffic = tr.replace(
         x=jnp.where(write, 0.0, m.x),
         v=jnp.where(write, tr.next_v[:, None], m.v),
         v0=jnp.where(write, tr.next_v0[:, None], tr.v0),
@@ -92,4 +136,15 @@ def inflow(
         ),
         inflow=jnp.where(spawned, between(u.inflow, p.inflow_min, p.inflow_max), tr.inflow),
     )
+    if tr.lane is not None:  # an entrant drives in its row's lane and has changed none
+        row = jnp.broadcast_to(lane_ids[:, None], write.shape)
+        traffic = traffic.replace(
+            tail=jnp.where(enter, jnp.argmax(at_tail, axis=-1), tr.tail).astype(jnp.int32),
+            lane=jnp.where(write, row, tr.lane),
+            lane_from=jnp.where(write, row, tr.lane_from),
+            lc_time=jnp.where(write, mobil.NEVER, tr.lc_time),
+            lc_dur=jnp.where(write, 0.0, tr.lc_dur),
+        )
+    if tr.brake_left is not None:
+        traffic = traffic.replace(brake_left=jnp.where(write, 0.0, tr.brake_left))
     return traffic, spawned

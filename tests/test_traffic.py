@@ -1,0 +1,164 @@
+"""The traffic that cuts in and brakes (env.mobil, env.braking): physical properties over a
+long run at the highest configured rates, MOBIL on hand-built cases, the rates as traced
+values, the config's checks, and the held-out evaluation in another traffic."""
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxlc
+from jaxlc import config
+from jaxlc.evaluation import heldout
+from jaxlc.sim import leaders, mobil
+from jaxlc.sim.env import EnvParams
+from jaxlc.sim.state import TrafficDraws
+
+from .conftest import changed_env_keys, load_benchmark
+
+HAZARDS = ("env.mobil=true", "env.braking=true")
+
+
+@pytest.fixture(scope="module")
+def long_run():
+    """256 envs x 400 steps (102,400 env-steps) at the ranges' highest rates."""
+    bench = load_benchmark("traffic_properties")
+    return bench.check(256, 400, bench.HIGHEST, chunk=400)
+
+
+def test_the_traffic_stays_physical_at_the_highest_rates(long_run):
+    t = long_run
+    assert t["env_steps"] >= 100_000
+    assert t["overlaps"] == 0, "two non-ego bodies overlap"
+    assert t["negative_speeds"] == 0
+    assert t["off_road"] == 0
+    assert t["unsafe_starts"] == 0, "a lane change started against MOBIL's safety criterion"
+    # exercised: the run holds many lane changes and braking events
+    assert t["lc_started"] > 1000 and t["brake_started"] > 1000
+
+
+@pytest.mark.parametrize("name", ["lane_change", "braking"])
+def test_event_rates_match_their_configured_values(long_run, name):
+    lo, hi = long_run[f"{name}_interval"]  # 99.9% Clopper-Pearson of the observed rate
+    assert lo <= long_run[f"{name}_expected"] <= hi
+
+
+def _traffic(p: EnvParams, vehicles: list[tuple[int, float, float]]):
+    """A state whose traffic holds ``vehicles`` (lane, x, v), one per row slot in order,
+    every v0 33 m/s, and no ego on the road."""
+    env = jaxlc.make(config.load(overrides=HAZARDS))[0]
+    _, s = env.reset(jax.random.PRNGKey(0), p.replace(warmup_steps=0))
+    tr = s.traffic
+    x, v, act, lane = (np.zeros(tr.x.shape, t) for t in (np.float32, np.float32, bool, np.int32))
+    lane[:] = np.arange(p.lanes)[:, None]
+    for i, (ln, xi, vi) in enumerate(vehicles):
+        x[ln, i], v[ln, i], act[ln, i] = xi, vi, True
+    tr = tr.replace(
+        x=jnp.asarray(x),
+        v=jnp.asarray(v),
+        v0=jnp.full(tr.x.shape, 33.0),
+        active=jnp.asarray(act),
+        lane=jnp.asarray(lane),
+        lane_from=jnp.asarray(lane),
+    )
+    return s.replace(traffic=tr)
+
+
+def _decide(p: EnvParams, s):
+    a = leaders.around(s.traffic, s.ego, p, jnp.ones(p.lanes))
+    u = TrafficDraws(*jnp.zeros((5,) + s.traffic.x.shape))  # every driver acts at once
+    return mobil.decide(s.traffic, a, u, p)
+
+
+def test_mobil_leaves_a_slow_leader_for_a_free_lane_only_when_it_is_safe():
+    polite = jaxlc.make(config.load(overrides=HAZARDS))[1]
+    p = polite.replace(mobil_politeness=0.0)  # selfish drivers
+    # lane 0: a car at 25 m/s, 20 m behind a truck at 10 m/s; lane 1 empty around them
+    free = _decide(p, _traffic(p, [(0, 300.0, 10.0), (0, 275.0, 25.0)]))
+    assert bool(free.start[0, 1]) and int(free.to[0, 1]) == 1  # moves left, to lane 1
+    assert not bool(free.allowed[0, 0])  # the truck gains nothing itself
+    # with politeness 0.2 the truck moves over for the car (its gain weighs), and of the
+    # two starting into one spot on one step only the truck goes
+    both = _decide(polite, _traffic(p, [(0, 300.0, 10.0), (0, 275.0, 25.0)]))
+    assert bool(both.fired[0, 0]) and bool(both.fired[0, 1])
+    assert bool(both.start[0, 0]) and not bool(both.start[0, 1])
+    # the same with a fast car 8 m behind in lane 1: it would brake harder than b_safe
+    blocked = _decide(p, _traffic(p, [(0, 300.0, 10.0), (0, 275.0, 25.0), (1, 262.0, 30.0)]))
+    assert not bool(blocked.start[0, 1])
+
+
+def test_two_drivers_do_not_start_into_one_spot_on_one_step():
+    p = jaxlc.make(config.load(overrides=HAZARDS))[1]
+    # lanes 0 and 2 each hold a car behind a slow truck, side by side: both want lane 1
+    s = _traffic(p, [(0, 300.0, 10.0), (0, 275.0, 25.0), (2, 300.0, 10.0), (2, 275.0, 25.0)])
+    d = _decide(p, s)
+    assert bool(d.fired[0, 1]) and bool(d.fired[2, 3])
+    assert int(d.start.sum()) == 1
+
+
+def test_rates_are_traced_one_program_runs_a_batch_of_traffics():
+    env, p = jaxlc.make(config.load(overrides=(*HAZARDS, "env.warmup_time=20.0")))
+    rates = jnp.array([0.0, 3600.0])  # braking events per vehicle-hour
+    params = jax.tree.map(lambda a: jnp.stack([a, a]), p).replace(braking_rate=rates / 3600.0)
+    keys = jax.random.split(jax.random.PRNGKey(3), 2)
+    _, s = jax.vmap(env.reset)(keys, params)
+    braking = np.asarray(jnp.sum(s.traffic.brake_left > 0.0, axis=(1, 2)))
+    assert braking[0] == 0 and braking[1] > 0
+
+
+def test_paper_traffic_has_no_hazard_state():
+    _, s = jaxlc.make()[0].reset(jax.random.PRNGKey(0), jaxlc.make()[1])
+    tr = s.traffic
+    assert tr.lane is None and tr.lc_time is None and tr.brake_left is None
+    assert not config.load(config.PAPER_CONFIG).env.mobil
+    assert not config.load(config.PAPER_CONFIG).env.braking
+
+
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ("env.braking_decel_max=9.5", "env.braking_decel_max"),
+        ("env.mobil_rate=0", "env.mobil_rate"),
+        ("env.lane_change_time_min=7.0", "env.lane_change_time_min"),
+        ("env.braking_rate=-1", "env.braking_rate"),
+    ],
+)
+def test_a_bad_traffic_value_names_its_key(override, key):
+    with pytest.raises(config.ConfigError, match=key.replace(".", r"\.")):
+        heldout.in_traffic(config.load(), [override])
+
+
+def test_traffic_overrides_take_env_keys_only():
+    cfg = heldout.in_traffic(config.load(), HAZARDS)
+    assert cfg.env.mobil and cfg.env.braking and cfg.ddpg == config.load().ddpg
+    assert "MOBIL" in heldout.traffic_of(cfg.env) and "braking" in heldout.traffic_of(cfg.env)
+    with pytest.raises(config.ConfigError, match="only \\[env\\] keys"):
+        heldout.in_traffic(config.load(), ["ddpg.gamma=0.5"])
+
+
+def test_heldout_lane_changes_in_another_traffic(smoke_run):
+    from jaxlc.evaluate import main
+
+    run_dir, _ = smoke_run
+    argv = [str(run_dir), "--heldout-only", "--lane-changes", "20", "--tag", "hazards"]
+    assert main([*argv, "--traffic", "env.mobil=true", "env.braking_rate=-1"]) == 2
+    assert main([*argv, "--traffic", *HAZARDS]) == 0
+    doc = json.loads((run_dir / "eval" / "heldout_hazards" / "heldout.json").read_text())
+    assert doc["traffic_overrides"] == list(HAZARDS)
+    assert doc["traffic"].startswith("traffic with MOBIL lane changes")
+    assert doc["lane_changes"] >= 20
+    for row in doc["rows"]:
+        assert 0 <= row["met_cut_in"] <= row["lane_changes"] and row["cut_ins"] >= row["met_cut_in"]
+
+
+def test_every_config_file_spells_the_traffic_keys_off_but_reactive():
+    for name in ("default.toml", "paper.toml", "joint.toml", "joint_assist.toml"):
+        env = config.load(config.CONFIG_DIR / name).env
+        assert not env.mobil and not env.braking, name
+    # reactive.toml: today's default trained in the traffic that cuts in and brakes
+    assert changed_env_keys("reactive.toml", config.load()) == {"mobil", "braking"}
+    reactive = config.load(config.CONFIG_DIR / "reactive.toml")
+    assert dataclasses.replace(reactive, env=config.load().env) == config.load()
