@@ -47,6 +47,7 @@ from jaxlc.sim import observation as obs_layout
 from jaxlc.sim import reward
 from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, reset_core, step_core
 from jaxlc.sim.env import OBS_DIM, EnvParams, EnvState, action_dim, make
+from jaxlc.sim.leaders import vehicle_y
 from jaxlc.sim.reward import REASONS
 from jaxlc.sim.road import reference_y, road_curvature
 
@@ -218,10 +219,12 @@ def render_frame(
                 img[max(r - line // 2 - 1, 0) : r + line // 2 + 1, c0:c1] = (235, 235, 235)
     # Traffic: axis-aligned boxes, front bumper at x.
     active, xs = np.asarray(tr.active), np.asarray(tr.x)
-    for lane in range(lanes):
-        yc = (lane + 0.5) * w
-        for x in xs[lane][active[lane]]:
-            fill(x - length, x, yc - 0.5 * width, yc + 0.5 * width, (60, 120, 220))
+    if tr.lane is None:  # rows are lanes
+        ys = (np.arange(lanes)[:, None] + 0.5) * w + np.zeros_like(xs)
+    else:  # with env.mobil: every body where it is, between two lanes while it changes
+        ys = np.asarray(vehicle_y(tr, p))
+    for x, yc in zip(xs[active], ys[active], strict=True):
+        fill(x - length, x, yc - 0.5 * width, yc + 0.5 * width, (60, 120, 220))
     _draw_ego(img, eg, length, width, x0, bar + shoulder + lanes * w * s, s)
     ends = (p.curvature_min, p.curvature_max) if p.curvature_drawn else (p.curvature,)
     k_max = max(abs(float(k)) for k in ends)

@@ -37,6 +37,7 @@ from jaxlc.learn.train import check_devices
 from jaxlc.sim.collision import overlaps
 from jaxlc.sim.controller import baseline_action
 from jaxlc.sim.env import RL, EnvParams, EnvState, LaneChangeEnv, action_dim
+from jaxlc.sim.leaders import vehicle_y
 from jaxlc.sim.observation import OBS_DIM, observation, target_gaps
 from jaxlc.sim.reward import COLLISION
 from jaxlc.sim.reward import names as reward_names
@@ -119,6 +120,7 @@ class Trace:
     frames: Array  # (policies, traced) int32 valid frames
     traffic_x: Array  # (..., lanes, slots)
     traffic_active: Array  # (..., lanes, slots) bool
+    traffic_y: Array  # (..., lanes, slots) body centre lines, m (between lanes while changing)
     lead_x: Array  # target-lane lead vehicle (front bumper), valid where has_lead
     lag_x: Array
     has_lead: Array
@@ -388,6 +390,7 @@ def _empty_trace(n_pol: int, n_traced: int, frames: int, p: EnvParams) -> Trace:
         frames=jnp.zeros(shape[:2], jnp.int32),
         traffic_x=jnp.zeros(lanes, jnp.float32),
         traffic_active=jnp.zeros(lanes, bool),
+        traffic_y=jnp.zeros(lanes, jnp.float32),
         lead_x=f,
         lag_x=f,
         has_lead=b,
@@ -409,6 +412,7 @@ def _record(
         "v": eg.v,
         "traffic_x": tr.x,
         "traffic_active": tr.active,
+        "traffic_y": jax.vmap(jax.vmap(vehicle_y, (0, None)), (0, None))(tr, p),
         "lead_x": nb.a1_x,
         "lag_x": nb.b1_x,
         "has_lead": nb.has_a1,

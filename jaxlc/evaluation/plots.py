@@ -485,15 +485,17 @@ def draw_scene(ax: Any, tr: dict[str, np.ndarray], pi: int, j: int, f: int, p: A
 
     target = p.lanes // 2 + int(tr["side"][j])
     xs, act = tr["traffic_x"][pi, j, f], tr["traffic_active"][pi, j, f]
+    centre = (np.arange(p.lanes)[:, None] + 0.5) * lw + np.zeros_like(xs)  # rows are lanes
+    ys = tr["traffic_y"][pi, j, f] if "traffic_y" in tr else centre  # between two, changing
     for lane in range(p.lanes):
-        for x in xs[lane][act[lane]]:
+        for x, y in zip(xs[lane][act[lane]], ys[lane][act[lane]], strict=True):
             if not x0 - L < x < x1 + L:
                 continue
-            gap_car = lane == target and any(
+            gap_car = abs(y - (target + 0.5) * lw) < lw and any(
                 tr[h][pi, j, f] and np.isclose(x, tr[k][pi, j, f])
                 for h, k in (("has_lead", "lead_x"), ("has_lag", "lag_x"))
             )
-            body(x - L / 2, (lane + 0.5) * lw, 0.0, "tab:green" if gap_car else "tab:blue")
+            body(x - L / 2, y, 0.0, "tab:green" if gap_car else "tab:blue")
     past = _world(tr["x"][pi, j, : f + 1] - L / 2, tr["y"][pi, j, : f + 1], kappa, ex, p)
     ax.plot(*past, "r:", lw=1.2)
     body(ex - L / 2 * np.cos(psi), ey - L / 2 * np.sin(psi), psi, "tab:red")
