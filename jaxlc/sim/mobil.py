@@ -56,14 +56,18 @@ def _in_lane(table: Array, lane: Array, n: int) -> Array:
     return jnp.take_along_axis(table[:, :n], lane[None], axis=0)[0]
 
 
+def _lead_lag(a: Around, lane: Array, n: int) -> tuple[Array, Array, Array, Array]:
+    """``(lead, has_lead, lag, has_lag)`` of the first ``n`` vehicles in lanes ``lane`` ``(n,)``."""
+    return tuple(_in_lane(t, lane, n) for t in (a.lead, a.has_lead, a.lag, a.has_lag))
+
+
 def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
     """Which vehicles start a lane change on this step, and to which lane (``a``: the state's
     ``leaders.around``; positions are those of the state before the step's move)."""
     n = tr.x.size
     i = jnp.arange(n)
     lane = tr.lane.reshape(-1)
-    cur_lead, has_cur = _in_lane(a.lead, lane, n), _in_lane(a.has_lead, lane, n)
-    old, has_old = _in_lane(a.lag, lane, n), _in_lane(a.has_lag, lane, n)
+    cur_lead, has_cur, old, has_old = _lead_lag(a, lane, n)
     a_c, _ = _idm(a, i, cur_lead, has_cur, lane, p)
     a_o, _ = _idm(a, old, i, True, lane, p)
     at_o, _ = _idm(a, old, cur_lead, has_cur, lane, p)
@@ -73,8 +77,7 @@ def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
         to = lane + d
         ok = (to >= 0) & (to < p.lanes)
         to = jnp.clip(to, 0, p.lanes - 1)
-        lead, has_lead = _in_lane(a.lead, to, n), _in_lane(a.has_lead, to, n)
-        new, has_new = _in_lane(a.lag, to, n), _in_lane(a.has_lag, to, n)
+        lead, has_lead, new, has_new = _lead_lag(a, to, n)
         at_c, front = _idm(a, i, lead, has_lead, to, p)
         a_n, _ = _idm(a, new, lead, has_lead, to, p)
         at_n, back = _idm(a, new, i, True, to, p)
