@@ -7,7 +7,7 @@ the scripted controller.
 
 Modules: ``env`` (the highway step), ``state``, ``road``, ``traffic``, ``ego``, ``motion``,
 ``collision``, ``observation``, ``reward``, ``idm``, ``gap``, ``kinematics``, ``decision``,
-``controller``.
+``controller``; with the traffic that cuts in and brakes, ``leaders``, ``mobil``, ``braking``.
 
 Imports: ``jaxlc.config`` only; no other layer (``tests/test_layout.py`` checks it).
 """
