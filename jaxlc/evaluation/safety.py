@@ -39,6 +39,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxlc.sim.idm import NO_LEADER_GAP
+from jaxlc.sim.leaders import changing
 from jaxlc.sim.observation import target_gaps
 from jaxlc.sim.road import body_in_lane, current_lane
 
@@ -148,9 +149,9 @@ def partner(overlap: Array, traffic, ego, p) -> Array:
     if traffic.lane is None:
         in_target = lanes == ego.target[..., None, None]
     else:
-        changing = traffic.active & (traffic.lc_time < traffic.lc_dur)
         target = ego.target[..., None, None]
-        in_target = (traffic.lane == target) | (changing & (traffic.lane_from == target))
+        leaving = changing(traffic) & (traffic.lane_from == target)
+        in_target = (traffic.lane == target) | leaving
     # Centres along the road: the ego's box is heading-aligned, front bumper at x.
     ahead = traffic_x - 0.5 * p.vehicle_length > (ego.x - 0.5 * p.vehicle_length)[..., None, None]
     code = jnp.where(in_target, jnp.where(ahead, 1, 2), jnp.where(ahead, 3, 4))
@@ -164,6 +165,5 @@ def hazard(overlap: Array, traffic) -> Array:
     if traffic.brake_left is not None:
         code += jnp.any(overlap & (traffic.brake_left > 0.0), axis=(-2, -1))
     if traffic.lane is not None:
-        changing = traffic.lc_time < traffic.lc_dur
-        code += 2 * jnp.any(overlap & changing, axis=(-2, -1))
+        code += 2 * jnp.any(overlap & changing(traffic), axis=(-2, -1))
     return code
