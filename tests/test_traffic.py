@@ -99,6 +99,50 @@ def test_two_drivers_do_not_start_into_one_spot_on_one_step():
     assert int(d.start.sum()) == 1
 
 
+def _pairwise_around(x, occ):
+    """The definition ``leaders.around`` computes by sorting, pair by pair: per lane, the
+    nearest vehicle counting in it ahead (larger x, ties by larger index) and behind."""
+    idx = np.arange(x.size)
+    ahead = (x[None, :] > x[:, None]) | ((x[None, :] == x[:, None]) & (idx[None] > idx[:, None]))
+    behind = ~ahead & (idx[None] != idx[:, None])
+    front = np.where(ahead[None] & occ[:, None, :], x[None, None, :], np.inf)
+    back = np.where(behind[None] & occ[:, None, :], x[None, None, :], -np.inf)
+    return front.argmin(-1), np.isfinite(front.min(-1)), back.argmax(-1), np.isfinite(back.max(-1))
+
+
+def test_leaders_by_sorting_equal_every_pair_compared():
+    p = jaxlc.make(config.load(overrides=HAZARDS))[1]
+    rng = np.random.default_rng(5)
+    cases = []
+    for _ in range(40):  # random traffics: any lane, a third of them mid lane change
+        lanes = [
+            (int(rng.integers(p.lanes)), float(rng.uniform(0, 600)), 20.0)
+            for _ in range(p.slots_per_lane)
+        ]
+        s = _traffic(p, lanes)
+        tr = s.traffic
+        shape = tr.x.shape
+        frm = np.clip(np.asarray(tr.lane) + rng.choice([-1, 1], shape), 0, p.lanes - 1)
+        mid = rng.uniform(size=shape) < 0.33
+        tr = tr.replace(
+            lane_from=jnp.asarray(np.where(mid, frm, np.asarray(tr.lane)), jnp.int32),
+            lc_time=jnp.asarray(np.where(mid, 1.0, 1e4), jnp.float32),
+            lc_dur=jnp.full(shape, 4.0),
+        )
+        eg = s.ego.replace(x=jnp.float32(rng.uniform(0, 600)), phase=jnp.int32(1))
+        cases.append((tr, eg))
+    run = jax.jit(lambda tr, eg: leaders.around(tr, eg, p, jnp.ones(p.lanes)))
+    checked = 0
+    for tr, eg in cases:
+        a = jax.device_get(run(tr, eg))
+        lead, has_lead, lag, has_lag = _pairwise_around(np.asarray(a.x), np.asarray(a.occ))
+        assert (a.has_lead == has_lead).all() and (a.has_lag == has_lag).all()
+        assert (a.lead[has_lead] == lead[has_lead]).all()
+        assert (a.lag[has_lag] == lag[has_lag]).all()
+        checked += int(has_lead.sum() + has_lag.sum())
+    assert checked > 1000  # exercised: many leaders and followers, straddlers among them
+
+
 def test_rates_are_traced_one_program_runs_a_batch_of_traffics():
     env, p = jaxlc.make(config.load(overrides=(*HAZARDS, "env.warmup_time=20.0")))
     rates = jnp.array([0.0, 3600.0])  # braking events per vehicle-hour

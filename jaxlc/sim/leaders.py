@@ -4,10 +4,10 @@ position, and every vehicle's leader and follower in every lane, found by positi
 With ``env.mobil`` a slot's row is the lane its vehicle entered, not the lane it drives in, so
 a vehicle's leader is no longer the slot written before it (``traffic.ring_leaders``). Here
 every vehicle of an env, the ego included, is one entry of a flat list of ``V = lanes * slots
-+ 1`` (the ego last), and for each vehicle ``i`` and lane ``l`` the nearest vehicle ahead and
-behind that counts in ``l`` is a masked min / max over the ``(V, V)`` pairs: ``lanes * V**2``
-comparisons per env and step (a static shape; ``benchmarks/scripts/sim_throughput.py`` shows
-the cost). A vehicle changing lanes counts in both lanes until its lane change ends.
++ 1`` (the ego last), sorted by position once per step; for each vehicle ``i`` and lane ``l``
+the nearest vehicle ahead and behind that counts in ``l`` is the nearest rank after and
+before ``i``'s among those counting in ``l``. A vehicle changing lanes counts in both lanes
+until its lane change ends.
 """
 
 from __future__ import annotations
@@ -74,7 +74,11 @@ class Around(NamedTuple):
 
 def around(tr: Traffic, eg: Ego, p: EnvParams, scale: Array) -> Around:
     """Leaders and followers of every vehicle in every lane, the ego counted where its body
-    is (``road.ego_lanes``) while it is on the road. ``scale`` ``(lanes,)``: ``lane_scales``."""
+    is (``road.ego_lanes``) while it is on the road. ``scale`` ``(lanes,)``: ``lane_scales``.
+
+    One sort of the env's vehicles by position (``_order``), then per lane the nearest
+    vehicle counting in it before and after each rank (prefix scans): ``O(V log V)`` per env
+    where comparing every pair costs ``lanes * V**2``."""
     hx, _ = kinematics.half_extents(eg.psi, p.vehicle_length, p.vehicle_width)
     x = jnp.append(tr.x.reshape(-1), eg.x)
     v = jnp.append(tr.v.reshape(-1), eg.v)
@@ -83,24 +87,66 @@ def around(tr: Traffic, eg: Ego, p: EnvParams, scale: Array) -> Around:
     occ = jnp.concatenate(
         [occupancy(tr, p).reshape(p.lanes, -1), ego_lanes(eg, p)[:, None]], axis=1
     )
-    idx = jnp.arange(x.shape[0])
-    xi, xj = x[:, None], x[None, :]
-    ahead = (xj > xi) | ((xj == xi) & (idx[None, :] > idx[:, None]))  # (V, V): j ahead of i
-    behind = ~ahead & (idx[None, :] != idx[:, None])
-    front = jnp.where(ahead[None] & occ[:, None, :], xj[None], gap.FAR)  # (lanes, V, V)
-    back = jnp.where(behind[None] & occ[:, None, :], xj[None], -gap.FAR)
+    n = x.shape[0]
+    bits = max(1, (n - 1).bit_length())  # static: an index in the key's low bits
+    ids = _order(x, p.road_length, bits)  # (V,) int32 the vehicle at each rank
+    # Per lane and rank, "rank << bits | id" of a vehicle counting in that lane, else a
+    # sentinel: the nearest one after a rank is the smallest code after it.
+    code = jnp.arange(n, dtype=jnp.int32) * (1 << bits) + ids  # (V,)
+    in_lane = occ[:, ids]  # (lanes, V) by rank
+    none_ahead, none_behind = jnp.int32(_BIG), jnp.int32(-1)
+    ahead = _shift(jnp.where(in_lane, code, none_ahead), 1, none_ahead)
+    behind = _shift(jnp.where(in_lane, code, none_behind), -1, none_behind)
+    nxt = _scan(ahead, jnp.minimum, 1, none_ahead)
+    prv = _scan(behind, jnp.maximum, -1, none_behind)
+    # Back in slot order by a scatter, not a gather: XLA's CPU fusion would pull the scans
+    # into every reader of a gather and redo them per element read.
+    nxt, prv = (jnp.zeros_like(c).at[:, ids].set(c, unique_indices=True) for c in (nxt, prv))
+    mask = (1 << bits) - 1
     return Around(
         x=x,
         v=v,
         v0=v0,
         length=length,
         occ=occ,
-        lead=jnp.argmin(front, axis=-1).astype(jnp.int32),
-        has_lead=jnp.min(front, axis=-1) < gap.FAR,
-        lag=jnp.argmax(back, axis=-1).astype(jnp.int32),
-        has_lag=jnp.max(back, axis=-1) > -gap.FAR,
+        lead=nxt & mask,
+        has_lead=nxt != none_ahead,
+        lag=jnp.maximum(prv, 0) & mask,
+        has_lag=prv != none_behind,
         scale=scale,
     )
+
+
+_BIG = 2**31 - 1
+
+
+def _order(x: Array, road_length: Array, bits: int) -> Array:
+    """``(V,)`` int32: the vehicles by position, ties by index (``ids[r]`` is at rank ``r``).
+    Positions are keyed to ``2 * road_length / 2**(31 - bits)`` m (3.6e-5 m on 600 m with 49
+    vehicles), far below a body's length, in one int32 with the index: XLA sorts one int32
+    operand several times faster than a float key with an index beside it."""
+    levels = 2 ** (31 - bits)
+    q = jnp.floor((x + 0.5 * road_length) * (levels / (2.0 * road_length)))
+    q = jnp.clip(q, 0, levels - 1).astype(jnp.int32)
+    return jnp.sort(q * (1 << bits) + jnp.arange(x.shape[0], dtype=jnp.int32)) & ((1 << bits) - 1)
+
+
+def _shift(a: Array, by: int, fill: Array) -> Array:
+    """``a`` moved ``by`` places along its last axis (``+1``: entry ``r`` takes ``r + 1``'s),
+    ``fill`` where nothing moves in."""
+    pad = jnp.full(a.shape[:-1] + (abs(by),), fill, a.dtype)
+    return jnp.concatenate([a[..., by:], pad] if by > 0 else [pad, a[..., :by]], axis=-1)
+
+
+def _scan(a: Array, op, direction: int, identity: Array) -> Array:
+    """Inclusive scan of ``op`` along the last axis, from the end (``direction=1``) or the
+    start (``-1``), by doubling: ``log2(V)`` elementwise steps (``lax.cummin`` lowers to a
+    slower loop on the CPU)."""
+    k = 1
+    while k < a.shape[-1]:
+        a = op(a, _shift(a, direction * k, identity))
+        k *= 2
+    return a
 
 
 def net_gap(a: Around, back: Array, front: Array, present: Array) -> Array:

@@ -101,8 +101,13 @@ def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
     near = jnp.abs(x[:, None] - x[None, :]) < (
         p.vehicle_length + p.idm_s0 + jnp.maximum(v[:, None], v[None, :]) * p.idm_time_headway
     )
-    clash = fired[None, :] & (to[None, :] == to[:, None]) & near & (i[None, :] < i[:, None])
-    start = fired & ~jnp.any(clash, axis=1)
+    # Each starter's lane, -1 for the others, written by a scatter: XLA's CPU fusion does not
+    # pull a scatter's inputs into the (V, V) comparison below, which it otherwise recomputes
+    # them in once per pair (the lane-change incentives: 10x the whole step).
+    code = jnp.where(fired, to, -1)
+    code = jnp.zeros_like(code).at[i].set(code, unique_indices=True)  # (V,)
+    clash = (code[None, :] == code[:, None]) & (code[None, :] >= 0) & near
+    start = fired & ~jnp.any(clash & (i[None, :] < i[:, None]), axis=1)
     shape = tr.x.shape
     return Decision(*(b.reshape(shape) for b in (allowed, fired, start, to)))
 
