@@ -1,6 +1,7 @@
 """Published tables written from committed evidence, never typed.
 
-    python benchmarks/scripts/publish.py            # rewrite every block in README.md and docs/*.md
+    python benchmarks/scripts/publish.py            # rewrite every block of README.md, docs/ and
+                                                    # the study folders' README.md
     python benchmarks/scripts/publish.py --check    # exit 1 naming each block that differs
 
 A block is the text of a document between ``<!-- publish:NAME -->`` and
@@ -28,7 +29,13 @@ from tables import heldout, joint, learning, pairs, roads, speed, verdict  # noq
 
 ROOT = HERE.parents[1]
 README = ROOT / "README.md"
-DOCS = (README, ROOT / "docs" / "results.md", ROOT / "docs" / "benchmarks.md")
+# The documents, and the study folders' READMEs, which hold the tables of superseded studies.
+DOCS = (
+    README,
+    ROOT / "docs" / "results.md",
+    ROOT / "docs" / "benchmarks.md",
+    *sorted((ROOT / "benchmarks").glob("*/README.md")),
+)
 MODULES = (verdict, heldout, roads, joint, pairs, speed, learning)
 
 
