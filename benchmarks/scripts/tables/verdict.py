@@ -1,0 +1,105 @@
+"""README.md's reproduction verdict: each of the paper's claims, what the paper shows, and
+its figures and verdict under ``configs/paper.toml`` and ``configs/default.toml``
+(``jaxlc.evaluation.convergence``, ``jaxlc.evaluation.heldout``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+from jaxlc import config
+from jaxlc.paper import claims
+from jaxlc.paper.grid import is_best
+from jaxlc.study.rundir import RunDir
+from tables.common import BENCHMARKS, load
+
+PAPER_STUDY = BENCHMARKS / "study_paper_cpu_s1"  # configs/paper.toml, one seed per cell
+VERDICT_STUDY = BENCHMARKS / "study_default_cpu_s10"  # configs/default.toml, ten seeds per cell
+
+# Measures counted in episodes (written whole, "ep"); the others are written to 3 figures.
+_EPISODES = {"converged", "success95", "steps_rise"}
+
+
+def _tag(claim: str) -> str:
+    """``"(a, b) ④ converges …"`` -> ``"(a, b)"``."""
+    return claim[: claim.index(")") + 1]
+
+
+def _seeds(study: Path) -> str:
+    n = len({m["seed"] for m in load(study, "convergence.json")["models"]})
+    return f"{n} seed{'s' if n > 1 else ''} per cell"
+
+
+def _unlike_default(study: Path) -> str:
+    """Where the study's run config differs from today's default in its method (the env,
+    ddpg and grid tables), as ``; ddpg.key = value``: a default study trained before a
+    default changed says so in the heading that names it."""
+    ran, today = RunDir(study).load_config(), config.Config()
+    return "".join(
+        f"; {table}.{f.name} = {json.dumps(getattr(getattr(ran, table), f.name))}"
+        for table in ("env", "ddpg", "grid")
+        for f in dataclasses.fields(getattr(today, table))
+        if getattr(getattr(ran, table), f.name) != getattr(getattr(today, table), f.name)
+    )
+
+
+def _comparisons(study: Path, claim: dict[str, str]) -> str:
+    """A claim's comparisons in a study on the measures it is decided by: each side's mean over
+    seeds and, from 2 seeds on, the paper-side difference with its interval and the margin
+    (``jaxlc.evaluation.convergence``)."""
+    parts = []
+    measures = claim["measures"].split(", ")
+    for c in load(study, "convergence.json")["comparisons"]:
+        if c["claim"] != claim["claim"] or c["measure"] not in measures:
+            continue
+        episodes = c["measure"] in _EPISODES
+        fmt = "{:.0f}" if episodes else "{:.3g}"
+        x, y = (("never" if v is None else fmt.format(v)) for v in (c["x_mean"], c["y_mean"]))
+        text = f"{c['measure']}: {c['x']} {x} vs {c['y']} {y}{' ep' if episodes else ''}"
+        if c["seeds"] > 1 and "diff" in c:
+            d, lo, hi, m = (fmt.format(c[k]) for k in ("diff", "diff_lo", "diff_hi", "margin"))
+            text += f", {c['x']} ahead by {d} [{lo}, {hi}] (margin ±{m})"
+        elif c["seeds"] > 1:  # a study evaluated before the margins: P only
+            text += f", P = {c['p']:.2f} [{c['p_lo']:.2f}, {c['p_hi']:.2f}]"
+        parts.append(text)
+    return "; ".join(parts)
+
+
+def _claim_d(study: Path) -> tuple[str, str]:
+    doc = load(study, "heldout.json")
+    cell = next(c for c in doc["cells"] if is_best(c))
+    text = (
+        f"{cell['failures']} failures ({cell['collisions']} collisions) in "
+        f"{cell['lane_changes']:,} held-out lane changes; fails in < "
+        f"{100 * cell['failure_bound']:.2f}% (95%)"
+    )
+    return text, doc["claim_d"]["verdict"]
+
+
+def verdict_table() -> str:
+    """Each paper claim: what the paper shows, paper.toml's and default.toml's figures here,
+    and both verdicts (``jaxlc.evaluation.convergence``, ``jaxlc.evaluation.heldout``)."""
+    lines = [
+        f"| claim | the paper shows | `paper.toml` here ({_seeds(PAPER_STUDY)}) | "
+        f"`default.toml` here ({_seeds(VERDICT_STUDY)}{_unlike_default(VERDICT_STUDY)}) | "
+        "verdict (paper.toml; default.toml) |",
+        "|---|---|---|---|---|",
+    ]
+    paper_claims = {c["claim"]: c for c in load(PAPER_STUDY, "convergence.json")["claims"]}
+    for claim in load(VERDICT_STUDY, "convergence.json")["claims"]:
+        text = claim["claim"]
+        lines.append(
+            f"| {text} | {claims.SHOWS[_tag(text)]} | {_comparisons(PAPER_STUDY, claim)} | "
+            f"{_comparisons(VERDICT_STUDY, claim)} | {paper_claims[text]['verdict']}; "
+            f"{claim['verdict']} |"
+        )
+    (p_text, p_verdict), (d_text, d_verdict) = _claim_d(PAPER_STUDY), _claim_d(VERDICT_STUDY)
+    claim_d = load(VERDICT_STUDY, "heldout.json")["claim_d"]["claim"]
+    lines.append(
+        f"| {claim_d} | {claims.SHOWS['(d)']} | {p_text} | {d_text} | {p_verdict}; {d_verdict} |"
+    )
+    return "\n".join(lines)
+
+
+BLOCKS = {"verdict": verdict_table}
