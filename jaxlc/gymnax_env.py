@@ -53,6 +53,7 @@ from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, fast_forward, reset_core
 from jaxlc.sim.env import EnvParams, EnvState, LaneChangeEnv, action_dim, make, observation
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.sim.reward import names as reward_names
+from jaxlc.sim.reward import step_limit
 
 _SIM = LaneChangeEnv()
 
@@ -183,7 +184,7 @@ class LaneChangeGymnax(environment.Environment):
 
 def params_for(sim: EnvParams, max_skip_steps: int = DEFAULT_MAX_SKIP_STEPS) -> LaneChangeParams:
     """gymnax params around simulator params (the decision limit derived from them)."""
-    limit = int(round(float(sim.manoeuvre_time_limit) / float(sim.dt)))
+    limit = int(step_limit(sim))
     return LaneChangeParams(max_steps_in_episode=limit, sim=sim, max_skip_steps=max_skip_steps)
 
 

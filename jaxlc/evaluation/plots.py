@@ -38,6 +38,8 @@ from jaxlc.evaluation import heldout, stats  # noqa: E402
 from jaxlc.evaluation.convergence import moving  # noqa: E402
 from jaxlc.evaluation.results import OUTCOMES, rank_models  # noqa: E402
 from jaxlc.paper import grid as paper_grid  # noqa: E402
+from jaxlc.sim.render import road_to_world  # noqa: E402
+from jaxlc.sim.road import origin_lane, reference_y  # noqa: E402
 from jaxlc.study.rundir import RunDir  # noqa: E402
 
 SCENE_BEHIND, SCENE_AHEAD = 90.0, 30.0  # m of road shown behind and ahead of the ego
@@ -330,10 +332,9 @@ def _world(s: Any, y: Any, kappa: float, s0: float, p: Any) -> tuple[np.ndarray,
     s, y = np.asarray(s, float), np.asarray(y, float)
     if kappa == 0.0:
         return s, y
-    y_ref = 0.5 * p.lanes * p.lane_width
-    radius, theta = 1.0 / kappa, (s - s0) * kappa
-    r = radius - (y - y_ref)  # distance from the bend's centre
-    return s0 + r * np.sin(theta), y_ref + radius - r * np.cos(theta)
+    y_ref = reference_y(p)
+    x_w, y_w = road_to_world(s - s0, y - y_ref, kappa)
+    return s0 + x_w, y_ref + y_w
 
 
 def _along(kappa: float) -> str:
@@ -483,7 +484,7 @@ def draw_scene(ax: Any, tr: dict[str, np.ndarray], pi: int, j: int, f: int, p: A
             )
         )
 
-    target = p.lanes // 2 + int(tr["side"][j])
+    target = origin_lane(p) + int(tr["side"][j])
     xs, act = tr["traffic_x"][pi, j, f], tr["traffic_active"][pi, j, f]
     centre = (np.arange(p.lanes)[:, None] + 0.5) * lw + np.zeros_like(xs)  # rows are lanes
     ys = tr["traffic_y"][pi, j, f] if "traffic_y" in tr else centre  # between two, changing

@@ -15,7 +15,7 @@ smooth, overshoot-free lane change lasting about 5/p s. On a straight road it is
 pole placement.
 
 kappa is the observation's road curvature; d comes from the offset e to the target lane and
-the road's layout (``params``): the ego starts on lane ``lanes // 2`` and its target lies
+the road's layout (``params``): the ego starts on ``road.origin_lane`` and its target lies
 across its offset (e = y - y_target < 0: the target is the next lane up), so d = d_target + e.
 With kappa in place of kappa_d the yaw rate of the target lane would be off by
 v*kappa^2*d/(1 - kappa*d), which the feedback turns into a standing offset of
@@ -34,6 +34,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxlc.sim.observation import INDEX, observation, scale
+from jaxlc.sim.road import origin_lane
 from jaxlc.sim.state import RL, EnvParams, EnvState, action_dim
 
 DEFAULT_POLE = 1.2  # 1/s: a lane change of about 4-5 s, inside the 3-8 s of human drivers
@@ -56,7 +57,7 @@ def _pole_placement(raw: dict[str, Array], e: Array, params: EnvParams, pole: fl
     ego; the ego's own position is read from the observed offset to the target lane."""
     v = jnp.maximum(raw["v"], 1.0)
     psi, kappa = raw["psi"], raw["curvature"]
-    target = params.lanes // 2 - jnp.sign(raw["offset"])  # the target lies across the offset
+    target = origin_lane(params) - jnp.sign(raw["offset"])  # the target lies across the offset
     d = (target + 0.5) * params.lane_width - 0.5 * params.lanes * params.lane_width
     d = d + raw["offset"]  # the ego's distance from the road's centre line
     kappa_d = kappa / (1.0 - kappa * d)  # exactly 0 on a straight road

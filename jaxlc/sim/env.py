@@ -65,6 +65,7 @@ from jaxlc.sim.road import (
     lane_keeping_yaw_rate,
     lane_scales,
     lateral_offset,
+    origin_lane,
     origin_y,
     road_curvature,
 )
@@ -254,7 +255,7 @@ class LaneChangeEnv:
             psi=f0,
             omega=f0,
             held=f0,
-            target=jnp.int32(lanes // 2),
+            target=jnp.int32(origin_lane(p)),
             steps=jnp.int32(0),
             gap_time=f0,
             yielding=jnp.bool_(False),

@@ -186,6 +186,13 @@ def reward_terms(
     return tuple(p.reward_scale * t.fn(x, p) for t in PAPER)
 
 
+def step_limit(p) -> Array:
+    """``()`` RL steps a manoeuvre may take before it times out, ``round(manoeuvre_time_limit
+    / dt)`` (counting steps, not summing dt, keeps the limit exact in float32); ``int()`` of it
+    where ``p`` is concrete."""
+    return jnp.round(p.manoeuvre_time_limit / p.dt)
+
+
 def end_reason(
     offset: Array, psi: Array, omega: Array, manoeuvre_steps: Array, collided: Array, p
 ) -> Array:
@@ -197,8 +204,7 @@ def end_reason(
         & (jnp.abs(psi) <= p.success_heading)
         & (jnp.abs(omega) <= p.success_yaw_rate)
     )
-    # Counting steps, not summing dt, keeps the 10 s limit exact in float32.
-    timeout = manoeuvre_steps >= jnp.round(p.manoeuvre_time_limit / p.dt)
+    timeout = manoeuvre_steps >= step_limit(p)
     return jnp.select(
         [collided, out, success, timeout],
         [COLLISION, OUT_OF_BOUNDS, SUCCESS, TIMEOUT],
