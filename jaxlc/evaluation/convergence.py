@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from jaxlc.evaluation import stats
+from jaxlc.evaluation.numbers import fixed
 from jaxlc.paper.claims import COMPARISONS
 from jaxlc.paper.grid import tag_of
 from jaxlc.sim.reward import SUCCESS
@@ -233,8 +234,9 @@ def claim_verdicts(rows: list[dict[str, Any]]) -> list[dict[str, str]]:
             held = sorted({r["measure"] for r in mine if r["verdict"] == HOLDS})
             v = f"{HOLDS} on {', '.join(held)}; {SAME} on the rest"
         figures = "; ".join(
-            f"{r['measure']}: {r['x']} ahead of {r['y']} by {_num(r['diff'])} "
-            f"[{_num(r['diff_lo'])}, {_num(r['diff_hi'])}] (margin ±{_num(r['margin'])})"
+            f"{r['measure']}: {r['x']} ahead of {r['y']} by {fixed(r['diff'], '.3g')} "
+            f"[{fixed(r['diff_lo'], '.3g')}, {fixed(r['diff_hi'], '.3g')}] "
+            f"(margin ±{fixed(r['margin'], '.3g')})"
             for r in mine
         )
         out.append({"claim": claim, "measures": ", ".join(keys), "figures": figures, "verdict": v})
@@ -243,13 +245,9 @@ def claim_verdicts(rows: list[dict[str, Any]]) -> list[dict[str, str]]:
 
 def _width(r: dict[str, Any]) -> str:
     """How wide an undecided comparison's interval stayed, beside its margin."""
-    width = _num(r["diff_hi"] - r["diff_lo"])
-    return f"{r['measure']} {r['x']}−{r['y']}: interval {width} wide, margin ±{_num(r['margin'])}"
-
-
-def _num(v: float) -> str:
-    """A figure for a table: 3 significant digits; a dash where it is undefined."""
-    return f"{v:.3g}" if v == v else "–"
+    width = fixed(r["diff_hi"] - r["diff_lo"], ".3g")
+    margin = fixed(r["margin"], ".3g")
+    return f"{r['measure']} {r['x']}−{r['y']}: interval {width} wide, margin ±{margin}"
 
 
 def study(episodes: dict[str, np.ndarray], models: list[dict[str, Any]]) -> dict[str, Any]:

@@ -36,6 +36,7 @@ from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 
 from jaxlc.evaluation import heldout, stats  # noqa: E402
 from jaxlc.evaluation.convergence import moving  # noqa: E402
+from jaxlc.evaluation.numbers import number  # noqa: E402
 from jaxlc.evaluation.results import OUTCOMES, rank_models  # noqa: E402
 from jaxlc.paper import grid as paper_grid  # noqa: E402
 from jaxlc.sim.render import road_to_world  # noqa: E402
@@ -209,8 +210,8 @@ def fig6_checkpoints(run_dir: Path) -> Path | None:
                 ax.fill_between(c.episodes, scale * lo, scale * hi, color=colour, alpha=0.2, lw=0)
     for r in result["rows"]:
         if r["model"] is None:
-            a.axhline(_num(r["avg_return"]), color="k", ls="--", lw=1, label="scripted")
-            b.axhline(100 * _num(r["success_rate"]), color="k", ls="--", lw=1)
+            a.axhline(number(r["avg_return"]), color="k", ls="--", lw=1, label="scripted")
+            b.axhline(100 * number(r["success_rate"]), color="k", ls="--", lw=1)
     a.set(title="(a) average total return", xlabel="checkpoint (training episode)")
     _return_axis(a)
     b.set(
@@ -273,7 +274,7 @@ def fig_compare(table: list[dict[str, Any]], name_a: str, name_b: str, path: Pat
     for i, label in enumerate(labels):
         mine = sorted((r for r in table if r["label"] == label), key=lambda r: r["episode"])
         d, lo, hi = (
-            100 * np.asarray([_num(r[k]) for r in mine]) for k in ("diff", "diff_lo", "diff_hi")
+            100 * np.asarray([number(r[k]) for r in mine]) for k in ("diff", "diff_lo", "diff_hi")
         )
         ep = [r["episode"] for r in mine]
         colour = _colour(mine[0], i)
@@ -294,10 +295,6 @@ def fig_compare(table: list[dict[str, Any]], name_a: str, name_b: str, path: Pat
         ax.grid(alpha=0.3)
     fig.suptitle(f"B = {name_b} against A = {name_a}: mean success rate (95% intervals)")
     return _save(fig, path)
-
-
-def _num(v: Any) -> float:
-    return float("nan") if v is None else float(v)
 
 
 def _best(result: dict[str, Any]) -> tuple[int, list[int]] | None:

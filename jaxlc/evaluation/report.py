@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from jaxlc.evaluation import stats
-from jaxlc.evaluation.results import OUTCOMES, EvalError, rank_models
+from jaxlc.evaluation.numbers import defined, fixed, interval, percent
+from jaxlc.evaluation.results import OUTCOMES, EvalError, rank_key, rank_models
 from jaxlc.evaluation.stats import final_rows
 from jaxlc.paper.claims import CLAIM_D, COMPARISONS
 from jaxlc.paper.grid import BEST, BEST_TAG, is_best
@@ -42,18 +43,6 @@ HUMAN_DURATION = (3.0, 8.0)  # s, the human range docs/results.md compares with
 PAPER = f"{BEST_TAG} (k={BEST[0]}, D={BEST[1]})"  # the model the paper finds best
 
 
-def _defined(v: Any) -> bool:
-    return v is not None and v == v
-
-
-def _pct(v: Any) -> str:
-    return f"{100 * v:.1f}%" if _defined(v) else "–"
-
-
-def _f(v: Any, fmt: str = ".2f") -> str:
-    return format(v, fmt) if _defined(v) else "–"
-
-
 def _table(rows: list[dict[str, Any]]) -> list[str]:
     ends = OUTCOMES[1:] + OUTCOMES[:1]
     lines = [
@@ -66,11 +55,11 @@ def _table(rows: list[dict[str, Any]]) -> list[str]:
     for r in rows:
         lines.append(
             f"| {r['label']} | {r.get('seed', '') if r['model'] is not None else ''} | "
-            f"{r['episode'] or '–'} | {r['performed']}/{r['cases']} | {_pct(r['success_rate'])} "
-            f"| {_f(r['avg_return'], '.1f')} | "
+            f"{r['episode'] or '–'} | {r['performed']}/{r['cases']} | {percent(r['success_rate'])} "
+            f"| {fixed(r['avg_return'], '.1f')} | "
             + " | ".join(str(r[e]) for e in ends)
-            + f" | {_f(r['duration_s'])} | {_f(r['peak_lat_acc'])} | "
-            f"{_f(r['peak_yaw_rate'], '.3f')} | {_f(r['overshoot_m'], '.3f')} | "
+            + f" | {fixed(r['duration_s'])} | {fixed(r['peak_lat_acc'])} | "
+            f"{fixed(r['peak_yaw_rate'], '.3f')} | {fixed(r['overshoot_m'], '.3f')} | "
             f"{_timeouts(r)} |"
         )
     return lines
@@ -78,14 +67,14 @@ def _table(rows: list[dict[str, Any]]) -> list[str]:
 
 def _timeouts(r: dict[str, Any]) -> str:
     keys = ("timeout_offset_m", "timeout_heading", "timeout_yaw_rate")
-    if not _defined(r.get(keys[0])):
+    if not defined(r.get(keys[0])):
         return "–"
-    return " / ".join(_f(r[k], ".3f") for k in keys)
+    return " / ".join(fixed(r[k], ".3f") for k in keys)
 
 
 def _timeout_line(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
     """Where the best model's timeouts end, beside the success box."""
-    if best is None or not best.get("timeout") or not _defined(best.get("timeout_offset_m")):
+    if best is None or not best.get("timeout") or not defined(best.get("timeout_offset_m")):
         return []
     box = result.get("success_box", {})
     limits = (
@@ -98,8 +87,9 @@ def _timeout_line(result: dict[str, Any], best: dict[str, Any] | None) -> list[s
         "",
         f"Its {best['timeout']} timeout{'s end' if best['timeout'] > 1 else ' ends'} at a "
         f"median |Δd| of "
-        f"{_f(best['timeout_offset_m'], '.3f')} m from the target centre line, |ψ| "
-        f"{_f(best['timeout_heading'], '.3f')} rad and |ω| {_f(best['timeout_yaw_rate'], '.3f')} "
+        f"{fixed(best['timeout_offset_m'], '.3f')} m from the target centre line, |ψ| "
+        f"{fixed(best['timeout_heading'], '.3f')} rad and |ω| "
+        f"{fixed(best['timeout_yaw_rate'], '.3f')} "
         f"rad/s{limits}: a large |Δd| with a small |ω| is stopping short, a large |ω| "
         "oscillating, all three near the box a tight success box.",
     ]
@@ -112,24 +102,25 @@ def _best_section(rows: list[dict[str, Any]]) -> tuple[list[str], dict[str, Any]
     best = ranked[0]
     out = [
         f"**Best model: {best['label']} (model {best['model']}, seed {best['seed']})**, at "
-        f"checkpoint {best['episode']}: success rate {_pct(best['success_rate'])} of "
-        f"{best['performed']} lane changes, average return {_f(best['avg_return'], '.1f')}."
+        f"checkpoint {best['episode']}: success rate {percent(best['success_rate'])} of "
+        f"{best['performed']} lane changes, average return {fixed(best['avg_return'], '.1f')}."
     ]
     if len(ranked) > 1:
         nxt = ranked[1]
         d_sr = (
             f"{100 * (best['success_rate'] - nxt['success_rate']):+.1f} points"
-            if _defined(best["success_rate"]) and _defined(nxt["success_rate"])
+            if defined(best["success_rate"]) and defined(nxt["success_rate"])
             else "undefined"
         )
         d_ret = (
             f"{best['avg_return'] - nxt['avg_return']:+.1f}"
-            if _defined(best["avg_return"]) and _defined(nxt["avg_return"])
+            if defined(best["avg_return"]) and defined(nxt["avg_return"])
             else "undefined"
         )
         out.append(
             f"Runner-up: {nxt['label']} (model {nxt['model']}, seed {nxt['seed']}): success "
-            f"rate {_pct(nxt['success_rate'])}, average return {_f(nxt['avg_return'], '.1f')}. "
+            f"rate {percent(nxt['success_rate'])}, average return "
+            f"{fixed(nxt['avg_return'], '.1f')}. "
             f"Margin: success rate {d_sr}, average return {d_ret}."
         )
         if best["success_rate"] == nxt["success_rate"]:
@@ -146,7 +137,7 @@ def rank_cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         groups.setdefault(r["label"], []).append(r)
 
     def mean(rs: list[dict[str, Any]], key: str) -> float:
-        vals = [r[key] for r in rs if _defined(r[key])]
+        vals = [r[key] for r in rs if defined(r[key])]
         return sum(vals) / len(vals) if vals else math.nan
 
     cells = [
@@ -158,21 +149,7 @@ def rank_cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         }
         for k, rs in groups.items()
     ]
-
-    def key(c: dict[str, Any]) -> tuple[float, float]:
-        sr, ret = c["success_rate"], c["avg_return"]
-        return (sr if _defined(sr) else -1.0, ret if _defined(ret) else -math.inf)
-
-    return sorted(cells, key=key, reverse=True)
-
-
-def _ci(est: float, lo: float, hi: float, fmt: str, scale: float = 1.0) -> str:
-    if not _defined(est):
-        return "–"
-    text = format(scale * est, fmt)
-    if _defined(lo):
-        text += f" [{format(scale * lo, fmt)}, {format(scale * hi, fmt)}]"
-    return text
+    return sorted(cells, key=rank_key, reverse=True)
 
 
 def _seed_section(rows: list[dict[str, Any]]) -> list[str]:
@@ -204,8 +181,9 @@ def _seed_section(rows: list[dict[str, Any]]) -> list[str]:
             for m in ("success", "return")
         )
         lines.append(
-            f"| {r['label']} | {r['seeds']} | {_ci(*s[0], '.1f', 100)}% | "
-            f"{_ci(*s[1], '.1f', 100)}% | {_ci(*ret[0], '.1f')} | {_ci(*ret[1], '.1f')} |"
+            f"| {r['label']} | {r['seeds']} | {interval(*s[0], '.1f', 100)}% | "
+            f"{interval(*s[1], '.1f', 100)}% | {interval(*ret[0], '.1f')} | "
+            f"{interval(*ret[1], '.1f')} |"
         )
     if len(cells) > 1:
         p = {(r["x"], r["y"]): r for r in stats.improvement_table(cells)}
@@ -240,10 +218,10 @@ def compare_markdown(table: list[dict[str, Any]], run_a: Path, run_b: Path) -> s
     ]
     for r in table:
         if r["episode"] == last:
-            diff = _ci(r["diff"], r["diff_lo"], r["diff_hi"], "+.1f", 100)
+            diff = interval(r["diff"], r["diff_lo"], r["diff_hi"], "+.1f", 100)
             lines.append(
-                f"| {r['label']} | {r['seeds_a']} | {r['seeds_b']} | {_pct(r['success_a'])} | "
-                f"{_pct(r['success_b'])} | {diff} |"
+                f"| {r['label']} | {r['seeds_a']} | {r['seeds_b']} | {percent(r['success_a'])} | "
+                f"{percent(r['success_b'])} | {diff} |"
             )
     if min(min(r["seeds_a"], r["seeds_b"]) for r in table) < 2:
         lines += ["", f"Note: {stats.SEEDS_NOTE} in each run."]
@@ -272,10 +250,10 @@ def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
     others = [(f"model {BEST_TAG}, seed {r['seed']}", r) for r in four if r is not best]
     for who, r in [("best model", best), *others]:
         sr = r["success_rate"]
-        ok = "yes" if _defined(sr) and sr == 1.0 else "no"
+        ok = "yes" if defined(sr) and sr == 1.0 else "no"
         lines.append(
             f"| success rate at the final checkpoint, over cases with a lane change ({who}) "
-            f"| 100% | {_pct(sr)} ({r['success']} of {r['performed']}; "
+            f"| 100% | {percent(sr)} ({r['success']} of {r['performed']}; "
             f"{r['out_of_bounds']} out of bounds, {r['collision']} collisions, "
             f"{r['timeout']} timeouts) | {ok} |"
         )
@@ -287,18 +265,18 @@ def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
     )
     mine = sorted((r for r in rows if r["model"] == best["model"]), key=lambda r: r["episode"])
     first, last = mine[0], mine[-1]
-    rose = _defined(first["avg_return"]) and _defined(last["avg_return"])
+    rose = defined(first["avg_return"]) and defined(last["avg_return"])
     rose = rose and last["avg_return"] > first["avg_return"]
     lines.append(
         f"| average return rises over checkpoints, then plateaus (Fig. 6) | from −20 (a "
-        f"default for no lane change) | {_f(first['avg_return'], '.1f')} at checkpoint "
-        f"{first['episode']} → {_f(last['avg_return'], '.1f')} at {last['episode']} (raw "
+        f"default for no lane change) | {fixed(first['avg_return'], '.1f')} at checkpoint "
+        f"{first['episode']} → {fixed(last['avg_return'], '.1f')} at {last['episode']} (raw "
         f"returns; eq. (11) cannot give −20) | {'rises' if rose else 'does not rise'} |"
     )
     d = best["duration_s"]
-    in_range = _defined(d) and HUMAN_DURATION[0] <= d <= HUMAN_DURATION[1]
-    ref = f"; scripted controller {_f(scripted['duration_s'])} s" if scripted else ""
-    ours = f"{_f(d)} s" if _defined(d) else "no successful lane change"
+    in_range = defined(d) and HUMAN_DURATION[0] <= d <= HUMAN_DURATION[1]
+    ref = f"; scripted controller {fixed(scripted['duration_s'])} s" if scripted else ""
+    ours = f"{fixed(d)} s" if defined(d) else "no successful lane change"
     lines.append(
         f"| lane-change duration like a human's | humans 3–8 s (mean ≈ 6 s) | "
         f"{ours} (best model, successful cases{ref}) | {'yes' if in_range else 'no'} |"
@@ -314,11 +292,13 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in doc["cells"]:
-        ci = f"{_pct(c['success_mean'])} [{_pct(c['success_lo'])}, {_pct(c['success_hi'])}]"
+        ci = (
+            f"{percent(c['success_mean'])} [{percent(c['success_lo'])}, {percent(c['success_hi'])}]"
+        )
         lines.append(
             f"| {c['label']} | {c['seeds']} | {c['lane_changes']} | {ci} | {c['failures']} | "
-            f"{_f(100 * c['failure_bound'])}% | {c['collisions']} | "
-            f"{_f(100 * c['collision_rate'], '.2f')}% | {_pct(c['norm_all'])} |"
+            f"{fixed(100 * c['failure_bound'])}% | {c['collisions']} | "
+            f"{fixed(100 * c['collision_rate'], '.2f')}% | {percent(c['norm_all'])} |"
         )
     how = sorted({c["interval"] for c in doc["cells"]})
     lines += ["", f"Cell intervals: {'; '.join(how)}.", ""]
@@ -333,21 +313,22 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
     for r in doc["rows"]:
         lines.append(
             f"| {r['label']} | {'' if r['seed'] is None else r['seed']} | "
-            f"{_pct(r['success_rate'])} [{_pct(r['success_lo'])}, {_pct(r['success_hi'])}] "
+            f"{percent(r['success_rate'])} "
+            f"[{percent(r['success_lo'])}, {percent(r['success_hi'])}] "
             f"| {r['out_of_bounds']} | {r['collision']} | {r['timeout']} | "
-            f"{_f(r['duration_s'])} | {_f(r.get('lcm_s'))} | {_f(r['peak_lat_acc'])} | "
-            f"{_f(r['peak_lat_jerk'])} | {_f(r.get('peak_long_acc'))} | "
-            f"{_f(r.get('peak_long_jerk'))} | "
+            f"{fixed(r['duration_s'])} | {fixed(r.get('lcm_s'))} | {fixed(r['peak_lat_acc'])} | "
+            f"{fixed(r['peak_lat_jerk'])} | {fixed(r.get('peak_long_acc'))} | "
+            f"{fixed(r.get('peak_long_jerk'))} | "
             f"{_tail(r, 'min_ttc_s')} | {_tail(r, 'min_thw_s')} | "
-            + " | ".join(_pct(r[f"norm_{m}"]) for m in norms)
-            + f" | {_pct(r['norm_all'])} |"
+            + " | ".join(percent(r[f"norm_{m}"]) for m in norms)
+            + f" | {percent(r['norm_all'])} |"
         )
     return lines
 
 
 def _tail(r: dict[str, Any], key: str) -> str:
     """A TTC or headway percentile; JSON holds an infinite one (no closing) as null."""
-    return "∞" if r[key] is None and r["lane_changes"] else _f(r[key])
+    return "∞" if r[key] is None and r["lane_changes"] else fixed(r[key])
 
 
 def _collision_tally(doc: dict[str, Any]) -> list[str]:
@@ -375,7 +356,7 @@ def _collision_tally(doc: dict[str, Any]) -> list[str]:
             f"| {who.replace('_', ' ')} | "
             + (f"{hz.replace('_', ' ')} | " if hazards else "")
             + f"{'yes' if ylds else 'no'} | {len(hs)} | "
-            + " | ".join(_f(med[k], ".1f") for k in COLLISION_MEDIANS)
+            + " | ".join(fixed(med[k], ".1f") for k in COLLISION_MEDIANS)
             + " |"
         )
     return lines + [
@@ -389,7 +370,7 @@ def _collision_tally(doc: dict[str, Any]) -> list[str]:
 def _median(values: list[Any]) -> float:
     """Median of the defined values (a record holds None where there was no such vehicle);
     NaN, printed as a dash, when none is."""
-    kept = [float(v) for v in values if _defined(v)]
+    kept = [float(v) for v in values if defined(v)]
     return float(np.median(kept)) if kept else math.nan
 
 
@@ -499,9 +480,9 @@ def _claims_section(run_dir: Path, held: dict[str, Any] | None) -> list[str]:
     lines += ["", "| model | seed | " + " | ".join(MEASURE_NAMES) + " |"]
     lines.append("|---" * (2 + len(MEASURE_NAMES)) + "|")
     for m in doc["models"]:
-        vals = [_f(m[k], ".0f") for k in MEASURE_NAMES[:3]] + [
-            _f(m["auc"], ".3f"),
-            _f(m["plateau"], ".1f"),
+        vals = [fixed(m[k], ".0f") for k in MEASURE_NAMES[:3]] + [
+            fixed(m["auc"], ".3f"),
+            fixed(m["plateau"], ".1f"),
         ]
         lines.append(f"| {m['label']} | {m['seed']} | " + " | ".join(vals) + " |")
     return lines + ["", "Every comparison on every measure: `eval/convergence.json`.", ""]
