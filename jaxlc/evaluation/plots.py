@@ -603,17 +603,17 @@ def heldout_norms(run_dir: Path) -> Path | None:
     dt = rd.load_config().env.dt
     perf = cases["performed"]
     measures = [
-        {k: v[perf] for k, v in heldout.lane_change_measures(cases, p, dt).items()}
-        for p in range(len(doc["rows"]))
+        {k: v[perf] for k, v in heldout.lane_change_measures(cases, row, dt).items()}
+        for row in range(len(doc["rows"]))
     ]
     groups: dict[str, list[int]] = {}  # cell tag (or "scripted") -> policy rows
-    for p, r in enumerate(doc["rows"]):
+    for row, r in enumerate(doc["rows"]):
         tag = "scripted" if r["model"] is None else r["label"].split(" ")[0]
-        groups.setdefault(tag, []).append(p)
+        groups.setdefault(tag, []).append(row)
     fig, axes = plt.subplots(1, len(doc["norms"]), figsize=(3.2 * len(doc["norms"]), 3.6))
     for ax, norm in zip(axes, doc["norms"], strict=True):
         name = norm["measure"]
-        data = [np.concatenate([measures[p][name] for p in rows]) for rows in groups.values()]
+        data = [np.concatenate([measures[i][name] for i in rows]) for rows in groups.values()]
         if name.startswith("min_"):
             data = [np.minimum(d, TTC_SHOWN) for d in data]
         data = [d[np.isfinite(d)] for d in data]

@@ -40,7 +40,7 @@ FIGURES = (
 HUMAN_DURATION = (3.0, 8.0)  # s, the human range docs/results.md compares with
 
 
-PAPER = f"{BEST_TAG} (k={BEST[0]}, D={BEST[1]})"  # the model the paper finds best
+BEST_LABEL = f"{BEST_TAG} (k={BEST[0]}, D={BEST[1]})"  # the model the paper finds best
 
 
 def _table(rows: list[dict[str, Any]]) -> list[str]:
@@ -243,9 +243,9 @@ def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
         pick = cells[0] if cells[0]["seeds"] > 1 else {**best, "best": is_best(best)}
         top, ok = pick["label"], pick["best"]
         ours = f"{top} is best" + (" (mean over seeds)" if cells[0]["seeds"] > 1 else "")
-        lines.append(f"| best model | {PAPER} | {ours} | {'yes' if ok else 'no'} |")
+        lines.append(f"| best model | {BEST_LABEL} | {ours} | {'yes' if ok else 'no'} |")
     else:
-        lines.append(f"| best model | {PAPER} | the grid has no model {BEST_TAG} | n/a |")
+        lines.append(f"| best model | {BEST_LABEL} | the grid has no model {BEST_TAG} | n/a |")
 
     others = [(f"model {BEST_TAG}, seed {r['seed']}", r) for r in four if r is not best]
     for who, r in [("best model", best), *others]:

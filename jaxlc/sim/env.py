@@ -105,7 +105,7 @@ class Box:
         return jnp.all((x >= self.low) & (x <= self.high))
 
 
-def end_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
+def episode_end_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
     """``()`` int32 reason code of ``jaxlc.sim.reward.REASONS``: the RL manoeuvre's own, else a
     collision or no gap before it, else NONE."""
     before_rl = jnp.where(crashed, reward.COLLISION, jnp.where(no_gap, reward.NO_GAP, reward.NONE))
@@ -174,7 +174,7 @@ def _advance(
     r = reward.total(terms)
     rl_reason = reward.end_reason(offset, ego.psi, yaw_rate, ego.steps, crashed, p)
     accept, no_gap = gap_decision(ego, nb, p, kappa)
-    reason = end_reason(in_rl, rl_reason, crashed, no_gap)
+    reason = episode_end_reason(in_rl, rl_reason, crashed, no_gap)
     ended = reason != reward.NONE
 
     ep_return = jnp.where(in_rl, eg.ep_return + r, 0.0)
