@@ -22,7 +22,7 @@ collision (and the timeout with ``env.terminal_timeout``); ``truncated``: the si
 timeout, to bootstrap from. ``info`` also has ``reason`` (a code of ``jaxlc.sim.reward.REASONS``),
 ``discount`` (0 only when terminated), the reward terms and the env's own ``episode_return``
 and ``episode_steps``. ``params.max_steps_in_episode`` is the manoeuvre's decision limit
-(``manoeuvre_time_limit / dt``, 100), derived from the simulator's params; learners read it
+(``reward.step_limit``, 100), derived from the simulator's params; learners read it
 for their evaluation loops.
 
 Learners written for gymnax 0.0.x's five values ``obs, state, reward, done, info`` (Rejax

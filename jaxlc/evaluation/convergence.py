@@ -31,14 +31,8 @@ any ten-seed study ran (``MARGIN``):
 - *undecided*, with the interval's width, otherwise; and always below ``stats.RANGE_BELOW``
   (5) seeds per cell, where a bootstrap over so few seeds is no evidence.
 
-Why those margins: the paper's Figs. 3 and 4 are curves over the training episodes (x) of a
-return between the run's worst and best values (y). A difference of 2% of either axis is
-about a line's width on a figure of that size: two curves that differ by less cannot show
-the paper's comparison. So the margin is 2% of the axis the measure lives on: for the
-episode counts 2% of the training episodes (100 of 5,000, also the moving-average window
-and the checkpoint interval); for ``auc``, already normalised to the run's return range,
-0.02; for ``plateau``, 2% of the run's return range (the span of the moving averages of
-every model of the run, as ``auc`` is normalised by).
+The margin is 2% of the axis the measure lives on (docs/decisions.md, "margins of the
+learning-speed comparisons").
 
 The probability of improvement P(X > Y) (rliable's) is still given beside each difference.
 """

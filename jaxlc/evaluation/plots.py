@@ -318,7 +318,7 @@ def _best_traces(run_dir: Path) -> tuple[dict, dict, dict, Any, list[int]] | Non
 
 
 def _curvature(tr: dict[str, np.ndarray], pi: int, j: int) -> float:
-    """The traced case's road curvature (0 for traces written before roads could bend)."""
+    """The traced case's road curvature (0 where the trace holds none: a straight road)."""
     return float(tr["curvature"][pi, j]) if "curvature" in tr else 0.0
 
 
@@ -425,7 +425,7 @@ def speed_gaps(run_dir: Path) -> Path | None:
     model's final checkpoint (solid) beside the scripted controller (dashed), whose
     longitudinal motion is the IDM's."""
     found = _best_traces(run_dir)
-    if found is None or "v" not in found[1]:  # traces written before the speed was kept
+    if found is None or "v" not in found[1]:  # a trace without the speed
         return None
     result, tr, _, p, prows = found
     final = prows[-1]

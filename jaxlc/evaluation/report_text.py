@@ -103,7 +103,7 @@ HELDOUT = (
     "(`jaxlc.evaluation.safety`); the table gives their 5th percentile over the lane changes, "
     "∞ where fewer than 5% close in. Figure: [heldout_norms.png](figures/heldout_norms.png)."
 )
-# How a held-out file written before safety.COUNTED counted headway and TTC.
+# How headway and TTC were counted where heldout.json names no ``conflicts_counted``.
 EVERY_STEP = "on every step from the manoeuvre's start"
 CLAIM_D = "**Claim (d)**: {figures}: **{verdict}** (supported when the bound is at most 1%)."
 CLAIM_D_MISSING = "needs the held-out lane changes (evaluate with --lane-changes above 0)"

@@ -11,7 +11,8 @@ kappa (0: straight; a constant, or drawn per episode), and everything runs in it
 (``road``, ``kinematics``).
 
 This module is the step alone; each concept has its own module:
-  ``state``       EnvParams (EnvConfig in SI units), the state types, the phases, the draws;
+  ``params``      EnvParams (EnvConfig in SI units);
+  ``state``       the state types, the phases, the draws;
   ``road``        lanes, centre lines and scales, where the ego is on them;
   ``traffic``     who follows whom, IDM accelerations, inflow;
   ``ego``         the ego's action, longitudinal acceleration, phases, gap decision;
