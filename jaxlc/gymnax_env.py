@@ -191,7 +191,8 @@ def params_for(sim: EnvParams, max_skip_steps: int = DEFAULT_MAX_SKIP_STEPS) -> 
 def make_gymnax(
     config: Config | EnvConfig | None = None, k: int = 1
 ) -> tuple[LaneChangeGymnax, LaneChangeParams]:
-    """``env, params = jaxlc.make_gymnax()``: the paper's defaults, or those of ``config``."""
+    """``env, params = jaxlc.make_gymnax()``: ``jaxlc.make``'s arguments; the gymnax env and its
+    ``LaneChangeParams`` (the simulator's params, the decision limit)."""
     return LaneChangeGymnax(), params_for(make(config, k)[1])
 
 

@@ -221,7 +221,8 @@ class LaneChangeEnv:
         return Box(-1.0, 1.0, (action_dim(params),))
 
     def reset(self, key: Array, params: EnvParams) -> tuple[Array, EnvState]:
-        """Empty road, then ``warmup_steps`` of traffic; the ego spawns on a later step."""
+        """``(obs, state)``: an empty road, then ``warmup_steps`` of traffic (the ego spawns on
+        a later step); ``obs`` is ``(OBS_DIM,)``, ``key`` a PRNG key."""
         p, lanes, slots = params, params.lanes, params.slots_per_lane
         k_init, k_warm = jax.random.split(key)
         u = jax.random.uniform(k_init, (4, lanes))
@@ -301,7 +302,16 @@ class LaneChangeEnv:
 
 
 def make(config: Config | EnvConfig | None = None, k: int = 1) -> tuple[LaneChangeEnv, EnvParams]:
-    """``env, params = jaxlc.make()``: the paper's defaults, or those of ``config``."""
+    """``env, params = jaxlc.make()``.
+
+    Args:
+        config: a ``Config`` (its ``[env]`` and ``ddpg.gamma``) or an ``EnvConfig``; default
+            ``configs/default.toml``.
+        k: the action-update step (an action is held for ``k`` RL steps).
+
+    Returns:
+        The functional env and its ``EnvParams``.
+    """
     if config is None:
         from jaxlc import config as config_mod
 
