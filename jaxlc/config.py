@@ -29,6 +29,9 @@ from typing import Any
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 PAPER_CONFIG = CONFIG_DIR / "paper.toml"  # the paper's method as written
 DEFAULT_CONFIG = CONFIG_DIR / "default.toml"  # the built-in default: the dataclasses' values
+# Fewest env-steps one episode can take: the ego must drive command_distance (80 m) from the
+# entrance at no more than its entry speed plus IDM acceleration; 50 steps (5 s) is below that.
+MIN_EPISODE_STEPS = 50
 
 
 class ConfigError(ValueError):
@@ -468,12 +471,13 @@ def _cross_checks(cfg: Config) -> None:
     t = cfg.train
     if t.episodes % t.checkpoint_every:
         raise ConfigError("config key 'train.checkpoint_every': must divide train.episodes")
-    # An episode takes >= 50 env-steps (train.MIN_EPISODE_STEPS), so a chunk of this length
-    # passes at most one checkpoint episode and the one snapshot slot per model suffices.
-    if t.chunk_steps * t.envs_per_model > 50 * t.checkpoint_every:
+    # A chunk this short passes at most one checkpoint episode per model, so the one snapshot
+    # slot per model suffices.
+    n = MIN_EPISODE_STEPS
+    if t.chunk_steps * t.envs_per_model > n * t.checkpoint_every:
         raise ConfigError(
-            f"config key 'train.chunk_steps': must be <= 50 * train.checkpoint_every / "
-            f"train.envs_per_model = {50 * t.checkpoint_every // t.envs_per_model}, "
+            f"config key 'train.chunk_steps': must be <= {n} * train.checkpoint_every / "
+            f"train.envs_per_model = {n * t.checkpoint_every // t.envs_per_model}, "
             f"got {t.chunk_steps}"
         )
 

@@ -22,7 +22,7 @@ collision (and the timeout with ``env.terminal_timeout``); ``truncated``: the si
 timeout, to bootstrap from. ``info`` also has ``reason`` (a code of ``jaxlc.sim.reward.REASONS``),
 ``discount`` (0 only when terminated), the reward terms and the env's own ``episode_return``
 and ``episode_steps``. ``params.max_steps_in_episode`` is the manoeuvre's decision limit
-(``manoeuvre_time_limit / dt``, 100), derived from the simulator's params; learners read it
+(``reward.step_limit``, 100), derived from the simulator's params; learners read it
 for their evaluation loops.
 
 Learners written for gymnax 0.0.x's five values ``obs, state, reward, done, info`` (Rejax
@@ -53,6 +53,7 @@ from jaxlc.sim.decision import DEFAULT_MAX_SKIP_STEPS, fast_forward, reset_core
 from jaxlc.sim.env import EnvParams, EnvState, LaneChangeEnv, action_dim, make, observation
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.sim.reward import names as reward_names
+from jaxlc.sim.reward import step_limit
 
 _SIM = LaneChangeEnv()
 
@@ -183,14 +184,15 @@ class LaneChangeGymnax(environment.Environment):
 
 def params_for(sim: EnvParams, max_skip_steps: int = DEFAULT_MAX_SKIP_STEPS) -> LaneChangeParams:
     """gymnax params around simulator params (the decision limit derived from them)."""
-    limit = int(round(float(sim.manoeuvre_time_limit) / float(sim.dt)))
+    limit = int(step_limit(sim))
     return LaneChangeParams(max_steps_in_episode=limit, sim=sim, max_skip_steps=max_skip_steps)
 
 
 def make_gymnax(
     config: Config | EnvConfig | None = None, k: int = 1
 ) -> tuple[LaneChangeGymnax, LaneChangeParams]:
-    """``env, params = jaxlc.make_gymnax()``: the paper's defaults, or those of ``config``."""
+    """``env, params = jaxlc.make_gymnax()``: ``jaxlc.make``'s arguments; the gymnax env and its
+    ``LaneChangeParams`` (the simulator's params, the decision limit)."""
     return LaneChangeGymnax(), params_for(make(config, k)[1])
 
 

@@ -33,6 +33,14 @@ def actor_fn(
 
 
 def load_policy(path: str | os.PathLike[str]) -> tuple[Callable[[Array], Array], dict[str, Any]]:
-    """``(act, meta)`` of a checkpoint: its actor as a function, and its metadata."""
+    """A checkpoint's actor as a function.
+
+    Args:
+        path: a checkpoint's ``.msgpack`` or ``.json`` (``RUN_DIR/checkpoints/mXX_sY/epNNNNN.*``).
+
+    Returns:
+        ``(act, meta)``: ``act(obs (..., OBS_DIM)) -> action (..., action_dim)`` in [-1, 1],
+        and the checkpoint's metadata (its JSON).
+    """
     params, meta = checkpoint.load(path)
     return actor_fn(params, *checkpoint_network(path, meta)), meta

@@ -64,7 +64,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("overrides", nargs="*", help="table.key=value, e.g. train.episodes=500")
-    ap.add_argument("--config", type=Path, default=None, help="TOML file (default: paper)")
+    ap.add_argument(
+        "--config", type=Path, default=None, help="TOML file (default: configs/default.toml)"
+    )
     ap.add_argument("--out", type=Path, default=None, help="run directory (default: runs/...)")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per grid cell")
     ap.add_argument(

@@ -76,27 +76,38 @@ def reset_batch(env_params):
 # --- reward, eqs. (8)-(11) -----------------------------------------------------------------
 
 
+def paper_terms(omega, a_lat, offset, collided, p):
+    """``(r_s, r_e, r_d)``: the paper's terms for one RL step, each times reward_scale."""
+    x = reward.Inputs(omega, a_lat, offset, collided)
+    return tuple(p.reward_scale * t.fn(x, p) for t in reward.PAPER)
+
+
+def equilibrium_gap(v: float, v0: float, time_headway: float, s0: float, delta: float) -> float:
+    """Net gap at which a follower at steady speed ``v`` (behind a leader at ``v``) has a = 0."""
+    return (s0 + v * time_headway) / (1.0 - (v / v0) ** delta) ** 0.5
+
+
 def test_reward_matches_paper_inside_and_beyond_border(env_params):
     _, p = env_params
     # Inside D: omega 0.05 rad/s, a_lat 0.2 rad/s^2, offset -1.5 m.
-    r_s, r_e, r_d = reward.reward_terms(
+    r_s, r_e, r_d = paper_terms(
         jnp.float32(0.05), jnp.float32(0.2), jnp.float32(-1.5), jnp.bool_(False), p
     )
     assert r_s == pytest.approx(-10.0 * 0.05 - 5.0 * 0.2, rel=1e-6)
     assert r_e == pytest.approx(-0.075 * 0.1, rel=1e-6)
     assert r_d == pytest.approx(-1.5, rel=1e-6)
     # Beyond D = 3.7 m: the penalty is |dd| * 10 / (1 - 0.98) = 500 |dd|.
-    _, _, r_d = reward.reward_terms(
+    _, _, r_d = paper_terms(
         jnp.float32(0.0), jnp.float32(0.0), jnp.float32(3.8), jnp.bool_(False), p
     )
     assert r_d == pytest.approx(-3.8 * 10.0 / 0.02, rel=1e-5)
     # At exactly D the ordinary term applies (eq. 11's first case).
-    _, _, r_d = reward.reward_terms(
+    _, _, r_d = paper_terms(
         jnp.float32(0.0), jnp.float32(0.0), jnp.float32(3.7), jnp.bool_(False), p
     )
     assert r_d == pytest.approx(-3.7, rel=1e-6)
     # A collision costs the out-of-bounds penalty at max(|dd|, D).
-    _, _, r_d = reward.reward_terms(
+    _, _, r_d = paper_terms(
         jnp.float32(0.0), jnp.float32(0.0), jnp.float32(0.4), jnp.bool_(True), p
     )
     assert r_d == pytest.approx(-3.7 * 500.0, rel=1e-5)
@@ -242,7 +253,7 @@ def test_platoon_settles_to_equilibrium_gap(env_params, kappa):
     scale = 1.0 - kappa * float(R.lane_offset(0, p))
     assert (scale > 1.0) == (kappa > 0)
     gaps = np.asarray((s.traffic.x[0, : n - 1] - s.traffic.x[0, 1:n]) * scale - 5.0)
-    want = idm.equilibrium_gap(20.0, 30.0, 1.5, 2.0, 4.0)
+    want = equilibrium_gap(20.0, 30.0, 1.5, 2.0, 4.0)
     np.testing.assert_allclose(np.asarray(s.traffic.v[0, :n]), 20.0, rtol=1e-3)
     np.testing.assert_allclose(gaps, want, rtol=5e-3)
 
@@ -562,8 +573,8 @@ def test_mirror_signs_reflect_the_observation_the_kinematics_and_keep_the_reward
     offset = jnp.asarray(rng.uniform(-4.5, 4.5, 16), jnp.float32)
     collided = jnp.asarray(rng.random(16) < 0.2)
     steps = jnp.asarray(rng.integers(0, 120, 16), jnp.int32)
-    terms = reward.reward_terms(eg.omega, a, offset, collided, p)
-    terms_m = reward.reward_terms(-eg.omega, -a, -offset, collided, p)
+    terms = paper_terms(eg.omega, a, offset, collided, p)
+    terms_m = paper_terms(-eg.omega, -a, -offset, collided, p)
     for got, want in zip(terms_m, terms, strict=True):
         np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(

@@ -17,7 +17,7 @@ import pytest
 
 from jaxlc import config, evaluate, sweep
 from jaxlc.evaluation import cases, heldout, results, safety
-from jaxlc.evaluation.report import FIGURES
+from jaxlc.evaluation.report_text import FIGURES
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.policy import actor_fn
 from jaxlc.sim.controller import scripted_action

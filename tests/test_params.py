@@ -1,5 +1,5 @@
-"""EnvParams: declared once (EnvConfig's fields through one table), passed traced and vmapped
-over drawn tasks, and a manoeuvre that starts exactly one lane width from its target."""
+"""EnvParams: EnvConfig's fields written out and held in step with it, passed traced and
+vmapped over drawn tasks, and a manoeuvre that starts exactly one lane width from its target."""
 
 import dataclasses
 
@@ -12,7 +12,7 @@ from jaxlc import config
 from jaxlc.config import EnvConfig
 from jaxlc.sim import reward, road
 from jaxlc.sim.env import RL, EnvParams, LaneChangeEnv
-from jaxlc.sim.state import CONVERSIONS, DERIVED, STATIC
+from jaxlc.sim.params import CONVERSIONS, DERIVED, STATIC
 
 ENV = LaneChangeEnv()
 
@@ -31,6 +31,22 @@ def test_every_env_config_field_is_a_param_converted_by_the_table():
     leaves = len(jax.tree_util.tree_leaves(p))
     statics = STATIC | {"warmup_steps", "curvature_drawn", "reward_terms"}
     assert leaves == len(params) - len(statics)
+
+
+def test_env_params_spells_env_config_in_its_order_with_its_converted_defaults():
+    """The fields written out in jaxlc/sim/params.py are EnvConfig's (less DERIVED), in its
+    order (the pytree's leaves), then the derived ones; their defaults are the config's."""
+    names = [f.name for f in dataclasses.fields(EnvParams)]
+    from_config = [f.name for f in dataclasses.fields(EnvConfig) if f.name not in DERIVED]
+    assert names[: len(from_config)] == from_config
+    derived = {"warmup_steps", "curvature", "curvature_min", "curvature_max", "curvature_drawn"}
+    assert set(names[len(from_config) :]) == derived | {"reward_terms", "gamma", "k"}
+    assert EnvParams() == EnvParams.from_config(EnvConfig())
+    assert EnvParams().gamma == config.DDPGConfig().gamma  # the learner's default discount
+    assert STATIC == {
+        "lanes", "slots_per_lane", "longitudinal", "assist", "mobil", "braking",
+        "warmup_steps", "curvature_drawn", "reward_terms",
+    }  # fmt: skip
 
 
 def _drawn(key, n: int, base: EnvParams, **ranges) -> EnvParams:

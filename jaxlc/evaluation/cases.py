@@ -39,9 +39,9 @@ from jaxlc.sim.controller import baseline_action
 from jaxlc.sim.env import RL, EnvParams, EnvState, LaneChangeEnv, action_dim
 from jaxlc.sim.leaders import vehicle_y
 from jaxlc.sim.observation import OBS_DIM, observation, target_gaps
-from jaxlc.sim.reward import COLLISION
+from jaxlc.sim.reward import COLLISION, step_limit
 from jaxlc.sim.reward import names as reward_names
-from jaxlc.sim.road import ego_yaw_rate, road_curvature
+from jaxlc.sim.road import ego_yaw_rate, origin_lane, road_curvature
 
 PROTOCOL = config.EvalConfig()  # the defaults of the [eval] table: cases, step cap, chunk
 
@@ -201,7 +201,7 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
 def make_start_case(base: EnvParams, max_steps: int) -> Callable[[Array], Cases]:
     """``key -> Cases`` (unbatched): reset, then step with no action until the RL phase
     begins, the episode ends before it, or ``max_steps`` pass."""
-    env, zero, origin = LaneChangeEnv(), jnp.zeros(action_dim(base)), base.lanes // 2
+    env, zero, origin = LaneChangeEnv(), jnp.zeros(action_dim(base)), origin_lane(base)
 
     def start_case(key: Array) -> Cases:
         k_reset, k_run = jax.random.split(key)
@@ -327,7 +327,7 @@ def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Call
     """``(Policies, Cases, traced) -> (Outcome, Trace)``: every policy on every case, from the
     start of its RL phase until it ends, ``max_steps`` env time or the manoeuvre's step cap."""
     env = LaneChangeEnv()
-    limit = int(round(base.manoeuvre_time_limit / base.dt))  # RL steps before a timeout
+    limit = int(step_limit(base))  # RL steps before a timeout
 
     def rollout(pol: Policies, cs: Cases, traced: Array) -> tuple[Outcome, Trace]:
         n_pol = pol.k.shape[0]

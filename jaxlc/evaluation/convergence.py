@@ -31,14 +31,8 @@ any ten-seed study ran (``MARGIN``):
 - *undecided*, with the interval's width, otherwise; and always below ``stats.RANGE_BELOW``
   (5) seeds per cell, where a bootstrap over so few seeds is no evidence.
 
-Why those margins: the paper's Figs. 3 and 4 are curves over the training episodes (x) of a
-return between the run's worst and best values (y). A difference of 2% of either axis is
-about a line's width on a figure of that size: two curves that differ by less cannot show
-the paper's comparison. So the margin is 2% of the axis the measure lives on: for the
-episode counts 2% of the training episodes (100 of 5,000, also the moving-average window
-and the checkpoint interval); for ``auc``, already normalised to the run's return range,
-0.02; for ``plateau``, 2% of the run's return range (the span of the moving averages of
-every model of the run, as ``auc`` is normalised by).
+The margin is 2% of the axis the measure lives on (docs/decisions.md, "margins of the
+learning-speed comparisons").
 
 The probability of improvement P(X > Y) (rliable's) is still given beside each difference.
 """
@@ -51,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from jaxlc.evaluation import stats
+from jaxlc.evaluation.numbers import fixed
 from jaxlc.paper.claims import COMPARISONS
 from jaxlc.paper.grid import tag_of
 from jaxlc.sim.reward import SUCCESS
@@ -233,8 +228,9 @@ def claim_verdicts(rows: list[dict[str, Any]]) -> list[dict[str, str]]:
             held = sorted({r["measure"] for r in mine if r["verdict"] == HOLDS})
             v = f"{HOLDS} on {', '.join(held)}; {SAME} on the rest"
         figures = "; ".join(
-            f"{r['measure']}: {r['x']} ahead of {r['y']} by {_num(r['diff'])} "
-            f"[{_num(r['diff_lo'])}, {_num(r['diff_hi'])}] (margin ±{_num(r['margin'])})"
+            f"{r['measure']}: {r['x']} ahead of {r['y']} by {fixed(r['diff'], '.3g')} "
+            f"[{fixed(r['diff_lo'], '.3g')}, {fixed(r['diff_hi'], '.3g')}] "
+            f"(margin ±{fixed(r['margin'], '.3g')})"
             for r in mine
         )
         out.append({"claim": claim, "measures": ", ".join(keys), "figures": figures, "verdict": v})
@@ -243,13 +239,9 @@ def claim_verdicts(rows: list[dict[str, Any]]) -> list[dict[str, str]]:
 
 def _width(r: dict[str, Any]) -> str:
     """How wide an undecided comparison's interval stayed, beside its margin."""
-    width = _num(r["diff_hi"] - r["diff_lo"])
-    return f"{r['measure']} {r['x']}−{r['y']}: interval {width} wide, margin ±{_num(r['margin'])}"
-
-
-def _num(v: float) -> str:
-    """A figure for a table: 3 significant digits; a dash where it is undefined."""
-    return f"{v:.3g}" if v == v else "–"
+    width = fixed(r["diff_hi"] - r["diff_lo"], ".3g")
+    margin = fixed(r["margin"], ".3g")
+    return f"{r['measure']} {r['x']}−{r['y']}: interval {width} wide, margin ±{margin}"
 
 
 def study(episodes: dict[str, np.ndarray], models: list[dict[str, Any]]) -> dict[str, Any]:

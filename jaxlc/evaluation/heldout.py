@@ -32,6 +32,7 @@ import numpy as np
 import scipy.stats
 
 from jaxlc import config
+from jaxlc.evaluation.numbers import TERMINAL_DASH, percent
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.evaluation.safety import HAZARDS, NORMS, PARTNERS, VEHICLES
 from jaxlc.evaluation.stats import CELL_AXES, CONFIDENCE, RESAMPLES, cell_key, expanded_level
@@ -308,7 +309,8 @@ def claim_d(cells: list[dict[str, Any]]) -> dict[str, str]:
 
 
 def _pct(v: Any, digits: int = 1) -> str:
-    return "-" if v is None or v != v else f"{100 * v:.{digits}f}"
+    """A share for the terminal's table: a percentage without its sign, ``-`` undefined."""
+    return percent(v, digits, unit="", missing=TERMINAL_DASH)
 
 
 def format_rows(rows: list[dict[str, Any]]) -> str:

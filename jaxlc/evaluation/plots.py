@@ -36,8 +36,11 @@ from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
 
 from jaxlc.evaluation import heldout, stats  # noqa: E402
 from jaxlc.evaluation.convergence import moving  # noqa: E402
+from jaxlc.evaluation.numbers import number  # noqa: E402
 from jaxlc.evaluation.results import OUTCOMES, rank_models  # noqa: E402
 from jaxlc.paper import grid as paper_grid  # noqa: E402
+from jaxlc.sim.render import road_to_world  # noqa: E402
+from jaxlc.sim.road import origin_lane, reference_y  # noqa: E402
 from jaxlc.study.rundir import RunDir  # noqa: E402
 
 SCENE_BEHIND, SCENE_AHEAD = 90.0, 30.0  # m of road shown behind and ahead of the ego
@@ -207,8 +210,8 @@ def fig6_checkpoints(run_dir: Path) -> Path | None:
                 ax.fill_between(c.episodes, scale * lo, scale * hi, color=colour, alpha=0.2, lw=0)
     for r in result["rows"]:
         if r["model"] is None:
-            a.axhline(_num(r["avg_return"]), color="k", ls="--", lw=1, label="scripted")
-            b.axhline(100 * _num(r["success_rate"]), color="k", ls="--", lw=1)
+            a.axhline(number(r["avg_return"]), color="k", ls="--", lw=1, label="scripted")
+            b.axhline(100 * number(r["success_rate"]), color="k", ls="--", lw=1)
     a.set(title="(a) average total return", xlabel="checkpoint (training episode)")
     _return_axis(a)
     b.set(
@@ -271,7 +274,7 @@ def fig_compare(table: list[dict[str, Any]], name_a: str, name_b: str, path: Pat
     for i, label in enumerate(labels):
         mine = sorted((r for r in table if r["label"] == label), key=lambda r: r["episode"])
         d, lo, hi = (
-            100 * np.asarray([_num(r[k]) for r in mine]) for k in ("diff", "diff_lo", "diff_hi")
+            100 * np.asarray([number(r[k]) for r in mine]) for k in ("diff", "diff_lo", "diff_hi")
         )
         ep = [r["episode"] for r in mine]
         colour = _colour(mine[0], i)
@@ -292,10 +295,6 @@ def fig_compare(table: list[dict[str, Any]], name_a: str, name_b: str, path: Pat
         ax.grid(alpha=0.3)
     fig.suptitle(f"B = {name_b} against A = {name_a}: mean success rate (95% intervals)")
     return _save(fig, path)
-
-
-def _num(v: Any) -> float:
-    return float("nan") if v is None else float(v)
 
 
 def _best(result: dict[str, Any]) -> tuple[int, list[int]] | None:
@@ -319,7 +318,7 @@ def _best_traces(run_dir: Path) -> tuple[dict, dict, dict, Any, list[int]] | Non
 
 
 def _curvature(tr: dict[str, np.ndarray], pi: int, j: int) -> float:
-    """The traced case's road curvature (0 for traces written before roads could bend)."""
+    """The traced case's road curvature (0 where the trace holds none: a straight road)."""
     return float(tr["curvature"][pi, j]) if "curvature" in tr else 0.0
 
 
@@ -330,10 +329,9 @@ def _world(s: Any, y: Any, kappa: float, s0: float, p: Any) -> tuple[np.ndarray,
     s, y = np.asarray(s, float), np.asarray(y, float)
     if kappa == 0.0:
         return s, y
-    y_ref = 0.5 * p.lanes * p.lane_width
-    radius, theta = 1.0 / kappa, (s - s0) * kappa
-    r = radius - (y - y_ref)  # distance from the bend's centre
-    return s0 + r * np.sin(theta), y_ref + radius - r * np.cos(theta)
+    y_ref = reference_y(p)
+    x_w, y_w = road_to_world(s - s0, y - y_ref, kappa)
+    return s0 + x_w, y_ref + y_w
 
 
 def _along(kappa: float) -> str:
@@ -427,7 +425,7 @@ def speed_gaps(run_dir: Path) -> Path | None:
     model's final checkpoint (solid) beside the scripted controller (dashed), whose
     longitudinal motion is the IDM's."""
     found = _best_traces(run_dir)
-    if found is None or "v" not in found[1]:  # traces written before the speed was kept
+    if found is None or "v" not in found[1]:  # a trace without the speed
         return None
     result, tr, _, p, prows = found
     final = prows[-1]
@@ -483,7 +481,7 @@ def draw_scene(ax: Any, tr: dict[str, np.ndarray], pi: int, j: int, f: int, p: A
             )
         )
 
-    target = p.lanes // 2 + int(tr["side"][j])
+    target = origin_lane(p) + int(tr["side"][j])
     xs, act = tr["traffic_x"][pi, j, f], tr["traffic_active"][pi, j, f]
     centre = (np.arange(p.lanes)[:, None] + 0.5) * lw + np.zeros_like(xs)  # rows are lanes
     ys = tr["traffic_y"][pi, j, f] if "traffic_y" in tr else centre  # between two, changing
@@ -605,17 +603,17 @@ def heldout_norms(run_dir: Path) -> Path | None:
     dt = rd.load_config().env.dt
     perf = cases["performed"]
     measures = [
-        {k: v[perf] for k, v in heldout.lane_change_measures(cases, p, dt).items()}
-        for p in range(len(doc["rows"]))
+        {k: v[perf] for k, v in heldout.lane_change_measures(cases, row, dt).items()}
+        for row in range(len(doc["rows"]))
     ]
     groups: dict[str, list[int]] = {}  # cell tag (or "scripted") -> policy rows
-    for p, r in enumerate(doc["rows"]):
+    for row, r in enumerate(doc["rows"]):
         tag = "scripted" if r["model"] is None else r["label"].split(" ")[0]
-        groups.setdefault(tag, []).append(p)
+        groups.setdefault(tag, []).append(row)
     fig, axes = plt.subplots(1, len(doc["norms"]), figsize=(3.2 * len(doc["norms"]), 3.6))
     for ax, norm in zip(axes, doc["norms"], strict=True):
         name = norm["measure"]
-        data = [np.concatenate([measures[p][name] for p in rows]) for rows in groups.values()]
+        data = [np.concatenate([measures[i][name] for i in rows]) for rows in groups.values()]
         if name.startswith("min_"):
             data = [np.minimum(d, TTC_SHOWN) for d in data]
         data = [d[np.isfinite(d)] for d in data]

@@ -30,12 +30,12 @@ from jaxlc.evaluation.cases import (
     init_actor,
     keys_for_lane_changes,
 )
+from jaxlc.evaluation.numbers import defined
 from jaxlc.evaluation.results import (
     META_KEYS,
     OUTCOMES,
     SCRIPTED,
     EvalError,
-    defined,
     eval_fields,
     summarise,
 )

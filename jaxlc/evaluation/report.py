@@ -3,7 +3,8 @@
     python -m jaxlc.evaluation.report RUN_DIR
 
 Reads ``RUN_DIR/eval/eval.json`` (``python -m jaxlc.evaluate``); every number in the report is
-computed from the run, the paper's only quoted. With several seeds per grid cell the paper's
+computed from the run, the paper's only quoted. The prose around the numbers is
+``jaxlc.evaluation.report_text``'s. With several seeds per grid cell the paper's
 claims get a verdict from intervals over seeds (the rules: ``jaxlc.evaluation.stats``).
 """
 
@@ -17,41 +18,21 @@ from typing import Any
 
 import numpy as np
 
+from jaxlc.evaluation import report_text as text
 from jaxlc.evaluation import stats
-from jaxlc.evaluation.results import OUTCOMES, EvalError, rank_models
+from jaxlc.evaluation.numbers import defined, fixed, interval, percent
+from jaxlc.evaluation.report_text import EVERY_STEP  # benchmarks/scripts/publish.py reads it here
+from jaxlc.evaluation.results import OUTCOMES, EvalError, rank_key, rank_models
 from jaxlc.evaluation.stats import final_rows
 from jaxlc.paper.claims import CLAIM_D, COMPARISONS
 from jaxlc.paper.grid import BEST, BEST_TAG, is_best
 from jaxlc.study.checkpoint import write_text_atomic
 from jaxlc.study.rundir import RunDir
 
-FIGURES = (
-    ("fig3_returns.png", "Fig. 3: total reward per training episode"),
-    ("fig4_steps_loss.png", "Fig. 4: manoeuvre steps and critic loss"),
-    ("fig5_scenes.png", "Fig. 5: scenes at chosen checkpoints"),
-    ("fig6_checkpoints.png", "Fig. 6: average return and success rate per checkpoint"),
-    ("fig7_trajectories.png", "Fig. 7: lane-change trajectories"),
-    ("speed_gaps.png", "Speed and gaps to the target lane's lead and lag over the manoeuvre"),
-    ("profiles.png", "Performance profiles: share of models above each success rate"),
-    ("learning.gif", "Video: lane changes across checkpoints"),
-    ("heldout_norms.png", "Held-out lane changes against the safety and comfort norms"),
-)
 HUMAN_DURATION = (3.0, 8.0)  # s, the human range docs/results.md compares with
-
-
-PAPER = f"{BEST_TAG} (k={BEST[0]}, D={BEST[1]})"  # the model the paper finds best
-
-
-def _defined(v: Any) -> bool:
-    return v is not None and v == v
-
-
-def _pct(v: Any) -> str:
-    return f"{100 * v:.1f}%" if _defined(v) else "–"
-
-
-def _f(v: Any, fmt: str = ".2f") -> str:
-    return format(v, fmt) if _defined(v) else "–"
+BEST_LABEL = f"{BEST_TAG} (k={BEST[0]}, D={BEST[1]})"  # the model the paper finds best
+COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
+MEASURE_NAMES = ("converged", "success95", "steps_rise", "auc", "plateau")
 
 
 def _table(rows: list[dict[str, Any]]) -> list[str]:
@@ -66,11 +47,11 @@ def _table(rows: list[dict[str, Any]]) -> list[str]:
     for r in rows:
         lines.append(
             f"| {r['label']} | {r.get('seed', '') if r['model'] is not None else ''} | "
-            f"{r['episode'] or '–'} | {r['performed']}/{r['cases']} | {_pct(r['success_rate'])} "
-            f"| {_f(r['avg_return'], '.1f')} | "
+            f"{r['episode'] or '–'} | {r['performed']}/{r['cases']} | {percent(r['success_rate'])} "
+            f"| {fixed(r['avg_return'], '.1f')} | "
             + " | ".join(str(r[e]) for e in ends)
-            + f" | {_f(r['duration_s'])} | {_f(r['peak_lat_acc'])} | "
-            f"{_f(r['peak_yaw_rate'], '.3f')} | {_f(r['overshoot_m'], '.3f')} | "
+            + f" | {fixed(r['duration_s'])} | {fixed(r['peak_lat_acc'])} | "
+            f"{fixed(r['peak_yaw_rate'], '.3f')} | {fixed(r['overshoot_m'], '.3f')} | "
             f"{_timeouts(r)} |"
         )
     return lines
@@ -78,62 +59,60 @@ def _table(rows: list[dict[str, Any]]) -> list[str]:
 
 def _timeouts(r: dict[str, Any]) -> str:
     keys = ("timeout_offset_m", "timeout_heading", "timeout_yaw_rate")
-    if not _defined(r.get(keys[0])):
+    if not defined(r.get(keys[0])):
         return "–"
-    return " / ".join(_f(r[k], ".3f") for k in keys)
+    return " / ".join(fixed(r[k], ".3f") for k in keys)
 
 
 def _timeout_line(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
     """Where the best model's timeouts end, beside the success box."""
-    if best is None or not best.get("timeout") or not _defined(best.get("timeout_offset_m")):
+    if best is None or not best.get("timeout") or not defined(best.get("timeout_offset_m")):
         return []
     box = result.get("success_box", {})
-    limits = (
-        f" (success box: |Δd| ≤ {box['offset_m']:g} m, |ψ| ≤ {box['heading']:g} rad, "
-        f"|ω| ≤ {box['yaw_rate']:g} rad/s)"
-        if box
-        else ""
+    line = text.TIMEOUTS.format(
+        n=best["timeout"],
+        ends="s end" if best["timeout"] > 1 else " ends",
+        offset=fixed(best["timeout_offset_m"], ".3f"),
+        heading=fixed(best["timeout_heading"], ".3f"),
+        yaw_rate=fixed(best["timeout_yaw_rate"], ".3f"),
+        box=text.SUCCESS_BOX.format(**box) if box else "",
     )
-    return [
-        "",
-        f"Its {best['timeout']} timeout{'s end' if best['timeout'] > 1 else ' ends'} at a "
-        f"median |Δd| of "
-        f"{_f(best['timeout_offset_m'], '.3f')} m from the target centre line, |ψ| "
-        f"{_f(best['timeout_heading'], '.3f')} rad and |ω| {_f(best['timeout_yaw_rate'], '.3f')} "
-        f"rad/s{limits}: a large |Δd| with a small |ω| is stopping short, a large |ω| "
-        "oscillating, all three near the box a tight success box.",
-    ]
+    return ["", line]
 
 
 def _best_section(rows: list[dict[str, Any]]) -> tuple[list[str], dict[str, Any] | None]:
     ranked = rank_models(rows)
     if not ranked:
-        return ["No model checkpoint was evaluated."], None
+        return [text.NO_MODEL], None
     best = ranked[0]
     out = [
-        f"**Best model: {best['label']} (model {best['model']}, seed {best['seed']})**, at "
-        f"checkpoint {best['episode']}: success rate {_pct(best['success_rate'])} of "
-        f"{best['performed']} lane changes, average return {_f(best['avg_return'], '.1f')}."
+        text.BEST.format(
+            **best, rate=percent(best["success_rate"]), ret=fixed(best["avg_return"], ".1f")
+        )
     ]
     if len(ranked) > 1:
         nxt = ranked[1]
         d_sr = (
             f"{100 * (best['success_rate'] - nxt['success_rate']):+.1f} points"
-            if _defined(best["success_rate"]) and _defined(nxt["success_rate"])
+            if defined(best["success_rate"]) and defined(nxt["success_rate"])
             else "undefined"
         )
         d_ret = (
             f"{best['avg_return'] - nxt['avg_return']:+.1f}"
-            if _defined(best["avg_return"]) and _defined(nxt["avg_return"])
+            if defined(best["avg_return"]) and defined(nxt["avg_return"])
             else "undefined"
         )
         out.append(
-            f"Runner-up: {nxt['label']} (model {nxt['model']}, seed {nxt['seed']}): success "
-            f"rate {_pct(nxt['success_rate'])}, average return {_f(nxt['avg_return'], '.1f')}. "
-            f"Margin: success rate {d_sr}, average return {d_ret}."
+            text.RUNNER_UP.format(
+                **nxt,
+                rate=percent(nxt["success_rate"]),
+                ret=fixed(nxt["avg_return"], ".1f"),
+                d_rate=d_sr,
+                d_ret=d_ret,
+            )
         )
         if best["success_rate"] == nxt["success_rate"]:
-            out.append("The success rates tie, so the return decides; treat the ranking as weak.")
+            out.append(text.TIE)
     return out, best
 
 
@@ -146,7 +125,7 @@ def rank_cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         groups.setdefault(r["label"], []).append(r)
 
     def mean(rs: list[dict[str, Any]], key: str) -> float:
-        vals = [r[key] for r in rs if _defined(r[key])]
+        vals = [r[key] for r in rs if defined(r[key])]
         return sum(vals) / len(vals) if vals else math.nan
 
     cells = [
@@ -158,21 +137,7 @@ def rank_cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         }
         for k, rs in groups.items()
     ]
-
-    def key(c: dict[str, Any]) -> tuple[float, float]:
-        sr, ret = c["success_rate"], c["avg_return"]
-        return (sr if _defined(sr) else -1.0, ret if _defined(ret) else -math.inf)
-
-    return sorted(cells, key=key, reverse=True)
-
-
-def _ci(est: float, lo: float, hi: float, fmt: str, scale: float = 1.0) -> str:
-    if not _defined(est):
-        return "–"
-    text = format(scale * est, fmt)
-    if _defined(lo):
-        text += f" [{format(scale * lo, fmt)}, {format(scale * hi, fmt)}]"
-    return text
+    return sorted(cells, key=rank_key, reverse=True)
 
 
 def _seed_section(rows: list[dict[str, Any]]) -> list[str]:
@@ -186,12 +151,10 @@ def _seed_section(rows: list[dict[str, Any]]) -> list[str]:
     lines = [
         "## Success over seeds",
         "",
-        f"{len(cells)} grid cells, {n} seed{'s' * (n != 1)} in the smallest; each model at its "
-        "last evaluated checkpoint. Brackets: 95% bootstrap intervals over seeds (resampled "
-        "within each cell; `jaxlc.evaluation.stats`).",
+        text.SEEDS.format(cells=len(cells), n=n, s="s" * (n != 1)),
     ]
     if note:
-        lines += ["", f"**Note: {note}** (train with `--seeds N`)."]
+        lines += ["", text.SEEDS_NOTE.format(note=note)]
     lines += [
         "",
         "| cell | seeds | success rate, mean | success rate, IQM | avg return, mean | "
@@ -204,16 +167,16 @@ def _seed_section(rows: list[dict[str, Any]]) -> list[str]:
             for m in ("success", "return")
         )
         lines.append(
-            f"| {r['label']} | {r['seeds']} | {_ci(*s[0], '.1f', 100)}% | "
-            f"{_ci(*s[1], '.1f', 100)}% | {_ci(*ret[0], '.1f')} | {_ci(*ret[1], '.1f')} |"
+            f"| {r['label']} | {r['seeds']} | {interval(*s[0], '.1f', 100)}% | "
+            f"{interval(*s[1], '.1f', 100)}% | {interval(*ret[0], '.1f')} | "
+            f"{interval(*ret[1], '.1f')} |"
         )
     if len(cells) > 1:
         p = {(r["x"], r["y"]): r for r in stats.improvement_table(cells)}
         tags = [c.label.split()[0] for c in cells]
         lines += [
             "",
-            "Probability of improvement P(row > column) of the final success rate over pairs "
-            "of seeds (ties count half):",
+            text.IMPROVEMENT,
             "",
             "| | " + " | ".join(tags) + " |",
             "|---" * (len(cells) + 1) + "|",
@@ -231,22 +194,20 @@ def compare_markdown(table: list[dict[str, Any]], run_a: Path, run_b: Path) -> s
     lines = [
         f"# {run_b.name} against {run_a.name}",
         "",
-        f"Mean evaluated success rate over seeds per grid cell at checkpoint {last}; B − A "
-        "with a 95% bootstrap interval (each run's seeds resampled on their own). A: "
-        f"`{run_a}`, B: `{run_b}`. Every checkpoint: `compare.csv`.",
+        text.COMPARE.format(last=last, run_a=run_a, run_b=run_b),
         "",
         "| cell | seeds A | seeds B | success A | success B | B − A (points) |",
         "|---|---|---|---|---|---|",
     ]
     for r in table:
         if r["episode"] == last:
-            diff = _ci(r["diff"], r["diff_lo"], r["diff_hi"], "+.1f", 100)
+            diff = interval(r["diff"], r["diff_lo"], r["diff_hi"], "+.1f", 100)
             lines.append(
-                f"| {r['label']} | {r['seeds_a']} | {r['seeds_b']} | {_pct(r['success_a'])} | "
-                f"{_pct(r['success_b'])} | {diff} |"
+                f"| {r['label']} | {r['seeds_a']} | {r['seeds_b']} | {percent(r['success_a'])} | "
+                f"{percent(r['success_b'])} | {diff} |"
             )
     if min(min(r["seeds_a"], r["seeds_b"]) for r in table) < 2:
-        lines += ["", f"Note: {stats.SEEDS_NOTE} in each run."]
+        lines += ["", text.COMPARE_NOTE.format(note=stats.SEEDS_NOTE)]
     lines += ["", "![B − A per cell](compare.png)", ""]
     return "\n".join(lines)
 
@@ -265,43 +226,53 @@ def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
         pick = cells[0] if cells[0]["seeds"] > 1 else {**best, "best": is_best(best)}
         top, ok = pick["label"], pick["best"]
         ours = f"{top} is best" + (" (mean over seeds)" if cells[0]["seeds"] > 1 else "")
-        lines.append(f"| best model | {PAPER} | {ours} | {'yes' if ok else 'no'} |")
+        agrees = "yes" if ok else "no"
     else:
-        lines.append(f"| best model | {PAPER} | the grid has no model {BEST_TAG} | n/a |")
+        ours, agrees = f"the grid has no model {BEST_TAG}", "n/a"
+    lines.append(text.CLAIM_BEST.format(paper=BEST_LABEL, ours=ours, agrees=agrees))
 
     others = [(f"model {BEST_TAG}, seed {r['seed']}", r) for r in four if r is not best]
     for who, r in [("best model", best), *others]:
         sr = r["success_rate"]
-        ok = "yes" if _defined(sr) and sr == 1.0 else "no"
+        ok = "yes" if defined(sr) and sr == 1.0 else "no"
         lines.append(
-            f"| success rate at the final checkpoint, over cases with a lane change ({who}) "
-            f"| 100% | {_pct(sr)} ({r['success']} of {r['performed']}; "
-            f"{r['out_of_bounds']} out of bounds, {r['collision']} collisions, "
-            f"{r['timeout']} timeouts) | {ok} |"
+            text.CLAIM_SUCCESS.format(
+                who=who,
+                success=percent(sr),
+                n_success=r["success"],
+                performed=r["performed"],
+                out_of_bounds=r["out_of_bounds"],
+                collision=r["collision"],
+                timeout=r["timeout"],
+                agrees=ok,
+            )
         )
     n, perf = result["cases"], result["performed"]
     close = abs(perf / n - 0.8) <= 0.1
     lines.append(
-        f"| cases that performed a lane change (agrees: within ±10 points) | 80 of 100 | "
-        f"{perf} of {n} ({100 * perf / n:.0f}%) | {'yes' if close else 'no'} |"
+        text.CLAIM_PERFORMED.format(
+            performed=perf, cases=n, share=100 * perf / n, agrees="yes" if close else "no"
+        )
     )
     mine = sorted((r for r in rows if r["model"] == best["model"]), key=lambda r: r["episode"])
     first, last = mine[0], mine[-1]
-    rose = _defined(first["avg_return"]) and _defined(last["avg_return"])
+    rose = defined(first["avg_return"]) and defined(last["avg_return"])
     rose = rose and last["avg_return"] > first["avg_return"]
     lines.append(
-        f"| average return rises over checkpoints, then plateaus (Fig. 6) | from −20 (a "
-        f"default for no lane change) | {_f(first['avg_return'], '.1f')} at checkpoint "
-        f"{first['episode']} → {_f(last['avg_return'], '.1f')} at {last['episode']} (raw "
-        f"returns; eq. (11) cannot give −20) | {'rises' if rose else 'does not rise'} |"
+        text.CLAIM_RETURN.format(
+            first=fixed(first["avg_return"], ".1f"),
+            first_episode=first["episode"],
+            last=fixed(last["avg_return"], ".1f"),
+            last_episode=last["episode"],
+            rises="rises" if rose else "does not rise",
+        )
     )
     d = best["duration_s"]
-    in_range = _defined(d) and HUMAN_DURATION[0] <= d <= HUMAN_DURATION[1]
-    ref = f"; scripted controller {_f(scripted['duration_s'])} s" if scripted else ""
-    ours = f"{_f(d)} s" if _defined(d) else "no successful lane change"
+    in_range = defined(d) and HUMAN_DURATION[0] <= d <= HUMAN_DURATION[1]
+    ref = f"; scripted controller {fixed(scripted['duration_s'])} s" if scripted else ""
+    ours = f"{fixed(d)} s" if defined(d) else "no successful lane change"
     lines.append(
-        f"| lane-change duration like a human's | humans 3–8 s (mean ≈ 6 s) | "
-        f"{ours} (best model, successful cases{ref}) | {'yes' if in_range else 'no'} |"
+        text.CLAIM_DURATION.format(ours=ours, scripted=ref, agrees="yes" if in_range else "no")
     )
     return lines
 
@@ -314,11 +285,13 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in doc["cells"]:
-        ci = f"{_pct(c['success_mean'])} [{_pct(c['success_lo'])}, {_pct(c['success_hi'])}]"
+        ci = (
+            f"{percent(c['success_mean'])} [{percent(c['success_lo'])}, {percent(c['success_hi'])}]"
+        )
         lines.append(
             f"| {c['label']} | {c['seeds']} | {c['lane_changes']} | {ci} | {c['failures']} | "
-            f"{_f(100 * c['failure_bound'])}% | {c['collisions']} | "
-            f"{_f(100 * c['collision_rate'], '.2f')}% | {_pct(c['norm_all'])} |"
+            f"{fixed(100 * c['failure_bound'])}% | {c['collisions']} | "
+            f"{fixed(100 * c['collision_rate'], '.2f')}% | {percent(c['norm_all'])} |"
         )
     how = sorted({c["interval"] for c in doc["cells"]})
     lines += ["", f"Cell intervals: {'; '.join(how)}.", ""]
@@ -333,35 +306,34 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
     for r in doc["rows"]:
         lines.append(
             f"| {r['label']} | {'' if r['seed'] is None else r['seed']} | "
-            f"{_pct(r['success_rate'])} [{_pct(r['success_lo'])}, {_pct(r['success_hi'])}] "
+            f"{percent(r['success_rate'])} "
+            f"[{percent(r['success_lo'])}, {percent(r['success_hi'])}] "
             f"| {r['out_of_bounds']} | {r['collision']} | {r['timeout']} | "
-            f"{_f(r['duration_s'])} | {_f(r.get('lcm_s'))} | {_f(r['peak_lat_acc'])} | "
-            f"{_f(r['peak_lat_jerk'])} | {_f(r.get('peak_long_acc'))} | "
-            f"{_f(r.get('peak_long_jerk'))} | "
+            f"{fixed(r['duration_s'])} | {fixed(r.get('lcm_s'))} | {fixed(r['peak_lat_acc'])} | "
+            f"{fixed(r['peak_lat_jerk'])} | {fixed(r.get('peak_long_acc'))} | "
+            f"{fixed(r.get('peak_long_jerk'))} | "
             f"{_tail(r, 'min_ttc_s')} | {_tail(r, 'min_thw_s')} | "
-            + " | ".join(_pct(r[f"norm_{m}"]) for m in norms)
-            + f" | {_pct(r['norm_all'])} |"
+            + " | ".join(percent(r[f"norm_{m}"]) for m in norms)
+            + f" | {percent(r['norm_all'])} |"
         )
     return lines
 
 
 def _tail(r: dict[str, Any], key: str) -> str:
     """A TTC or headway percentile; JSON holds an infinite one (no closing) as null."""
-    return "∞" if r[key] is None and r["lane_changes"] else _f(r[key])
+    return "∞" if r[key] is None and r["lane_changes"] else fixed(r[key])
 
 
 def _collision_tally(doc: dict[str, Any]) -> list[str]:
     hits = doc["collisions"]
     if not hits:
-        return ["No held-out lane change of any policy ended in a collision.", ""]
+        return [text.NO_COLLISIONS, ""]
     hazards = any("hazard" in h for h in hits)  # evaluated where the traffic has hazards
     groups: dict[tuple[str, str, bool], list[dict[str, Any]]] = {}
     for h in hits:
         groups.setdefault((h["partner"], h.get("hazard", ""), h["yielding"]), []).append(h)
     lines = [
-        f"{len(hits)} collisions. By the vehicle hit"
-        + (", what it was doing" if hazards else "")
-        + " and whether the target lane's lag was drawn yielding (medians):",
+        text.COLLISIONS.format(n=len(hits), doing=text.COLLISIONS_DOING if hazards else ""),
         "",
         "| vehicle hit |"
         + (" it was |" if hazards else "")
@@ -375,27 +347,17 @@ def _collision_tally(doc: dict[str, Any]) -> list[str]:
             f"| {who.replace('_', ' ')} | "
             + (f"{hz.replace('_', ' ')} | " if hazards else "")
             + f"{'yes' if ylds else 'no'} | {len(hs)} | "
-            + " | ".join(_f(med[k], ".1f") for k in COLLISION_MEDIANS)
+            + " | ".join(fixed(med[k], ".1f") for k in COLLISION_MEDIANS)
             + " |"
         )
-    return lines + [
-        "",
-        "– : no collision of the row had that value (the target lane had no lag vehicle when "
-        "the gap was accepted). Every collision: `eval/collisions.csv`.",
-        "",
-    ]
+    return lines + ["", text.COLLISIONS_FOOTNOTE, ""]
 
 
 def _median(values: list[Any]) -> float:
     """Median of the defined values (a record holds None where there was no such vehicle);
     NaN, printed as a dash, when none is."""
-    kept = [float(v) for v in values if _defined(v)]
+    kept = [float(v) for v in values if defined(v)]
     return float(np.median(kept)) if kept else math.nan
-
-
-# How a held-out file written before safety.COUNTED counted headway and TTC.
-EVERY_STEP = "on every step from the manoeuvre's start"
-COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
 
 
 def _heldout_section(doc: dict[str, Any] | None, tag: str = "") -> list[str]:
@@ -412,28 +374,17 @@ def _heldout_section(doc: dict[str, Any] | None, tag: str = "") -> list[str]:
         "",
         f"Measured in {doc.get('traffic', 'the training traffic')}"
         + (f" (overrides {overrides})." if overrides else ".")
-        + (
-            " Cut-ins met and braking events of the vehicles around the ego are counted per "
-            "lane change (`cut_ins`, `met_cut_in`, `brakes_near`, `met_braking` in "
-            "`heldout.csv`); each collision names what the vehicle hit was doing."
-            if overrides
-            else ""
+        + (text.HELDOUT_HAZARDS if overrides else ""),
+        "",
+        text.HELDOUT.format(
+            lane_changes=doc["lane_changes"],
+            cases=doc["cases"],
+            key_stream=doc["key_stream"],
+            norms=norms,
+            counted=doc.get("conflicts_counted", EVERY_STEP),
         ),
         "",
-        f"Each model's final checkpoint and the scripted controller on {doc['lane_changes']} "
-        f"held-out lane changes ({doc['cases']} cases of `{doc['key_stream']}`, a key stream "
-        "apart from the protocol's cases and from training), no noise. Per model: two-sided "
-        "95% Clopper-Pearson intervals, and `failure <`, the one-sided 95% upper bound on "
-        f"the failure rate. The norms, per lane change: {norms}. A lane change is inside "
-        "every norm when it succeeds and meets all of them; TTC and time headway are the "
-        "minimum over the manoeuvre of those to the target lane's lead and lag and the own "
-        f"lane's leader, counted {doc.get('conflicts_counted', EVERY_STEP)} "
-        "(`jaxlc.evaluation.safety`); the table gives their 5th "
-        "percentile over the lane changes, ∞ where fewer than 5% close in. Figure: "
-        "[heldout_norms.png](figures/heldout_norms.png).",
-        "",
-        f"**Claim (d)**: {d['figures']}: **{d['verdict']}** (supported when the bound is at "
-        "most 1%).",
+        text.CLAIM_D.format(**d),
         "",
         *_heldout_tables(doc),
         "",
@@ -448,8 +399,12 @@ def _claim_d(held: dict[str, Any] | None) -> dict[str, str]:
     (``heldout.claim_d``); named even where the run was evaluated without them."""
     if held is not None:
         return {**held["claim_d"], "measures": "held-out failures"}
-    figures = "needs the held-out lane changes (evaluate with --lane-changes above 0)"
-    return {"claim": CLAIM_D, "measures": "held-out failures", "figures": figures, "verdict": "n/a"}
+    return {
+        "claim": CLAIM_D,
+        "measures": "held-out failures",
+        "figures": text.CLAIM_D_MISSING,
+        "verdict": "n/a",
+    }
 
 
 def _claims_section(run_dir: Path, held: dict[str, Any] | None) -> list[str]:
@@ -460,11 +415,8 @@ def _claims_section(run_dir: Path, held: dict[str, Any] | None) -> list[str]:
     d = _claim_d(held)
     lines = ["## The paper's claims", ""]
     if doc is None:
-        lines += [
-            "(a)–(c) need the training curves (`metrics/episodes.npz`), which this run lacks.",
-            "",
-        ]
-        waiting = "needs the training curves (`metrics/episodes.npz`)"
+        lines += [text.NO_CURVES, ""]
+        waiting = text.WAITING_FOR_CURVES
         doc = {
             "claims": [
                 {"claim": c, "measures": ", ".join(keys), "figures": waiting, "verdict": "n/a"}
@@ -474,21 +426,12 @@ def _claims_section(run_dir: Path, held: dict[str, Any] | None) -> list[str]:
         }
     else:
         lines += [
-            "The paper argues (a)–(c) from its training curves (Figs. 3, 4), so they are decided "
-            "here on measures of each model's training curves (noise on; "
-            "`jaxlc.evaluation.convergence`): "
-            f"`converged`, the episode from which the return's {doc['window']}-episode moving "
-            f"average stays within {100 * doc['band']:.0f}% of its rise from its plateau (the mean "
-            f"of the last {doc['plateau_episodes']} episodes); `success95`, the first episode with "
-            "95% success over the last 100; `steps_rise`, where Fig. 4a's manoeuvre steps reach "
-            "half their rise; `auc`, the area under the return curve normalised over the run; "
-            '`plateau`, the final return. Each comparison "X better than Y" is decided on how '
-            "far X is ahead of Y (the difference of the cells' means over seeds, positive on the "
-            "paper's side: fewer episodes, more area or return) with its 95% bootstrap interval: "
-            "*holds* above zero, *fails* below, *no practical difference* inside the margin "
-            f"(±{100 * doc.get('margin_share', 0.02):.0f}% of the measure's axis: training "
-            "episodes, the run's return range), undecided otherwise, and always below 5 seeds per "
-            "cell.",
+            text.CURVE_MEASURES.format(
+                window=doc["window"],
+                band=100 * doc["band"],
+                plateau_episodes=doc["plateau_episodes"],
+                margin=100 * doc.get("margin_share", 0.02),
+            ),
             "",
         ]
     lines += ["| claim | key measures | this run | verdict |", "|---|---|---|---|"]
@@ -499,15 +442,12 @@ def _claims_section(run_dir: Path, held: dict[str, Any] | None) -> list[str]:
     lines += ["", "| model | seed | " + " | ".join(MEASURE_NAMES) + " |"]
     lines.append("|---" * (2 + len(MEASURE_NAMES)) + "|")
     for m in doc["models"]:
-        vals = [_f(m[k], ".0f") for k in MEASURE_NAMES[:3]] + [
-            _f(m["auc"], ".3f"),
-            _f(m["plateau"], ".1f"),
+        vals = [fixed(m[k], ".0f") for k in MEASURE_NAMES[:3]] + [
+            fixed(m["auc"], ".3f"),
+            fixed(m["plateau"], ".1f"),
         ]
         lines.append(f"| {m['label']} | {m['seed']} | " + " | ".join(vals) + " |")
-    return lines + ["", "Every comparison on every measure: `eval/convergence.json`.", ""]
-
-
-MEASURE_NAMES = ("converged", "success95", "steps_rise", "auc", "plateau")
+    return lines + ["", text.CONVERGENCE_FOOTNOTE, ""]
 
 
 def build_report(run_dir: Path) -> str:
@@ -520,21 +460,10 @@ def build_report(run_dir: Path) -> str:
     best_lines, best = _best_section(rows)
     held_path = RunDir(run_dir).heldout_json
     held = json.loads(held_path.read_text()) if held_path.is_file() else None
-    early = result["before_rl"]
-    text = [
+    lines = [
         f"# Evaluation report: {run_dir.name}",
         "",
-        f"{result['cases']} lane-change cases (seed {result['seed']}, step cap "
-        f"{result['max_steps']}), the same for every checkpoint, no exploration noise. "
-        f"{result['performed']} cases reached the RL phase ({result['left']} left, "
-        f"{result['right']} right lane changes); of the others, {early['no_gap']} found no "
-        f"acceptable gap, {early['collision']} collided before the lane change and "
-        f"{early['unfinished']} hit the step cap (the same for every policy: the action only "
-        "acts in the RL phase). Success rate and average return are over the cases "
-        "with a lane change; duration, peak lateral acceleration (|v·ω|), peak yaw rate and "
-        "overshoot past the target centre line are means over the successful ones. Outcome "
-        "counts add up to the cases. Config hash "
-        f"`{result['config_hash']}`.",
+        text.INTRO.format(**{**result, **result["before_rl"]}),
         "",
         "## Best model",
         "",
@@ -558,10 +487,10 @@ def build_report(run_dir: Path) -> str:
         *_table(rows),
         "",
     ]
-    made = [(f, t) for f, t in FIGURES if RunDir(run_dir).figure(f).is_file()]
+    made = [(f, t) for f, t in text.FIGURES if RunDir(run_dir).figure(f).is_file()]
     if made:
-        text += ["## Figures", ""] + [f"- [{t}](figures/{f})" for f, t in made] + [""]
-    return "\n".join(text)
+        lines += ["## Figures", ""] + [f"- [{t}](figures/{f})" for f, t in made] + [""]
+    return "\n".join(lines)
 
 
 def write_report(run_dir: Path) -> Path:

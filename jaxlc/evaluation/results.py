@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from jaxlc.evaluation.numbers import defined
 from jaxlc.evaluation.stats import CELL_AXES, final_rows
 from jaxlc.sim.reward import PAPER, REASONS
 
@@ -56,10 +57,6 @@ class EvalError(Exception):
 # The cell's axes beside k and memory, so that runs can be matched cell by cell (stats).
 META_KEYS = ("label", "model", "seed", "k", "memory", "episode", "cell") + CELL_AXES[2:]
 SCRIPTED = {"label": "scripted controller", **dict.fromkeys(META_KEYS[1:]), "checkpoint": None}
-
-
-def defined(v: Any) -> bool:
-    return v is not None and v == v
 
 
 def _mean(values: np.ndarray) -> float:
@@ -107,14 +104,16 @@ def summarise(
     return rows
 
 
+def rank_key(row: dict[str, Any]) -> tuple[float, float]:
+    """A row's (or a cell's) place, higher first: its success rate, then its average return;
+    an undefined one (no lane change performed) below every number."""
+    sr, ret = row["success_rate"], row["avg_return"]
+    return (sr if defined(sr) else -1.0, ret if defined(ret) else -math.inf)
+
+
 def rank_models(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Final-checkpoint rows, best first: by success rate, then average return."""
-
-    def key(r: dict[str, Any]) -> tuple[float, float]:
-        sr, ret = r["success_rate"], r["avg_return"]  # None/NaN: no lane change performed
-        return (sr if defined(sr) else -1.0, ret if defined(ret) else -math.inf)
-
-    return sorted(final_rows(rows), key=key, reverse=True)
+    """Final-checkpoint rows, best first (``rank_key``)."""
+    return sorted(final_rows(rows), key=rank_key, reverse=True)
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:

@@ -41,7 +41,7 @@ from jax import Array
 from jaxlc.sim.idm import NO_LEADER_GAP
 from jaxlc.sim.leaders import changing
 from jaxlc.sim.observation import target_gaps
-from jaxlc.sim.road import body_in_lane, current_lane
+from jaxlc.sim.road import body_in_lane, current_lane, origin_lane
 
 # Each norm: (measure, bound, True when the measure must stay below the bound, source).
 NORMS = (
@@ -106,9 +106,9 @@ def conflicts(state, p) -> tuple[Array, Array]:
 def counted(state, p, entered: Array) -> tuple[Array, Array]:
     """``(mask, entered)``: which of ``VEHICLES`` count at this step, ``(..., 3)`` bool, and
     whether the ego's body has overlapped the target lane by this step, ``(...)`` (``entered``:
-    the same before it). The ego starts in the origin lane ``lanes // 2`` (``road.origin_y``)."""
+    the same before it). The ego starts in the origin lane (``road.origin_lane``)."""
     eg = state.ego
-    origin = p.lanes // 2
+    origin = origin_lane(p)
     entered = entered | body_in_lane(eg, eg.target, p)
     # state.leader_* is the leader of the lane holding the centre: the origin lane's till then
     own = body_in_lane(eg, origin, p) & (current_lane(eg, p) == origin)
@@ -116,9 +116,9 @@ def counted(state, p, entered: Array) -> tuple[Array, Array]:
 
 
 def crossed(state, p) -> Array:
-    """``(...)`` bool: the ego's body is wholly out of the origin lane ``lanes // 2`` (UN R79's
+    """``(...)`` bool: the ego's body is wholly out of the origin lane (UN R79's
     lane change manoeuvre ends at the first such step after the body entered the target lane)."""
-    return ~body_in_lane(state.ego, p.lanes // 2, p)
+    return ~body_in_lane(state.ego, origin_lane(p), p)
 
 
 def lateral_acc(state) -> Array:

@@ -38,6 +38,8 @@ from typing import Any
 import numpy as np
 import scipy.stats
 
+from jaxlc.evaluation.numbers import number
+
 CONFIDENCE = 0.95
 RESAMPLES = 2000
 BATCH = 250  # resamples per vectorised call: bounds memory for figure bands of many points
@@ -232,10 +234,6 @@ def cell_key(row: dict[str, Any]) -> tuple:
     return tuple(row.get(a) for a in CELL_AXES)
 
 
-def _num(v: Any) -> float:
-    return math.nan if v is None else float(v)
-
-
 def cells_of(rows: list[dict[str, Any]]) -> list[Cell]:
     """The cells of eval.json rows, in the order of their first model."""
     models = [r for r in rows if r["model"] is not None]
@@ -250,7 +248,7 @@ def cells_of(rows: list[dict[str, Any]]) -> list[Cell]:
         success, ret = np.full(shape, np.nan), np.full(shape, np.nan)
         for r in mine:
             at = episodes.index(r["episode"]), seeds.index(r["seed"])
-            success[at], ret[at] = _num(r["success_rate"]), _num(r["avg_return"])
+            success[at], ret[at] = number(r["success_rate"]), number(r["avg_return"])
         last = {r["seed"]: finals[r["model"]] for r in mine}
         cells.append(
             Cell(
@@ -260,8 +258,8 @@ def cells_of(rows: list[dict[str, Any]]) -> list[Cell]:
                 episodes=tuple(episodes),
                 success=success,
                 ret=ret,
-                final_success=np.asarray([_num(last[s]["success_rate"]) for s in seeds]),
-                final_ret=np.asarray([_num(last[s]["avg_return"]) for s in seeds]),
+                final_success=np.asarray([number(last[s]["success_rate"]) for s in seeds]),
+                final_ret=np.asarray([number(last[s]["avg_return"]) for s in seeds]),
             )
         )
     return cells

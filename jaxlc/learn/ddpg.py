@@ -3,11 +3,7 @@
 Hyperparameters that differ between models of the grid (learning rates, exploration sigma) live
 in ``Hyper`` as traced scalars so that ``jax.vmap`` runs every model in one program; the static
 ``DDPGConfig`` fixes shapes and the constants shared by the grid (hidden sizes, gamma, tau).
-
-``update`` is the training bottleneck (nine models vmapped, batch 64, on a CPU); its time goes to
-XLA's CPU matmul kernels on 64-row products and to the memory-bound Adam/target pass. A
-hand-written backward pass that shares one 128-row critic forward between the two losses
-measured no faster in paired runs (within 2 %), so plain ``jax.grad`` stays.
+Gradients are plain ``jax.grad`` (docs/decisions.md, "DDPG's gradients").
 """
 
 from __future__ import annotations

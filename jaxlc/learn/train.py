@@ -38,10 +38,6 @@ from jaxlc.sim.observation import MIRROR_SIGNS, OBS_DIM
 from jaxlc.sim.reward import SUCCESS
 from jaxlc.sim.reward import names as reward_names
 
-# Fewest env-steps one episode can take: the ego must drive command_distance (80 m) from the
-# entrance at no more than its entry speed plus IDM acceleration; 50 steps (5 s) is below that.
-MIN_EPISODE_STEPS = 50
-
 
 @flax.struct.dataclass
 class ModelHyper:

@@ -5,9 +5,10 @@ Out: ``LaneChangeEnv`` (``reset`` / ``step``), its state and observation layout,
 and its reason codes, the one-decision-per-step core the gym and gymnax wrappers share, and
 the scripted controller.
 
-Modules: ``env`` (the highway step), ``state``, ``road``, ``traffic``, ``ego``, ``motion``,
-``collision``, ``observation``, ``reward``, ``idm``, ``gap``, ``kinematics``, ``decision``,
-``controller``; with the traffic that cuts in and brakes, ``leaders``, ``mobil``, ``braking``.
+Modules: ``env`` (the highway step), ``params``, ``state``, ``road``, ``traffic``, ``ego``,
+``motion``, ``collision``, ``observation``, ``reward``, ``idm``, ``gap``, ``kinematics``,
+``decision``, ``controller``, ``render`` (pictures); with the traffic that cuts in and brakes,
+``leaders``, ``mobil``, ``braking``.
 
 Imports: ``jaxlc.config`` only; no other layer (``tests/test_layout.py`` checks it).
 """

@@ -15,7 +15,7 @@ smooth, overshoot-free lane change lasting about 5/p s. On a straight road it is
 pole placement.
 
 kappa is the observation's road curvature; d comes from the offset e to the target lane and
-the road's layout (``params``): the ego starts on lane ``lanes // 2`` and its target lies
+the road's layout (``params``): the ego starts on ``road.origin_lane`` and its target lies
 across its offset (e = y - y_target < 0: the target is the next lane up), so d = d_target + e.
 With kappa in place of kappa_d the yaw rate of the target lane would be off by
 v*kappa^2*d/(1 - kappa*d), which the feedback turns into a standing offset of
@@ -34,6 +34,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxlc.sim.observation import INDEX, observation, scale
+from jaxlc.sim.road import origin_lane
 from jaxlc.sim.state import RL, EnvParams, EnvState, action_dim
 
 DEFAULT_POLE = 1.2  # 1/s: a lane change of about 4-5 s, inside the 3-8 s of human drivers
@@ -56,7 +57,7 @@ def _pole_placement(raw: dict[str, Array], e: Array, params: EnvParams, pole: fl
     ego; the ego's own position is read from the observed offset to the target lane."""
     v = jnp.maximum(raw["v"], 1.0)
     psi, kappa = raw["psi"], raw["curvature"]
-    target = params.lanes // 2 - jnp.sign(raw["offset"])  # the target lies across the offset
+    target = origin_lane(params) - jnp.sign(raw["offset"])  # the target lies across the offset
     d = (target + 0.5) * params.lane_width - 0.5 * params.lanes * params.lane_width
     d = d + raw["offset"]  # the ego's distance from the road's centre line
     kappa_d = kappa / (1.0 - kappa * d)  # exactly 0 on a straight road
@@ -76,22 +77,17 @@ _FIT_READ = _READ + ("time", "lead_gap", "lead_dv", "lag_gap", "lag_dv")
 
 
 def fitting_action(obs: Array, params: EnvParams, **options: Any) -> Array:
-    """``(..., OBS_DIM) -> (..., action_dim)``: a scripted reference for joint control that
-    fits the ego into the accepted gap before it crosses. It holds the origin lane (the same
-    pole placement toward the origin lane's centre) until the time headways to the target
-    lane's lead and lag, predicted ``lookahead`` s ahead at today's speeds, are both at least
-    ``headway``, then changes lane as ``scripted_action`` does; once its body overlaps the
-    target lane it goes on whatever the gaps. A gap too short to hold the ego at ``headway``
-    from both (lead gap + lag gap < ``headway`` * (ego's speed + lag's)) is not waited for:
-    the ego goes at once, as ``scripted_action`` does. While the gap does not fit, the
-    longitudinal action (``longitudinal = "policy"``) brakes fully for a short lead or a
-    faster lag (which then passes) and accelerates fully away from a slower lag. From
-    ``go_after`` s after the command a gap at the acceptance's own headway
-    (``gap_time_headway``) is enough. The manoeuvre time is ``time`` (s), else the observed
-    one, which reads 0 unless ``env.terminal_timeout``: then the fallback never comes. Odd
-    under the road's reflection in the lateral action, even in the longitudinal one, as a
-    learned policy is. ``options``: ``fitting_and_go``'s keywords (``pole``, ``headway``,
-    ``lookahead``, ``go_after``, ``time``)."""
+    """The gap-fitting reference for joint control: ``fitting_and_go``'s action.
+
+    Args:
+        obs: ``(..., OBS_DIM)`` observations.
+        params: the simulator's params.
+        **options: ``fitting_and_go``'s keywords (``pole``, ``headway``, ``lookahead``,
+            ``go_after``, ``time``).
+
+    Returns:
+        ``(..., action_dim(params))`` actions in [-1, 1].
+    """
     return fitting_and_go(obs, params, **options)[0]
 
 
@@ -104,8 +100,20 @@ def fitting_and_go(
     go_after: float = FIT_GO_AFTER,
     time: Array | None = None,
 ) -> tuple[Array, Array]:
-    """``fitting_action`` with its keywords spelled out, and ``(...)`` bool, whether it goes
-    (False while it holds the origin lane for the gap to fit)."""
+    """``(action, go)``: ``(..., action_dim)`` actions that fit the ego into the accepted gap
+    before it crosses, and ``(...)`` bool, whether it goes (False while it holds the origin
+    lane for the gap to fit).
+
+    It holds the origin lane (``_pole_placement`` toward the origin lane's centre) until the
+    time headways to the target lane's lead and lag, predicted ``lookahead`` s ahead at
+    today's speeds, are both at least ``headway``; then, or at once when the gap is too short
+    ever to fit (lead gap + lag gap < ``headway`` * (ego's speed + lag's)), or from
+    ``go_after`` s after the command with a gap at ``gap_time_headway``, or once its body
+    overlaps the target lane, it changes lane as ``scripted_action`` does. While waiting, the
+    longitudinal action (``longitudinal = "policy"``) brakes fully for a short lead or a faster
+    lag and accelerates fully away from a slower lag. ``time``: the manoeuvre's time in s
+    (default: the observed one, 0 unless ``env.terminal_timeout``). Odd under the road's
+    reflection in the lateral action, even in the longitudinal one."""
     raw = {n: obs[..., INDEX[n]] * scale(n, params) for n in _FIT_READ}
     v = jnp.maximum(raw["v"], 1.0)
     v_lag = jnp.maximum(raw["v"] + raw["lag_dv"], 1.0)

@@ -20,7 +20,7 @@ from jax import Array
 from jaxlc.sim import gap
 from jaxlc.sim.idm import NO_LEADER_GAP, idm_with_params
 from jaxlc.sim.motion import Motion
-from jaxlc.sim.road import origin_y, road_curvature, target_frame
+from jaxlc.sim.road import origin_lane, origin_y, road_curvature, target_frame
 from jaxlc.sim.state import CRUISE, GAP, RL, Draws, Ego, EnvParams, EnvState, Traffic
 
 
@@ -95,7 +95,7 @@ def ego_phase(
     entrant's speeds (``tr``, the traffic before inflow); a cruising ego that has travelled
     ``command_distance`` gets a left or right command (toward the road when the lane beside is
     missing) and enters GAP. RL steps and gap-search time are counted here."""
-    origin = p.lanes // 2
+    origin = origin_lane(p)
     in_rl = eg.phase == RL
     phase = jnp.where(spawned, CRUISE, eg.phase)
     ex = jnp.where(spawned, 0.0, m.ego_x)

@@ -11,7 +11,8 @@ kappa (0: straight; a constant, or drawn per episode), and everything runs in it
 (``road``, ``kinematics``).
 
 This module is the step alone; each concept has its own module:
-  ``state``       EnvParams (EnvConfig in SI units), the state types, the phases, the draws;
+  ``params``      EnvParams (EnvConfig in SI units);
+  ``state``       the state types, the phases, the draws;
   ``road``        lanes, centre lines and scales, where the ego is on them;
   ``traffic``     who follows whom, IDM accelerations, inflow;
   ``ego``         the ego's action, longitudinal acceleration, phases, gap decision;
@@ -65,6 +66,7 @@ from jaxlc.sim.road import (
     lane_keeping_yaw_rate,
     lane_scales,
     lateral_offset,
+    origin_lane,
     origin_y,
     road_curvature,
 )
@@ -104,7 +106,7 @@ class Box:
         return jnp.all((x >= self.low) & (x <= self.high))
 
 
-def end_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
+def episode_end_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
     """``()`` int32 reason code of ``jaxlc.sim.reward.REASONS``: the RL manoeuvre's own, else a
     collision or no gap before it, else NONE."""
     before_rl = jnp.where(crashed, reward.COLLISION, jnp.where(no_gap, reward.NO_GAP, reward.NONE))
@@ -173,7 +175,7 @@ def _advance(
     r = reward.total(terms)
     rl_reason = reward.end_reason(offset, ego.psi, yaw_rate, ego.steps, crashed, p)
     accept, no_gap = gap_decision(ego, nb, p, kappa)
-    reason = end_reason(in_rl, rl_reason, crashed, no_gap)
+    reason = episode_end_reason(in_rl, rl_reason, crashed, no_gap)
     ended = reason != reward.NONE
 
     ep_return = jnp.where(in_rl, eg.ep_return + r, 0.0)
@@ -219,7 +221,8 @@ class LaneChangeEnv:
         return Box(-1.0, 1.0, (action_dim(params),))
 
     def reset(self, key: Array, params: EnvParams) -> tuple[Array, EnvState]:
-        """Empty road, then ``warmup_steps`` of traffic; the ego spawns on a later step."""
+        """``(obs, state)``: an empty road, then ``warmup_steps`` of traffic (the ego spawns on
+        a later step); ``obs`` is ``(OBS_DIM,)``, ``key`` a PRNG key."""
         p, lanes, slots = params, params.lanes, params.slots_per_lane
         k_init, k_warm = jax.random.split(key)
         u = jax.random.uniform(k_init, (4, lanes))
@@ -254,7 +257,7 @@ class LaneChangeEnv:
             psi=f0,
             omega=f0,
             held=f0,
-            target=jnp.int32(lanes // 2),
+            target=jnp.int32(origin_lane(p)),
             steps=jnp.int32(0),
             gap_time=f0,
             yielding=jnp.bool_(False),
@@ -299,7 +302,16 @@ class LaneChangeEnv:
 
 
 def make(config: Config | EnvConfig | None = None, k: int = 1) -> tuple[LaneChangeEnv, EnvParams]:
-    """``env, params = jaxlc.make()``: the paper's defaults, or those of ``config``."""
+    """``env, params = jaxlc.make()``.
+
+    Args:
+        config: a ``Config`` (its ``[env]`` and ``ddpg.gamma``) or an ``EnvConfig``; default
+            ``configs/default.toml``.
+        k: the action-update step (an action is held for ``k`` RL steps).
+
+    Returns:
+        The functional env and its ``EnvParams``.
+    """
     if config is None:
         from jaxlc import config as config_mod
 

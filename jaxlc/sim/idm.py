@@ -54,8 +54,3 @@ def idm_with_params(v: Array, v0: Array, gap: Array, v_lead: Array, p) -> Array:
         p.idm_delta,
         p.idm_b_max,
     )
-
-
-def equilibrium_gap(v: float, v0: float, time_headway: float, s0: float, delta: float) -> float:
-    """Net gap at which a follower at steady speed ``v`` (behind a leader at ``v``) has a = 0."""
-    return (s0 + v * time_headway) / (1.0 - (v / v0) ** delta) ** 0.5

@@ -22,6 +22,7 @@ from jax import Array
 from jaxlc.sim import gap, kinematics
 from jaxlc.sim.idm import NO_LEADER_GAP
 from jaxlc.sim.leaders import occupancy
+from jaxlc.sim.reward import step_limit
 from jaxlc.sim.road import (
     current_lane,
     lane_offset,
@@ -80,7 +81,7 @@ def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     Each follows from the simulator: speeds never exceed ``max(entry_speed_max,
     desired_speed_max)`` (IDM never accelerates past v0); IDM acceleration lies in
     [-idm_b_max, idm_a_max]; psi and omega are zeroed when the gap is accepted and then grow by
-    at most ``max_yaw_acc*dt`` per step for at most ``n = round(manoeuvre_time_limit/dt)``
+    at most ``max_yaw_acc*dt`` per step for at most ``n = step_limit(p)``
     steps; the offset starts at +-lane_width and moves at most ``v_max*dt`` a step, and a
     manoeuvre ends once it passes ``border``; gaps are clipped to ``GAP_CLIP``. Each bound is
     widened by 0.1 % (at least 1e-3) for float32 rounding.
@@ -93,7 +94,7 @@ def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     p = params
     v_max = max(float(p.entry_speed_max), float(p.desired_speed_max))
     dt = float(p.dt)
-    n = round(float(p.manoeuvre_time_limit) / dt)
+    n = int(step_limit(p))
     drawn = bool(getattr(p, "curvature_drawn", False))
     ends = (p.curvature_min, p.curvature_max) if drawn else (p.curvature,)
     kappa = max(abs(float(k)) for k in ends)

@@ -177,28 +177,26 @@ NONE, SUCCESS, OUT_OF_BOUNDS, COLLISION, TIMEOUT, NO_GAP = 0, 1, 2, 3, 4, 5
 REASONS = ("none", "success", "out_of_bounds", "collision", "timeout", "no_gap")
 
 
-def reward_terms(
-    omega: Array, a_lat: Array, offset: Array, collided: Array, p
-) -> tuple[Array, Array, Array]:
-    """``(r_s, r_e, r_d)``, the paper's terms for one RL step (``p``: EnvParams; all scaled by
-    reward_scale), whatever terms ``p`` names."""
-    x = Inputs(omega, a_lat, offset, collided)
-    return tuple(p.reward_scale * t.fn(x, p) for t in PAPER)
+def step_limit(p) -> Array:
+    """``()`` RL steps a manoeuvre may take before it times out, ``round(manoeuvre_time_limit
+    / dt)`` (counting steps, not summing dt, keeps the limit exact in float32); ``int()`` of it
+    where ``p`` is concrete."""
+    return jnp.round(p.manoeuvre_time_limit / p.dt)
 
 
 def end_reason(
     offset: Array, psi: Array, omega: Array, manoeuvre_steps: Array, collided: Array, p
 ) -> Array:
-    """Reason code after an RL step; the first that holds of collision, out of bounds,
-    success, timeout (NONE while the manoeuvre goes on)."""
+    """``()`` int32 reason code of the manoeuvre after an RL step: the first that holds of
+    collision, out of bounds, success, timeout (NONE while it goes on); the episode's own, any
+    phase, is ``env.episode_end_reason``'s."""
     out = jnp.abs(offset) > p.border
     success = (
         (jnp.abs(offset) <= p.success_offset)
         & (jnp.abs(psi) <= p.success_heading)
         & (jnp.abs(omega) <= p.success_yaw_rate)
     )
-    # Counting steps, not summing dt, keeps the 10 s limit exact in float32.
-    timeout = manoeuvre_steps >= jnp.round(p.manoeuvre_time_limit / p.dt)
+    timeout = manoeuvre_steps >= step_limit(p)
     return jnp.select(
         [collided, out, success, timeout],
         [COLLISION, OUT_OF_BOUNDS, SUCCESS, TIMEOUT],

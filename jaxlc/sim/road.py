@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from jaxlc.config import EnvConfig
 from jaxlc.sim import gap, kinematics
 from jaxlc.sim.state import CRUISE, Ego, EnvParams, EnvState
 
@@ -26,6 +27,11 @@ def reference_y(p: EnvParams) -> Array:
     return 0.5 * p.lanes * p.lane_width
 
 
+def origin_lane(p: EnvParams | EnvConfig) -> int:
+    """The lane every ego starts on and leaves (static: ``lanes`` fixes shapes)."""
+    return p.lanes // 2
+
+
 def origin_y(p: EnvParams) -> Array:
     """``()`` float32 y of the origin lane's centre line, where every ego starts.
 
@@ -35,7 +41,7 @@ def origin_y(p: EnvParams) -> Array:
     let XLA fuse the product into the subtraction (an FMA, unrounded) while the stored y was
     rounded, and the start could land a rounding step past the border."""
     return jax.lax.optimization_barrier(
-        jnp.asarray((p.lanes // 2 + 0.5) * p.lane_width, jnp.float32)
+        jnp.asarray((origin_lane(p) + 0.5) * p.lane_width, jnp.float32)
     )
 
 
@@ -81,7 +87,7 @@ def lateral_offset(eg: Ego, p: EnvParams) -> Array:
 
     Measured from the origin lane's centre (``origin_y``) so that it is exactly +-W when the
     manoeuvre starts (``5.55 - 1.85`` rounds above 3.7 in float32 and would end it at once)."""
-    return (eg.y - origin_y(p)) - (eg.target - p.lanes // 2) * p.lane_width
+    return (eg.y - origin_y(p)) - (eg.target - origin_lane(p)) * p.lane_width
 
 
 def ego_yaw_rate(eg: Ego, kappa: Array, p: EnvParams) -> Array:

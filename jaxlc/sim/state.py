@@ -1,17 +1,8 @@
-"""The simulator's types: its parameters (``EnvParams``), its state (``Traffic``, ``Ego``,
-``EnvState``), the ego's phases and a step's random draws.
-
-``EnvParams`` is ``EnvConfig`` in SI units. Its fields are not declared twice: every
-``EnvConfig`` field becomes one, through ``CONVERSIONS`` (the unit changes), ``STATIC`` (the
-fields that fix array shapes) and ``DERIVED`` (config fields that become other fields: the
-warm-up's time a number of steps, the curvature's number or range four fields, the reward
-terms' names the terms). A new simulator setting is added to ``EnvConfig`` alone.
-"""
+"""The simulator's types: its state (``Traffic``, ``Ego``, ``EnvState``), the ego's phases
+and a step's random draws; its parameters, ``EnvParams``, are ``jaxlc.sim.params``'s."""
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import flax.struct
@@ -19,8 +10,8 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.config import ConfigError, DDPGConfig, EnvConfig
-from jaxlc.sim import gap, reward
+from jaxlc.sim import gap
+from jaxlc.sim.params import EnvParams  # noqa: F401 (the simulator's modules import it here)
 
 WAIT, CRUISE, GAP, RL = 0, 1, 2, 3
 PHASES = ("wait", "cruise", "gap", "rl")
@@ -28,109 +19,12 @@ ACT_DIM = 1  # the paper's action: the yaw acceleration alone (env.longitudinal 
 # Each action entry's sign under the reflection y -> -y: the yaw acceleration flips, the
 # longitudinal acceleration (env.longitudinal = "policy") does not.
 ACTION_MIRROR = (-1.0, 1.0)
-KMH = 1.0 / 3.6
-
-# An EnvConfig field (in the config's units) -> its EnvParams value (SI); any field not named
-# here is taken as it is.
-CONVERSIONS: dict[str, Callable[[Any], Any]] = {
-    "entry_speed_min": lambda v: v * KMH,
-    "entry_speed_max": lambda v: v * KMH,
-    "desired_speed_min": lambda v: v * KMH,
-    "desired_speed_max": lambda v: v * KMH,
-    "inflow_min": lambda v: v / 3600.0,  # veh/h -> veh/s
-    "inflow_max": lambda v: v / 3600.0,
-    "braking_rate": lambda v: v / 3600.0,  # per vehicle-hour -> per vehicle-second
-}
-# Fields that fix array shapes or loop lengths: static (``pytree_node=False``), so a change
-# compiles a new program; every other field is traced and may differ between vmapped models.
-STATIC = frozenset({"lanes", "slots_per_lane", "longitudinal", "assist", "mobil", "braking"})
-# EnvConfig fields that EnvParams holds as other fields, declared in the class below.
-DERIVED = frozenset({"warmup_time", "curvature", "reward_terms"})
-
-_C = EnvConfig()
-
-
-def _same(v: Any) -> Any:
-    return v
-
-
-def _with_env_config_fields(cls: type) -> type:
-    """Declare on ``cls``, before its own fields, one field per ``EnvConfig`` field (less
-    ``DERIVED``), with the config's default converted."""
-    declared: dict[str, Any] = {}
-    for f in dataclasses.fields(EnvConfig):
-        if f.name in DERIVED:
-            continue
-        default = CONVERSIONS.get(f.name, _same)(f.default)
-        declared[f.name] = f.type
-        if f.name in STATIC:
-            default = flax.struct.field(pytree_node=False, default=default)
-        setattr(cls, f.name, default)
-    cls.__annotations__ = {**declared, **cls.__annotations__}
-    return cls
 
 
 def action_dim(p: Any) -> int:
     """The action's length under ``p`` (an ``EnvParams`` or ``EnvConfig``): 1, the yaw
     acceleration; 2 with ``longitudinal = "policy"``, then the longitudinal one."""
     return 2 if p.longitudinal == "policy" else 1
-
-
-def curvature_range(value: float | tuple[float, float]) -> tuple[float, float]:
-    """``(min, max)`` of a config's ``env.curvature``: a number (a constant road) or a range."""
-    if isinstance(value, tuple | list):
-        return float(value[0]), float(value[1])
-    return float(value), float(value)
-
-
-@flax.struct.dataclass
-@_with_env_config_fields
-class EnvParams:
-    """Simulator parameters in SI units (speeds m/s, inflow veh/s): every ``EnvConfig`` field
-    (``jaxlc/config.py`` documents them), converted by ``CONVERSIONS``, and the fields below.
-
-    Static fields (``STATIC`` and those marked here) fix array shapes and loop lengths; every
-    other field is traced, so models with different values (e.g. the action-update step ``k``,
-    or a task randomised per env) can share one compiled program under ``vmap``.
-    """
-
-    warmup_steps: int = flax.struct.field(
-        pytree_node=False, default=int(round(_C.warmup_time / _C.dt))
-    )
-    # The road's curvature (1/m, > 0 bends toward +y): the constant ``curvature``, or, when
-    # ``curvature_drawn`` (static: it adds a leaf to the state), one drawn per episode from
-    # U(curvature_min, curvature_max) as the ego spawns and kept in ``EnvState.curvature``.
-    curvature: float = 0.0
-    curvature_min: float = 0.0
-    curvature_max: float = 0.0
-    curvature_drawn: bool = flax.struct.field(pytree_node=False, default=False)
-    # The reward's terms (``reward.Term``), summed; static: each is a function.
-    reward_terms: tuple[reward.Term, ...] = flax.struct.field(
-        pytree_node=False, default=reward.PAPER
-    )
-    gamma: float = DDPGConfig().gamma
-    k: int = 1
-
-    @classmethod
-    def from_config(
-        cls, env: EnvConfig, gamma: float = DDPGConfig().gamma, k: int = 1
-    ) -> EnvParams:
-        """Convert a validated ``EnvConfig`` (km/h, veh/h) to SI params."""
-        values = {
-            f.name: CONVERSIONS.get(f.name, _same)(getattr(env, f.name))
-            for f in dataclasses.fields(EnvConfig)
-            if f.name not in DERIVED
-        }
-        values["warmup_steps"] = int(round(env.warmup_time / env.dt))
-        lo, hi = curvature_range(env.curvature)
-        values["curvature"] = lo if lo == hi else 0.5 * (lo + hi)
-        values["curvature_min"], values["curvature_max"] = lo, hi
-        values["curvature_drawn"] = lo < hi
-        try:
-            values["reward_terms"] = reward.lookup(env.reward_terms)
-        except KeyError as e:
-            raise ConfigError(f"config key 'env.reward_terms': {e.args[0]}") from None
-        return cls(**values, gamma=gamma, k=k)
 
 
 @flax.struct.dataclass

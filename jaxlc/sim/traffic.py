@@ -16,7 +16,7 @@ from jaxlc.sim import braking, gap, kinematics, mobil
 from jaxlc.sim.idm import NO_LEADER_GAP, idm_with_params
 from jaxlc.sim.leaders import Around, occupancy
 from jaxlc.sim.motion import Motion
-from jaxlc.sim.road import ego_lanes, lane_scales, road_curvature
+from jaxlc.sim.road import ego_lanes, lane_scales, origin_lane, road_curvature
 from jaxlc.sim.state import CRUISE, RL, Draws, EnvParams, EnvState, Traffic, between
 
 
@@ -98,7 +98,7 @@ def inflow(
     (or the ego, if it is in that lane and further back) is far enough ahead. When
     ``can_spawn`` (no ego, spawning on), the middle lane's entrant becomes the ego instead of
     a slot, and the episode it starts draws the lanes' inflow anew."""
-    lanes, slots, origin = p.lanes, p.slots_per_lane, p.lanes // 2
+    lanes, slots, origin = p.lanes, p.slots_per_lane, origin_lane(p)
     lane_ids, slot_ids = jnp.arange(lanes), jnp.arange(slots)
     if tr.lane is None:
         at_tail = slot_ids[None, :] == tr.tail[:, None]

@@ -35,10 +35,8 @@ def host_devices_for(models: int, product: int, cores: int | None = None) -> int
     """Host devices to lay ``models`` over on a CPU of ``cores`` cores, for a program whose
     largest matrix product is ``product`` multiply-adds: one when that is small
     (``SMALL_PRODUCT``), else the largest divisor of ``models`` (so no padded copies run) up
-    to ``cores + 1``. Measured on 2 cores on 2026-11-24 (docs/benchmarks.md, "Devices"):
-    the paper grid (9 models, 64 x 300 x 600 products) trains 1.16x faster on 3 host devices
-    than on one; the smoke grid (4 models, 16 x 32 x 32) ran 1.38x faster on 2, so the small
-    case's one device is not always the fastest layout."""
+    to ``cores + 1`` (the timings behind the rule: docs/decisions.md, "host devices on a
+    CPU"). ``cores``: default, the cores this process may run on."""
     if product < SMALL_PRODUCT:
         return 1
     cores = cores or len(os.sched_getaffinity(0))  # the cores this process may run on

@@ -6,11 +6,8 @@
     python -m jaxlc.evaluate runs/s10
 
 A seed names its model (``jaxlc.learn.train.make_grid``: ``fold_in(PRNGKey(0), seed)``), so the
-model of seed 3 is the same whether its run trained seeds 3..3 or 0..9. On a CPU, grids of a
-few models run faster per model than one large vmapped grid, whose params, Adam moments and
-memories outgrow the caches: on the 2-core machine one run of the default's 90 models (10
-seeds) had reached episode 600 of 5,000 after 30 minutes, where each run of its 9 models (one
-seed) finished all 5,000 in 13 minutes while sharing the machine with a test suite.
+model of seed 3 is the same whether its run trained seeds 3..3 or 0..9 (why one run per seed
+on a CPU: docs/decisions.md, "one run per seed, merged").
 
 The merged directory is what ``python -m jaxlc.sweep --seeds N`` would have written, in its
 model order (cell outermost, then seed): ``config.toml`` with ``train.seed`` the first seed and
