@@ -37,9 +37,10 @@ from jaxlc.evaluation.stats import CONFIDENCE
 
 Z = float(scipy.stats.norm.ppf(0.5 + CONFIDENCE / 2))  # 1.96
 ONE_BELOW = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
-THETA_MAX = 30.0
+THETA_MAX = 30.0  # |theta| of a truncated exponential tilt (mass ~e^-30 at the other end)
 # The nominal's share of a defensive mixture proposal: every weight at most 1 / DEFENSIVE.
-DEFENSIVE = 0.1  # |theta| of a truncated exponential tilt (mass ~e^-30 at the other end)
+DEFENSIVE = 0.1
+MIN_ELITE = 20  # failures enough for an elite of their own, whatever their share
 
 
 def tilt_bernoulli(v: Array, p: Array, q: Array) -> Array:
@@ -144,11 +145,13 @@ def elite(
     log_w: np.ndarray, failed: np.ndarray, score: np.ndarray, rho: float = 0.1
 ) -> tuple[np.ndarray, float]:
     """Multilevel CE's elite: ``(weights (n,), level)``: the failures when at least ``rho n``
-    of the sample failed, else the ``rho`` share with the highest ``score`` (a failure scores
-    +inf); each elite sample carries its likelihood ratio, the rest 0."""
+    (or ``MIN_ELITE``) of the sample failed, else the ``rho`` share with the highest
+    ``score`` (a failure scores +inf); each elite sample carries its likelihood ratio, the
+    rest 0."""
     failed = np.asarray(failed, bool)
     s = np.where(failed, np.inf, np.asarray(score, np.float64))
-    level = float(np.quantile(s, 1.0 - rho)) if failed.mean() < rho else math.inf
+    enough = failed.sum() >= max(rho * failed.size, MIN_ELITE)
+    level = math.inf if enough or not failed.size else float(np.quantile(s, 1.0 - rho))
     chosen = s >= level
     w = np.where(chosen, np.exp(np.asarray(log_w, np.float64) - np.max(log_w)), 0.0)
     return w, level

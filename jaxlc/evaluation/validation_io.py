@@ -1,0 +1,218 @@
+"""What ``python -m jaxlc.validate`` reads and writes: the policies of a run it validates
+(``model_rows``), ``RUN_DIR/validate/`` (``write_outputs``), the report's section
+(``report_section``), the failure-kind figure, and a saved case replayed as a GIF
+(``replay_case``)."""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxlc import config
+from jaxlc.evaluation import heldout, proposal, validation
+from jaxlc.evaluation.cases import columns
+from jaxlc.evaluation.protocol import final_checkpoints, load_rows
+from jaxlc.evaluation.results import SCRIPTED, EvalError
+from jaxlc.paper.grid import tag_of
+from jaxlc.sim.env import EnvParams
+from jaxlc.study import checkpoint
+from jaxlc.study.rundir import RunDir
+
+FIELDS = ("label", "model", "seed", "method", "kind", "estimate", "lo", "hi", "upper_bound")
+FIELDS += ("rel_halfwidth", "ess", "failures", "lane_changes", "wall_s", "lane_changes_per_s")
+FIELDS += ("matmul_peak_gflops",)
+
+
+def validate_dir(run_dir: Path) -> Path:
+    return Path(run_dir) / "validate"
+
+
+def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[dict[str, Any]]]:
+    """The run's config and the policies ``which`` names (``{"actor", "k", "meta"}``): a model
+    index, a label, a paper tag (every seed's), ``all`` or ``scripted``."""
+    if not RunDir(run_dir).is_run():
+        raise EvalError(f"{run_dir} has no config.toml, so it is not a run directory")
+    chosen = final_checkpoints(run_dir)
+    if which != "scripted":
+        chosen = [
+            (p, m)
+            for p, m in chosen
+            if which in ("all", str(m.get("model")), str(m.get("label")), tag_of(m))
+        ]
+        if not chosen:
+            raise EvalError(f"--model {which}: no final checkpoint of {run_dir} matches it")
+    cfg, actors, metas = load_rows(run_dir, chosen)
+    if which == "scripted":
+        return cfg, [{"actor": None, "k": 1, "meta": dict(SCRIPTED)}]
+    return cfg, [
+        {"actor": a, "k": int(m["k"] or 1), "meta": m}
+        for a, m in zip(actors, metas[1:], strict=True)
+    ]
+
+
+def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: float) -> Path:
+    """``validate/validate.json``, ``validate.csv``, ``cases.json``, ``validate.md`` and the
+    figure; the run's report regenerated with its section where the run was evaluated."""
+    out = validate_dir(args.run_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = {
+        "traffic": heldout.traffic_of(cfg.env),
+        "traffic_overrides": list(args.traffic),
+        "method": args.method,
+        "kind": args.kind,
+        "chunk": args.chunk,
+        "seed": args.seed,
+        "max_steps": args.max_steps,
+        "matmul_peak_gflops": round(peak),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "models": [{k: v for k, v in r.items() if k != "cases"} for r in results],
+    }
+    (out / "validate.json").write_text(json.dumps(doc, indent=1, default=str) + "\n")
+    rows = [
+        {
+            **r["meta"],
+            **e,
+            "method": r["method"],
+            "kind": kind,
+            "wall_s": r["wall_s"],
+            "lane_changes_per_s": r["lane_changes_per_s"],
+            "matmul_peak_gflops": round(peak),
+        }
+        for r in results
+        for kind, e in r["estimates"].items()
+    ]
+    with (out / "validate.csv").open("w", newline="") as f:
+        w = csv.DictWriter(f, FIELDS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    cases = [
+        {
+            **c,
+            "model": i,
+            "label": r["meta"]["label"],
+            "checkpoint": r["meta"].get("checkpoint"),
+            "k": r["meta"].get("k") or 1,
+            "method": r["method"],
+            "proposal": r["proposal"],
+        }
+        for i, r in enumerate(results)
+        for c in r["cases"]
+    ]
+    (out / "cases.json").write_text(json.dumps(cases, indent=1) + "\n")
+    (out / "validate.md").write_text("\n".join(report_section(args.run_dir)) + "\n")
+    kinds_figure(out, cases)
+    if RunDir(args.run_dir).eval_json.is_file():
+        from jaxlc.evaluation import report
+
+        report.write_report(args.run_dir)
+    return out
+
+
+def _sci(v: Any) -> str:
+    return "-" if v is None or not math.isfinite(v) else f"{v:.3g}"
+
+
+def report_section(run_dir: Path) -> list[str]:
+    """``report.md``'s section: per model and kind, the probability per lane change and its
+    95% interval; nothing when the run has not been validated."""
+    path = validate_dir(run_dir) / "validate.json"
+    if not path.is_file():
+        return []
+    doc = json.loads(path.read_text())
+    lines = [
+        "## How rarely it fails (`python -m jaxlc.validate`)",
+        "",
+        f"{doc['method'].upper()} in {doc['traffic']}; {doc['date']}, matmul peak "
+        f"{doc['matmul_peak_gflops']} GFLOP/s. Probability per lane change, 95% interval, "
+        "relative half-width, effective sample size; `validate/validate.json`.",
+        "",
+        "| policy | kind | estimate | 95% interval | rel. half-width | ESS | lane changes | s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for m in doc["models"]:
+        for kind, e in m["estimates"].items():
+            if e["failures"] == 0 and kind != doc["kind"]:
+                continue
+            lines.append(
+                f"| {m['meta']['label']} | {kind} | {_sci(e['estimate'])} | [{_sci(e['lo'])}, "
+                f"{_sci(e['hi'])}] | {_sci(e['rel_halfwidth'])} | {_sci(e['ess'])} | "
+                f"{e['lane_changes']} | {m['wall_s']} |"
+            )
+    return lines + [""]
+
+
+def kinds_figure(out: Path, cases: list[dict]) -> Path | None:
+    """``kinds.png``: per failure kind, its saved cases' log weights (the scenes that carry
+    the estimate, highest first)."""
+    if not cases:
+        return None
+    from jaxlc.evaluation.plots import _save, plt
+
+    kinds = [k for k in validation.KINDS if any(k in c["kinds"] for c in cases)]
+    fig, ax = plt.subplots(figsize=(7, 3))
+    for i, k in enumerate(kinds):
+        lw = np.sort([c["log_w"] for c in cases if k in c["kinds"]])[::-1] / math.log(10)
+        ax.plot(np.arange(lw.size), lw, ".-", label=f"{k} ({lw.size})", ms=3, color=f"C{i}")
+    ax.set_xlabel("saved failure, highest weight first")
+    ax.set_ylabel("log10 weight")
+    ax.legend(fontsize=7)
+    return _save(fig, out / "kinds.png")
+
+
+def replay_case(run_dir: Path, index: int) -> tuple[Path, bool]:
+    """Run ``validate/cases.json``'s case ``index`` again (the same program, its key in every
+    row of a chunk) and draw it as ``validate/case_INDEX.gif``; returns the path and whether the
+    outcome and weight are the saved ones bit for bit."""
+    out = validate_dir(run_dir)
+    if not (out / "cases.json").is_file():
+        raise EvalError(f"{out / 'cases.json'} is missing; run python -m jaxlc.validate first")
+    cases = json.loads((out / "cases.json").read_text())
+    if not 0 <= index < len(cases):
+        raise EvalError(f"--replay {index}: cases.json holds {len(cases)} cases")
+    doc, case = json.loads((out / "validate.json").read_text()), cases[index]
+    cfg = heldout.in_traffic(RunDir(run_dir).load_config(), doc["traffic_overrides"])
+    actor = None
+    if case["checkpoint"]:
+        actor = checkpoint.load(Path(run_dir) / case["checkpoint"])[0]
+    run = validation.program(cfg, doc["max_steps"], case["method"] == "is")
+    pol = validation.policies(cfg, actor, int(case["k"]))
+    keys = jnp.tile(jnp.asarray(case["key"], jnp.uint32)[None], (doc["chunk"], 1))
+    o, trace = jax.device_get(run(proposal.from_dict(case["proposal"]), pol, keys))
+    o, tr = columns(o), columns(trace)
+    log_w = float(o["log_w"][0][0]) if case["method"] == "is" else 0.0
+    from jaxlc.evaluation.results import OUTCOMES
+
+    same = OUTCOMES[int(o["reason"][0][0])] == case["reason"] and log_w == case["log_w"]
+    return _gif(out / f"case_{index}.gif", tr, cfg, case), same
+
+
+def _gif(path: Path, tr: dict, cfg: config.Config, case: dict) -> Path:
+    from jaxlc.evaluation.plots import PillowWriter, draw_scene, plt
+
+    p = EnvParams.from_config(cfg.env)
+    last = max(int(tr["frames"][0, 0]) - 1, 0)
+    tr = {**tr, "side": np.asarray([1 if tr["y"][0, 0, 0] < tr["y"][0, 0, last] else -1])}
+    fig, ax = plt.subplots(figsize=(8, 1.5))
+    writer = PillowWriter(fps=10)
+    with writer.saving(fig, path, dpi=90):
+        for f in range(max(int(tr["frames"][0, 0]), 1)):
+            ax.clear()
+            draw_scene(ax, tr, 0, 0, f, p)
+            ax.set_axis_off()
+            ax.set_title(
+                f"{case['label']}  t = {f * p.dt:4.1f} s  {case['reason']}  "
+                f"log10 w = {case['log_w'] / math.log(10):.2f}",
+                fontsize=8,
+                loc="left",
+            )
+            writer.grab_frame()
+    plt.close(fig)
+    return path
