@@ -55,6 +55,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--chunk", type=int, default=2048, help="lane-change cases per program")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-steps", type=int, default=config.EvalConfig().max_steps)
+    ap.add_argument("--out", type=Path, default=None, help="default: RUN_DIR/validate")
     ap.add_argument("--replay", type=int, default=None, metavar="CASE", help="cases.json index")
     args = ap.parse_intermixed_args(argv)
     for name in ("lane_changes", "chunk", "max_steps"):
@@ -118,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         if args.replay is not None:
-            path, same = replay_case(args.run_dir, args.replay)
+            path, same = replay_case(args.run_dir, args.replay, args.out)
             print(f"Wrote {path}; the replay {'matches' if same else 'DIFFERS from'} the case")
             return 0 if same else 1
         cfg, rows = model_rows(args.run_dir, args.model)

@@ -52,3 +52,76 @@ def test_mc_estimate_is_clopper_pearson():
     assert r["upper_bound"] == pytest.approx(1e-6, rel=0.01)
     r = rare.mc_estimate(200, 1_000_000)
     assert r["lo"] < 2e-4 < r["hi"] and 0.1 < r["rel_halfwidth"] < 0.2
+
+
+# The command on a smoke run, in the traffic that brakes (the tilt's own draws included).
+TRAFFIC = ["env.braking=true", "env.braking_rate=200", "env.gap_min_ttc=0"]
+
+
+@pytest.fixture(scope="module")
+def validated(smoke_run, tmp_path_factory):
+    """A smoke run validated by IS (scripted controller, every failure kind's cases kept)."""
+    from jaxlc import validate
+
+    run_dir, _ = smoke_run
+    out = tmp_path_factory.mktemp("validate")
+    args = ["--model", "scripted", "--method", "is", "--kind", "failure", "--chunk", "64"]
+    args += ["--lane-changes", "60", "--out", str(out), "--traffic", *TRAFFIC]
+    assert validate.main([str(run_dir), *args]) == 0
+    return run_dir, out
+
+
+def test_validate_writes_its_outputs(validated):
+    import json
+
+    _, out = validated
+    doc = json.loads((out / "validate.json").read_text())
+    (model,) = doc["models"]
+    assert model["lane_changes"] >= 60 and model["ce"]
+    from jaxlc.evaluation.validation import KINDS
+
+    assert set(model["estimates"]) == set(KINDS)
+    e = model["estimates"]["failure"]
+    assert e["lo"] <= e["estimate"] <= e["hi"]
+    assert "braking events" in doc["traffic"] and doc["matmul_peak_gflops"] > 0
+    assert (out / "validate.csv").is_file() and (out / "validate.md").is_file()
+
+
+def test_replay_reproduces_a_case_bit_for_bit(validated):
+    import json
+
+    from jaxlc.evaluation.validation_io import replay_case
+
+    run_dir, out = validated
+    cases = json.loads((out / "cases.json").read_text())
+    if not cases:
+        pytest.skip("no failure in this smoke validation")
+    path, same = replay_case(run_dir, 0, out)
+    assert same and path.stat().st_size > 0
+
+
+def test_nominal_proposal_weights_are_one(smoke_run):
+    """The proposal equal to the traffic's own distribution: every log weight exactly 0."""
+    from jaxlc.evaluation import proposal, validation
+    from jaxlc.evaluation.cases import columns
+    from jaxlc.evaluation.heldout import in_traffic
+    from jaxlc.sim.env import EnvParams
+    from jaxlc.study.rundir import RunDir
+
+    cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
+    base = EnvParams.from_config(cfg.env)
+    run = validation.program(cfg, 600, True)
+    keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, 64)
+    out = columns(
+        jax.device_get(run(proposal.nominal(base), validation.policies(cfg, None, 1), keys)[0])
+    )
+    assert out["performed"].any() and np.all(out["log_w"] == 0.0)
+    assert out["tilt"][..., :4].sum() > 0  # braking trials around the ego were drawn
+
+
+def test_bad_run_directory_is_one_line(tmp_path, capsys):
+    from jaxlc import validate
+
+    assert validate.main([str(tmp_path), "--method", "mc"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and "not a run directory" in err and "\n" not in err

@@ -6,8 +6,9 @@ decided before, keeps the traffic's own distribution, and an estimate per lane c
 no ratio of two estimates):
 
 - whether the target lane's lag yields (``p_yield``): drawn with probability ``yields``;
-- braking events (``env.braking``) of the three vehicles around the ego in the RL phase (the
-  target lane's lead and lag and the own lane's leader, found on the state before the step):
+- braking events (``env.braking``) of the vehicles around the ego in the RL phase (the
+  target lane's lead and lag, the own lane's leader, and every other vehicle up to ``AHEAD``
+  ahead of it in any lane, found on the state before the step):
   an event starts with probability ``brake[role]`` per step instead of ``1 - exp(-rate dt)``,
   its deceleration and duration from truncated exponentials of ``brake_acc`` and
   ``brake_time``.
@@ -31,7 +32,8 @@ from jaxlc.sim.leaders import occupancy
 from jaxlc.sim.road import current_lane
 from jaxlc.sim.state import between
 
-ROLES = ("lead", "lag", "own_leader")
+ROLES = ("lead", "lag", "own_leader", "ahead")
+AHEAD = 100.0  # m: the "ahead" role, every other vehicle up to this far ahead of the ego
 # The statistics a step adds up for the CE (``info["tilt"]``), in this order.
 STATS = (
     *(f"brake_trials_{r}" for r in ROLES),
@@ -47,7 +49,7 @@ STATS = (
 class Proposal:
     """A proposal's parameters (traced: the CE changes them without compiling again)."""
 
-    brake: Array  # (3,) per-step probability a braking event starts, by ROLES
+    brake: Array  # (4,) per-step probability a braking event starts, by ROLES
     brake_acc: Array  # () theta of the deceleration's uniform (> 0: harder)
     brake_time: Array  # () theta of the duration's uniform (> 0: longer)
     yields: Array  # () probability the lag yields
@@ -64,7 +66,7 @@ def brake_probability(p: EnvParams) -> Array:
 def nominal(p: EnvParams) -> Proposal:
     """The traffic's own distribution: every weight exactly 1."""
     return Proposal(
-        brake=jnp.full(3, brake_probability(p), jnp.float32),
+        brake=jnp.full(len(ROLES), brake_probability(p), jnp.float32),
         brake_acc=jnp.float32(0.0),
         brake_time=jnp.float32(0.0),
         yields=jnp.float32(p.p_yield),
@@ -76,8 +78,9 @@ def from_dict(d: dict) -> Proposal:
 
 
 def roles(state: EnvState, p: EnvParams) -> Array:
-    """``(3, rows, slots)`` bool: the target lane's lead and lag, the own lane's leader (the
-    vehicles ``leaders.ego_neighbours`` names, by role)."""
+    """``(4, rows, slots)`` bool: the target lane's lead and lag, the own lane's leader (the
+    vehicles ``leaders.ego_neighbours`` names, by role), and the others up to ``AHEAD``
+    ahead."""
     tr, eg = state.traffic, state.ego
     occ = occupancy(tr, p)
     lanes = jnp.arange(p.lanes)[:, None, None]
@@ -90,13 +93,13 @@ def roles(state: EnvState, p: EnvParams) -> Array:
         pick = jnp.min if ahead_of else jnp.max
         return mask & (tr.x == pick(jnp.where(mask, tr.x, far)))
 
-    return jnp.stack(
-        [
-            nearest(in_target & ahead, True),
-            nearest(in_target & ~ahead, False),
-            nearest(in_own & ahead, True),
-        ]
-    )
+    near = [
+        nearest(in_target & ahead, True),
+        nearest(in_target & ~ahead, False),
+        nearest(in_own & ahead, True),
+    ]
+    others = tr.active & ahead & (tr.x < eg.x + AHEAD) & ~(near[0] | near[1] | near[2])
+    return jnp.stack([*near, others])
 
 
 class TiltedEnv(LaneChangeEnv):
@@ -119,10 +122,13 @@ class TiltedEnv(LaneChangeEnv):
         )
         ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane) if p.mobil or p.braking else None
         if p.braking:
-            role = roles(state, p) & (state.ego.phase == RL)  # (3, rows, slots)
+            role = roles(state, p) & (state.ego.phase == RL)  # (roles, rows, slots)
             near = jnp.any(role, axis=0)
             p_fire = brake_probability(p)
-            q_fire = jnp.max(jnp.where(role, q.brake[:, None, None], 0.0), axis=0)
+            # A rate within 1 ppm of the traffic's is the traffic's (eager and compiled
+            # expm1 differ in the last bit): its weight is exactly 1.
+            q_role = jnp.where(jnp.abs(q.brake - p_fire) <= 1e-6 * p_fire, p_fire, q.brake)
+            q_fire = jnp.max(jnp.where(role, q_role[:, None, None], 0.0), axis=0)
             q_fire = jnp.where(near, jnp.maximum(q_fire, 1e-12), p_fire)
             ut = ut._replace(
                 brake_fire=rare.tilt_bernoulli(ut.brake_fire, p_fire, q_fire),
@@ -138,8 +144,8 @@ class TiltedEnv(LaneChangeEnv):
         log_w = jnp.where(
             accept, rare.bernoulli_log_ratio(u.yields, jnp.float32(p.p_yield), q.yields), 0.0
         )
-        zero3 = jnp.zeros(3)
-        stats = [zero3, zero3, jnp.zeros(2)]
+        zeros = jnp.zeros(len(ROLES))
+        stats = [zeros, zeros, jnp.zeros(2)]
         if p.braking:
             fired = ut.brake_fire < p_fire
             length = between(ut.brake_time, p.braking_time_min, p.braking_time_max)

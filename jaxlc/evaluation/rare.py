@@ -150,7 +150,7 @@ def elite(
     rest 0."""
     failed = np.asarray(failed, bool)
     s = np.where(failed, np.inf, np.asarray(score, np.float64))
-    enough = failed.sum() >= max(rho * failed.size, MIN_ELITE)
+    enough = failed.sum() >= min(rho * failed.size, MIN_ELITE)
     level = math.inf if enough or not failed.size else float(np.quantile(s, 1.0 - rho))
     chosen = s >= level
     w = np.where(chosen, np.exp(np.asarray(log_w, np.float64) - np.max(log_w)), 0.0)

@@ -31,8 +31,9 @@ FIELDS += ("rel_halfwidth", "ess", "failures", "lane_changes", "wall_s", "lane_c
 FIELDS += ("matmul_peak_gflops",)
 
 
-def validate_dir(run_dir: Path) -> Path:
-    return Path(run_dir) / "validate"
+def validate_dir(run_dir: Path, out: Path | None = None) -> Path:
+    """Where the validation of ``run_dir`` goes: ``out``, or ``RUN_DIR/validate``."""
+    return Path(out) if out is not None else Path(run_dir) / "validate"
 
 
 def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[dict[str, Any]]]:
@@ -61,7 +62,7 @@ def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[dict[str,
 def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: float) -> Path:
     """``validate/validate.json``, ``validate.csv``, ``cases.json``, ``validate.md`` and the
     figure; the run's report regenerated with its section where the run was evaluated."""
-    out = validate_dir(args.run_dir)
+    out = validate_dir(args.run_dir, args.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = {
         "traffic": heldout.traffic_of(cfg.env),
@@ -107,9 +108,9 @@ def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: floa
         for c in r["cases"]
     ]
     (out / "cases.json").write_text(json.dumps(cases, indent=1) + "\n")
-    (out / "validate.md").write_text("\n".join(report_section(args.run_dir)) + "\n")
+    (out / "validate.md").write_text("\n".join(report_section(args.run_dir, out)) + "\n")
     kinds_figure(out, cases)
-    if RunDir(args.run_dir).eval_json.is_file():
+    if args.out is None and RunDir(args.run_dir).eval_json.is_file():
         from jaxlc.evaluation import report
 
         report.write_report(args.run_dir)
@@ -120,10 +121,10 @@ def _sci(v: Any) -> str:
     return "-" if v is None or not math.isfinite(v) else f"{v:.3g}"
 
 
-def report_section(run_dir: Path) -> list[str]:
+def report_section(run_dir: Path, out: Path | None = None) -> list[str]:
     """``report.md``'s section: per model and kind, the probability per lane change and its
     95% interval; nothing when the run has not been validated."""
-    path = validate_dir(run_dir) / "validate.json"
+    path = validate_dir(run_dir, out) / "validate.json"
     if not path.is_file():
         return []
     doc = json.loads(path.read_text())
@@ -167,11 +168,11 @@ def kinds_figure(out: Path, cases: list[dict]) -> Path | None:
     return _save(fig, out / "kinds.png")
 
 
-def replay_case(run_dir: Path, index: int) -> tuple[Path, bool]:
+def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
     """Run ``validate/cases.json``'s case ``index`` again (the same program, its key in every
     row of a chunk) and draw it as ``validate/case_INDEX.gif``; returns the path and whether the
     outcome and weight are the saved ones bit for bit."""
-    out = validate_dir(run_dir)
+    out = validate_dir(run_dir, out)
     if not (out / "cases.json").is_file():
         raise EvalError(f"{out / 'cases.json'} is missing; run python -m jaxlc.validate first")
     cases = json.loads((out / "cases.json").read_text())
