@@ -97,9 +97,12 @@ def kinds(out: dict[str, np.ndarray], dt: float) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def score(out: dict[str, np.ndarray]) -> np.ndarray:
-    """``(cases,)`` how close a lane change came to a collision: minus its lowest TTC."""
-    return -np.minimum(np.min(out["min_ttc"][0], axis=-1), 1e3)
+def score(out: dict[str, np.ndarray], kind: str) -> np.ndarray:
+    """``(cases,)`` how close a lane change came to failing so: minus its lowest TTC for a
+    collision or a TTC norm, else the manoeuvre's length (a timeout is the longest)."""
+    if kind in ("collision", "norm_min_ttc_s"):
+        return -np.minimum(np.min(out["min_ttc"][0], axis=-1), 1e3)
+    return out["steps"][0].astype(np.float64)
 
 
 @dataclass
@@ -181,7 +184,7 @@ def fit_proposal(
         perf = out["performed"][0]
         st = out["tilt"][0][perf].astype(np.float64)
         failed = kinds(out, p.dt)[perf, col]
-        w, level = rare.elite(out["log_w"][0][perf], failed, score(out)[perf])
+        w, level = rare.elite(out["log_w"][0][perf], failed, score(out, kind)[perf])
         s = {n: st[:, i] for i, n in enumerate(STATS)}
         events = sum(s[f"brake_events_{x}"] for x in ROLES)
         fit = Proposal(
