@@ -24,6 +24,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -32,11 +33,14 @@ from tqdm import tqdm
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
 from jaxlc.evaluation.cases import columns
-from jaxlc.evaluation.results import EvalError
-from jaxlc.evaluation.validation_io import model_rows, replay_case, write_outputs
+from jaxlc.evaluation.protocol import final_checkpoints, load_rows
+from jaxlc.evaluation.results import SCRIPTED, EvalError
+from jaxlc.evaluation.validation_io import replay_case, write_outputs
+from jaxlc.paper.grid import tag_of
 from jaxlc.sim.env import EnvParams
 from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
+from jaxlc.study.rundir import RunDir
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -64,6 +68,29 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if not 0.0 <= args.rel_halfwidth < 1.0:
         ap.error("--rel-halfwidth must be in [0, 1)")
     return args
+
+
+def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[dict[str, Any]]]:
+    """The run's config and the policies ``which`` names (``{"actor", "k", "meta"}``): a model
+    index, a label, a paper tag (every seed's), ``all`` or ``scripted``."""
+    if not RunDir(run_dir).is_run():
+        raise EvalError(f"{run_dir} has no config.toml, so it is not a run directory")
+    chosen = final_checkpoints(run_dir)
+    if which != "scripted":
+        chosen = [
+            (p, m)
+            for p, m in chosen
+            if which in ("all", str(m.get("model")), str(m.get("label")), tag_of(m))
+        ]
+        if not chosen:
+            raise EvalError(f"--model {which}: no final checkpoint of {run_dir} matches it")
+    cfg, actors, metas = load_rows(run_dir, chosen)
+    if which == "scripted":
+        return cfg, [{"actor": None, "k": 1, "meta": dict(SCRIPTED)}]
+    return cfg, [
+        {"actor": a, "k": int(m["k"] or 1), "meta": m}
+        for a, m in zip(actors, metas[1:], strict=True)
+    ]
 
 
 def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
@@ -131,6 +158,10 @@ def main(argv: list[str] | None = None) -> int:
             if results[-1]["interrupted"]:
                 break
         out = write_outputs(args, cfg, results, peak)
+        if args.out is None and RunDir(args.run_dir).eval_json.is_file():
+            from jaxlc.evaluation import report  # the run's report gains the section
+
+            report.write_report(args.run_dir)
         for r in results:
             e = r["estimates"].get(args.kind, {})
             print(

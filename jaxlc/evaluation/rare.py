@@ -40,7 +40,7 @@ ONE_BELOW = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 THETA_MAX = 30.0  # |theta| of a truncated exponential tilt (mass ~e^-30 at the other end)
 # The nominal's share of a defensive mixture proposal: every weight at most 1 / DEFENSIVE.
 DEFENSIVE = 0.1
-MIN_ELITE = 20  # failures enough for an elite of their own, whatever their share
+MIN_ELITE = 10  # failures enough for an elite of their own, whatever their share
 
 
 def tilt_bernoulli(v: Array, p: Array, q: Array) -> Array:

@@ -48,6 +48,7 @@ KINDS = ("failure", *ENDS, *(f"norm_{name}" for name, *_ in NORMS))
 VALIDATE_TAG = 0x56414C44  # "VALD": the estimate's key stream
 PILOT_TAG = 0x50494C54  # "PILT": the CE's pilot chunks
 CASE_CAP = 1000  # failures kept per model and kind, highest weight first
+POOL_STOP = 40  # the CE stops once this many failures of its kind are pooled
 SMOOTH = 0.7  # the CE's step: new = SMOOTH * fitted + (1 - SMOOTH) * old
 BRAKE_MAX = 0.05  # per-step probability of a braking event at most (one in 2 s)
 
@@ -159,6 +160,22 @@ def start_proposal(p: EnvParams) -> Proposal:
     return nom.replace(brake=jnp.maximum(nom.brake, START_BRAKE))
 
 
+def _fit(w: np.ndarray, st: np.ndarray, p_fire: float) -> Proposal:
+    """The CE's fit of a proposal to the elite's weights ``w`` and statistics ``st``."""
+    s = {n: st[:, i] for i, n in enumerate(STATS)}
+    events = sum(s[f"brake_events_{x}"] for x in ROLES)
+    brake = [
+        rare.ce_rate(w, s[f"brake_events_{x}"], s[f"brake_trials_{x}"], p_fire, BRAKE_MAX)
+        for x in ROLES
+    ]
+    return Proposal(
+        brake=jnp.asarray(brake, jnp.float32),
+        brake_acc=jnp.float32(rare.ce_theta(w, s["brake_acc_sum"], events)),
+        brake_time=jnp.float32(rare.ce_theta(w, s["brake_time_sum"], events)),
+        yields=jnp.float32(rare.ce_rate(w, s["yield_events"], s["yield_trials"], 0.05, 0.95)),
+    )
+
+
 def fit_proposal(
     run: Callable,
     pol: Policies,
@@ -171,50 +188,43 @@ def fit_proposal(
     seed: int = 0,
     log: Callable = print,
 ) -> tuple[Proposal, list[dict[str, Any]]]:
-    """Multilevel cross-entropy from ``start``: each round runs a pilot chunk, takes its elite
-    (the lane changes of ``kind`` when a tenth fail so, else the tenth closest to a collision)
-    and moves the proposal ``SMOOTH`` of the way to the elite's weighted fit; stops after the
-    round whose elite was the failures themselves. Returns the proposal and each round's
-    record."""
+    """Multilevel cross-entropy from ``start``: each round runs a pilot chunk and moves the
+    proposal ``SMOOTH`` of the way to its elite's weighted fit. The elite: every lane change
+    of ``kind`` of the rounds so far (each weighted by its ratio to the traffic's own
+    distribution, so rounds under different proposals pool) once ``rare.MIN_ELITE`` are seen,
+    else the round's tenth closest to failing so (``score``). Stops once ``POOL_STOP``
+    failures are pooled. Returns the proposal and each round's record."""
     prop, history, col = start, [], KINDS.index(kind)
     p_fire = float(brake_probability(p))
+    pool: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for r in range(rounds):
         keys = validate_keys(seed, PILOT_TAG, r * chunk, chunk)
         out = columns(jax.device_get(run(prop, pol, keys)[0]))
         perf = out["performed"][0]
-        st = out["tilt"][0][perf].astype(np.float64)
         failed = kinds(out, p.dt)[perf, col]
-        w, level = rare.elite(out["log_w"][0][perf], failed, score(out, kind)[perf])
-        s = {n: st[:, i] for i, n in enumerate(STATS)}
-        events = sum(s[f"brake_events_{x}"] for x in ROLES)
-        fit = Proposal(
-            brake=jnp.asarray(
-                [
-                    rare.ce_rate(
-                        w, s[f"brake_events_{x}"], s[f"brake_trials_{x}"], p_fire, BRAKE_MAX
-                    )
-                    for x in ROLES
-                ],
-                jnp.float32,
-            ),
-            brake_acc=jnp.float32(rare.ce_theta(w, s["brake_acc_sum"], events)),
-            brake_time=jnp.float32(rare.ce_theta(w, s["brake_time_sum"], events)),
-            yields=jnp.float32(rare.ce_rate(w, s["yield_events"], s["yield_trials"], 0.05, 0.95)),
-        )
-        prop = jax.tree.map(lambda a, b: SMOOTH * a + (1 - SMOOTH) * b, fit, prop)
+        pool.append((out["log_w"][0][perf], failed, out["tilt"][0][perf].astype(np.float64)))
+        log_w, hits, st = (np.concatenate(a) for a in zip(*pool, strict=True))
+        if hits.sum() >= rare.MIN_ELITE:
+            w, level = rare.elite(log_w, hits, np.zeros(hits.shape), rho=0.0)
+        else:
+            log_w, st = pool[-1][0], pool[-1][2]
+            w, level = rare.elite(log_w, failed, score(out, kind)[perf])
+        prop = jax.tree.map(lambda a, b: SMOOTH * a + (1 - SMOOTH) * b, _fit(w, st, p_fire), prop)
         history.append(
             {
                 "round": r,
                 "failures": int(failed.sum()),
                 "lane_changes": int(perf.sum()),
+                "pooled_failures": int(hits.sum()),
                 "level": level,
                 "proposal": prop.to_dict(),
             }
         )
         log(
-            f"CE round {r}: {int(failed.sum())} {kind} in {int(perf.sum())} lane changes, "
-            f"level {-level if math.isfinite(level) else 'failures'}"
+            f"CE round {r}: {int(failed.sum())} {kind} in {int(perf.sum())} lane changes "
+            f"({int(hits.sum())} pooled), elite "
+            f"{'the failures' if not math.isfinite(level) else f'score >= {level:g}'}"
         )
-        if not math.isfinite(level):
+        if hits.sum() >= POOL_STOP:
             break
     return prop, history

@@ -1,7 +1,6 @@
-"""What ``python -m jaxlc.validate`` reads and writes: the policies of a run it validates
-(``model_rows``), ``RUN_DIR/validate/`` (``write_outputs``), the report's section
-(``report_section``), the failure-kind figure, and a saved case replayed as a GIF
-(``replay_case``)."""
+"""What ``python -m jaxlc.validate`` writes: ``RUN_DIR/validate/`` (``write_outputs``), the
+report's section (``report_section``), the failure-kind figure, and a saved case replayed as a
+GIF (``replay_case``)."""
 
 from __future__ import annotations
 
@@ -19,9 +18,7 @@ import numpy as np
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
 from jaxlc.evaluation.cases import columns
-from jaxlc.evaluation.protocol import final_checkpoints, load_rows
-from jaxlc.evaluation.results import SCRIPTED, EvalError
-from jaxlc.paper.grid import tag_of
+from jaxlc.evaluation.results import EvalError
 from jaxlc.sim.env import EnvParams
 from jaxlc.study import checkpoint
 from jaxlc.study.rundir import RunDir
@@ -36,32 +33,9 @@ def validate_dir(run_dir: Path, out: Path | None = None) -> Path:
     return Path(out) if out is not None else Path(run_dir) / "validate"
 
 
-def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[dict[str, Any]]]:
-    """The run's config and the policies ``which`` names (``{"actor", "k", "meta"}``): a model
-    index, a label, a paper tag (every seed's), ``all`` or ``scripted``."""
-    if not RunDir(run_dir).is_run():
-        raise EvalError(f"{run_dir} has no config.toml, so it is not a run directory")
-    chosen = final_checkpoints(run_dir)
-    if which != "scripted":
-        chosen = [
-            (p, m)
-            for p, m in chosen
-            if which in ("all", str(m.get("model")), str(m.get("label")), tag_of(m))
-        ]
-        if not chosen:
-            raise EvalError(f"--model {which}: no final checkpoint of {run_dir} matches it")
-    cfg, actors, metas = load_rows(run_dir, chosen)
-    if which == "scripted":
-        return cfg, [{"actor": None, "k": 1, "meta": dict(SCRIPTED)}]
-    return cfg, [
-        {"actor": a, "k": int(m["k"] or 1), "meta": m}
-        for a, m in zip(actors, metas[1:], strict=True)
-    ]
-
-
 def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: float) -> Path:
     """``validate/validate.json``, ``validate.csv``, ``cases.json``, ``validate.md`` and the
-    figure; the run's report regenerated with its section where the run was evaluated."""
+    figure."""
     out = validate_dir(args.run_dir, args.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = {
@@ -110,10 +84,6 @@ def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: floa
     (out / "cases.json").write_text(json.dumps(cases, indent=1) + "\n")
     (out / "validate.md").write_text("\n".join(report_section(args.run_dir, out)) + "\n")
     kinds_figure(out, cases)
-    if args.out is None and RunDir(args.run_dir).eval_json.is_file():
-        from jaxlc.evaluation import report
-
-        report.write_report(args.run_dir)
     return out
 
 
