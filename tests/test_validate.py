@@ -125,3 +125,26 @@ def test_bad_run_directory_is_one_line(tmp_path, capsys):
     assert validate.main([str(tmp_path), "--method", "mc"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and "not a run directory" in err and "\n" not in err
+
+
+def test_benchmark_scripts_tiny(tmp_path):
+    """benchmarks/scripts/validate_toy.py and validate_throughput.py end to end, tiny."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from .conftest import BENCHMARKS, HANG_GUARD_S
+
+    env = {**os.environ, "PYTHONPATH": str(BENCHMARKS.parents[1])}  # this tree's jaxlc
+
+    def run(script: str, *args: str) -> None:
+        cmd = [sys.executable, str(BENCHMARKS / script), *args, "--out", str(tmp_path)]
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=HANG_GUARD_S, env=env)
+        assert done.returncode == 0, done.stderr[-2000:]
+
+    run("validate_toy.py", "--repeats", "2", "--samples", "2000")
+    assert json.loads((tmp_path / "toy.json").read_text())["repeats"] == 2
+    run("validate_throughput.py", "--chunk", "8", "--repeats", "1", "--steps", "10")
+    rows = (tmp_path / "throughput.csv").read_text().splitlines()
+    assert len(rows) == 3 and "share_of_sim" in rows[0]

@@ -97,7 +97,7 @@ def main() -> None:
         w = csv.DictWriter(f, list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    print("median of", args.repeats, statistics.median([r["share_of_sim"] for r in rows]))
+    print("median share of the simulator:", statistics.median([r["share_of_sim"] for r in rows]))
 
 
 if __name__ == "__main__":
