@@ -85,6 +85,8 @@ def test_validate_writes_its_outputs(validated):
     assert e["lo"] <= e["estimate"] <= e["hi"]
     assert "braking events" in doc["traffic"] and doc["matmul_peak_gflops"] > 0
     assert (out / "validate.csv").is_file() and (out / "validate.md").is_file()
+    if json.loads((out / "cases.json").read_text()):  # each failing kind's scene, replayed
+        assert (out / "scenes.png").is_file()
 
 
 def test_replay_reproduces_a_case_bit_for_bit(validated):

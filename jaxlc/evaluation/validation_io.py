@@ -1,6 +1,6 @@
 """What ``python -m jaxlc.validate`` writes: ``RUN_DIR/validate/`` (``write_outputs``), the
-report's section (``report_section``), the failure-kind figure, and a saved case replayed as a
-GIF (``replay_case``)."""
+report's section (``report_section``), each failure kind's scene (``scenes_figure``), and a
+saved case replayed as a GIF (``replay_case``)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import numpy as np
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
 from jaxlc.evaluation.cases import columns
-from jaxlc.evaluation.results import EvalError
+from jaxlc.evaluation.results import OUTCOMES, EvalError
 from jaxlc.sim.env import EnvParams
 from jaxlc.study import checkpoint
 from jaxlc.study.rundir import RunDir
@@ -83,7 +83,7 @@ def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: floa
     ]
     (out / "cases.json").write_text(json.dumps(cases, indent=1) + "\n")
     (out / "validate.md").write_text("\n".join(report_section(args.run_dir, out)) + "\n")
-    kinds_figure(out, cases)
+    scenes_figure(args.run_dir, out, cfg, doc, cases)
     return out
 
 
@@ -120,36 +120,34 @@ def report_section(run_dir: Path, out: Path | None = None) -> list[str]:
     return lines + [""]
 
 
-def kinds_figure(out: Path, cases: list[dict]) -> Path | None:
-    """``kinds.png``: per failure kind, its saved cases' log weights (the scenes that carry
-    the estimate, highest first)."""
-    if not cases:
-        return None
-    from jaxlc.evaluation.plots import _save, plt
-
+def scenes_figure(run_dir: Path, out: Path, cfg: config.Config, doc: dict, cases: list[dict]):
+    """``scenes.png``: per failure kind, its highest-weight saved case replayed, the scene at
+    its last step (the ego red, the gap's lead and lag green)."""
     kinds = [k for k in validation.KINDS if any(k in c["kinds"] for c in cases)]
-    fig, ax = plt.subplots(figsize=(7, 3))
-    for i, k in enumerate(kinds):
-        lw = np.sort([c["log_w"] for c in cases if k in c["kinds"]])[::-1] / math.log(10)
-        ax.plot(np.arange(lw.size), lw, ".-", label=f"{k} ({lw.size})", ms=3, color=f"C{i}")
-    ax.set_xlabel("saved failure, highest weight first")
-    ax.set_ylabel("log10 weight")
-    ax.legend(fontsize=7)
-    return _save(fig, out / "kinds.png")
+    if not kinds:
+        return None
+    from jaxlc.evaluation.plots import _save, draw_scene, plt
+
+    p = EnvParams.from_config(cfg.env)
+    fig, axes = plt.subplots(len(kinds), 1, figsize=(8, 1.3 * len(kinds) + 0.3), squeeze=False)
+    for ax, kind in zip(axes[:, 0], kinds, strict=True):
+        case = next(c for c in cases if kind in c["kinds"])  # highest weight first
+        _, tr, _ = _rerun(run_dir, cfg, doc, case)
+        draw_scene(ax, tr, 0, 0, max(int(tr["frames"][0, 0]) - 1, 0), p)
+        ax.set_axis_off()
+        n = sum(kind in c["kinds"] for c in cases)
+        ax.set_title(
+            f"{kind} ({n} saved): {case['label']}, case {case['index']}, {case['reason']}, "
+            f"log10 w = {case['log_w'] / math.log(10):.2f}",
+            fontsize=8,
+            loc="left",
+        )
+    return _save(fig, out / "scenes.png")
 
 
-def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
-    """Run ``validate/cases.json``'s case ``index`` again (the same program, its key in every
-    row of a chunk) and draw it as ``validate/case_INDEX.gif``; returns the path and whether the
-    outcome and weight are the saved ones bit for bit."""
-    out = validate_dir(run_dir, out)
-    if not (out / "cases.json").is_file():
-        raise EvalError(f"{out / 'cases.json'} is missing; run python -m jaxlc.validate first")
-    cases = json.loads((out / "cases.json").read_text())
-    if not 0 <= index < len(cases):
-        raise EvalError(f"--replay {index}: cases.json holds {len(cases)} cases")
-    doc, case = json.loads((out / "validate.json").read_text()), cases[index]
-    cfg = heldout.in_traffic(RunDir(run_dir).load_config(), doc["traffic_overrides"])
+def _rerun(run_dir: Path, cfg: config.Config, doc: dict, case: dict) -> tuple[dict, dict, bool]:
+    """A saved case run again (the same program, its key in every row of a chunk): the
+    outcome and trace of its row, and whether its outcome and weight are the saved ones."""
     actor = None
     if case["checkpoint"]:
         actor = checkpoint.load(Path(run_dir) / case["checkpoint"])[0]
@@ -158,10 +156,26 @@ def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Pat
     keys = jnp.tile(jnp.asarray(case["key"], jnp.uint32)[None], (doc["chunk"], 1))
     o, trace = jax.device_get(run(proposal.from_dict(case["proposal"]), pol, keys))
     o, tr = columns(o), columns(trace)
+    last = max(int(tr["frames"][0, 0]) - 1, 0)
+    tr["side"] = np.asarray([1 if tr["y"][0, 0, 0] < tr["y"][0, 0, last] else -1])
     log_w = float(o["log_w"][0][0]) if case["method"] == "is" else 0.0
-    from jaxlc.evaluation.results import OUTCOMES
-
     same = OUTCOMES[int(o["reason"][0][0])] == case["reason"] and log_w == case["log_w"]
+    return o, tr, same
+
+
+def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
+    """Run ``validate/cases.json``'s case ``index`` again and draw it as
+    ``validate/case_INDEX.gif``; returns the path and whether the outcome and weight are the
+    saved ones bit for bit."""
+    out = validate_dir(run_dir, out)
+    if not (out / "cases.json").is_file():
+        raise EvalError(f"{out / 'cases.json'} is missing; run python -m jaxlc.validate first")
+    cases = json.loads((out / "cases.json").read_text())
+    if not 0 <= index < len(cases):
+        raise EvalError(f"--replay {index}: cases.json holds {len(cases)} cases")
+    doc, case = json.loads((out / "validate.json").read_text()), cases[index]
+    cfg = heldout.in_traffic(RunDir(run_dir).load_config(), doc["traffic_overrides"])
+    _, tr, same = _rerun(run_dir, cfg, doc, case)
     return _gif(out / f"case_{index}.gif", tr, cfg, case), same
 
 
@@ -169,8 +183,6 @@ def _gif(path: Path, tr: dict, cfg: config.Config, case: dict) -> Path:
     from jaxlc.evaluation.plots import PillowWriter, draw_scene, plt
 
     p = EnvParams.from_config(cfg.env)
-    last = max(int(tr["frames"][0, 0]) - 1, 0)
-    tr = {**tr, "side": np.asarray([1 if tr["y"][0, 0, 0] < tr["y"][0, 0, last] else -1])}
     fig, ax = plt.subplots(figsize=(8, 1.5))
     writer = PillowWriter(fps=10)
     with writer.saving(fig, path, dpi=90):
