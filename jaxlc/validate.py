@@ -55,6 +55,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--lane-changes", type=int, default=1_000_000, help="most per model")
     ap.add_argument("--rel-halfwidth", type=float, default=0.0, help="stop at this (0: never)")
     ap.add_argument("--kind", choices=validation.KINDS, default="collision")
+    ap.add_argument(
+        "--tilt-from",
+        choices=("acceptance", "command"),
+        default="acceptance",
+        help="is: tilt braking from the gap's acceptance (unbiased) or from the command on",
+    )
     ap.add_argument("--traffic", nargs="+", default=[], metavar="env.KEY=VALUE")
     ap.add_argument("--chunk", type=int, default=2048, help="lane-change cases per program")
     ap.add_argument("--seed", type=int, default=0)
@@ -103,11 +109,14 @@ def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
     t0 = time.perf_counter()
     prop, history = proposal.nominal(base), []
     if tilted:
-        start = validation.start_proposal(base)
+        start = validation.start_proposal(base).replace(
+            from_command=float(args.tilt_from == "command")
+        )
         prop, history = validation.fit_proposal(
             run, pol, base, start, args.chunk, kind=args.kind, seed=args.seed, log=tqdm.write
         )
-    tally, lo, interrupted = validation.Tally(), 0, False
+    ratio = tilted and args.tilt_from == "command"
+    tally, lo, interrupted = validation.Tally(ratio=ratio), 0, False
     bar = tqdm(total=args.lane_changes, unit="lc", desc=str(row["meta"]["label"]), leave=False)
     t1 = time.perf_counter()
     try:

@@ -150,3 +150,12 @@ def test_benchmark_scripts_tiny(tmp_path):
     run("validate_throughput.py", "--chunk", "8", "--repeats", "1", "--steps", "10")
     rows = (tmp_path / "throughput.csv").read_text().splitlines()
     assert len(rows) == 3 and "share_of_sim" in rows[0]
+
+
+def test_ratio_estimate_with_unit_weights_is_the_plain_rate():
+    rng = np.random.default_rng(0)
+    perf = rng.random(10_000) < 0.7
+    failed = perf & (rng.random(10_000) < 0.01)
+    r = rare.is_ratio_estimate(np.zeros(10_000), perf, failed)
+    assert r["estimate"] == pytest.approx(failed.sum() / perf.sum())
+    assert r["lane_changes"] == perf.sum() and r["lo"] < r["estimate"] < r["hi"]

@@ -53,6 +53,9 @@ class Proposal:
     brake_acc: Array  # () theta of the deceleration's uniform (> 0: harder)
     brake_time: Array  # () theta of the duration's uniform (> 0: longer)
     yields: Array  # () probability the lag yields
+    # () 1: braking is tilted from the command on (the gap search too), not from acceptance;
+    # the number of lane changes then changes with the proposal (``rare.is_ratio_estimate``).
+    from_command: Array | float = 0.0
 
     def to_dict(self) -> dict[str, object]:
         return {k: jnp.asarray(v).tolist() for k, v in vars(self).items()}
@@ -70,6 +73,7 @@ def nominal(p: EnvParams) -> Proposal:
         brake_acc=jnp.float32(0.0),
         brake_time=jnp.float32(0.0),
         yields=jnp.float32(p.p_yield),
+        from_command=jnp.float32(0.0),
     )
 
 
@@ -122,7 +126,9 @@ class TiltedEnv(LaneChangeEnv):
         )
         ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane) if p.mobil or p.braking else None
         if p.braking:
-            role = roles(state, p) & (state.ego.phase == RL)  # (roles, rows, slots)
+            phase = state.ego.phase
+            tilted = jnp.where(q.from_command > 0.5, phase >= GAP, phase == RL)
+            role = roles(state, p) & tilted  # (roles, rows, slots)
             near = jnp.any(role, axis=0)
             p_fire = brake_probability(p)
             # A rate within 1 ppm of the traffic's is the traffic's (eager and compiled

@@ -141,6 +141,33 @@ def is_estimate(log_w: np.ndarray, failed: np.ndarray) -> dict[str, Any]:
     }
 
 
+def is_ratio_estimate(log_w: np.ndarray, perf: np.ndarray, failed: np.ndarray) -> dict:
+    """IS per lane change when the proposal also changes which cases become lane changes:
+    ``sum(w f) / sum(w perf)`` over every case started (``failed`` implies ``perf``), the
+    delta method's normal 95% interval; consistent, not unbiased (its bias is O(1/n))."""
+    log_w = np.asarray(log_w, np.float64)
+    perf, failed = np.asarray(perf, bool), np.asarray(failed, bool) & np.asarray(perf, bool)
+    w = np.exp(log_w)
+    num, den = np.where(failed, w, 0.0), np.where(perf, w, 0.0)
+    p = float(num.sum() / den.sum()) if den.sum() > 0 else math.nan
+    se = float(np.sqrt(np.sum((num - p * den) ** 2)) / den.sum()) if den.sum() > 0 else math.nan
+    ess = float(num.sum() ** 2 / (num**2).sum()) if num.any() else 0.0
+    w_se = float(w.std(ddof=1) / math.sqrt(w.size)) if w.size > 1 else math.nan
+    return {
+        "estimate": p,
+        "lo": max(p - Z * se, 0.0),
+        "hi": p + Z * se,
+        "upper_bound": p + float(scipy.stats.norm.ppf(CONFIDENCE)) * se if num.any() else math.nan,
+        "rel_halfwidth": Z * se / p if p > 0 else math.inf,
+        "failures": int(failed.sum()),
+        "ess": ess,
+        "lane_changes": int(perf.sum()),
+        "mean_weight": float(w.mean()),
+        "mean_weight_lo": float(w.mean()) - Z * w_se,
+        "mean_weight_hi": float(w.mean()) + Z * w_se,
+    }
+
+
 def elite(
     log_w: np.ndarray, failed: np.ndarray, score: np.ndarray, rho: float = 0.1
 ) -> tuple[np.ndarray, float]:

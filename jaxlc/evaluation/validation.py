@@ -114,13 +114,17 @@ class Tally:
     kinds: list[np.ndarray] = field(default_factory=list)
     cases: list[dict[str, Any]] = field(default_factory=list)
     started: int = 0  # cases started (performed or not)
+    ratio: bool = False  # the proposal tilts before acceptance: keep every case, ratio estimate
+    perf: list[np.ndarray] = field(default_factory=list)
 
     def add(self, out: dict, lo: int, keys: np.ndarray, dt: float, tilted: bool) -> None:
         perf = out["performed"][0]
         k = kinds(out, dt)
         log_w = out["log_w"][0].astype(np.float64) if tilted else np.zeros(perf.shape)
-        self.log_w.append(log_w[perf])
-        self.kinds.append(k[perf])
+        keep = np.ones_like(perf) if self.ratio else perf
+        self.log_w.append(log_w[keep])
+        self.kinds.append(k[keep] & perf[keep, None])
+        self.perf.append(perf[keep])
         for c in np.nonzero(perf & k[:, 0])[0]:
             self.cases.append(
                 {
@@ -137,7 +141,7 @@ class Tally:
 
     @property
     def lane_changes(self) -> int:
-        return int(sum(a.size for a in self.log_w))
+        return int(sum(a.sum() for a in self.perf))
 
     def estimates(self, method: str) -> dict[str, dict[str, Any]]:
         """Per kind: ``rare.mc_estimate`` or ``rare.is_estimate`` of the lane changes so far."""
@@ -148,6 +152,9 @@ class Tally:
             return {
                 n: rare.mc_estimate(int(k[:, i].sum()), k.shape[0]) for i, n in enumerate(KINDS)
             }
+        if self.ratio:
+            perf = np.concatenate(self.perf)
+            return {n: rare.is_ratio_estimate(log_w, perf, k[:, i]) for i, n in enumerate(KINDS)}
         return {n: rare.is_estimate(log_w, k[:, i]) for i, n in enumerate(KINDS)}
 
 
@@ -209,7 +216,8 @@ def fit_proposal(
         else:
             log_w, st = pool[-1][0], pool[-1][2]
             w, level = rare.elite(log_w, failed, score(out, kind)[perf])
-        prop = jax.tree.map(lambda a, b: SMOOTH * a + (1 - SMOOTH) * b, _fit(w, st, p_fire), prop)
+        fit = _fit(w, st, p_fire).replace(from_command=start.from_command)
+        prop = jax.tree.map(lambda a, b: SMOOTH * a + (1 - SMOOTH) * b, fit, prop)
         history.append(
             {
                 "round": r,
