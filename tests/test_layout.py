@@ -32,6 +32,7 @@ TOP_LEVEL = {
     "jaxlc.gymnax_env",
     "jaxlc.policy",
     "jaxlc.sweep",
+    "jaxlc.validate",
 }
 # Upward imports allowed by name, each with its reason; an entry no module makes fails a test.
 EXCEPTIONS = {

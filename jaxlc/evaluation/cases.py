@@ -65,6 +65,10 @@ class Cases:
     reason: Array  # (cases,) int32: end before the RL phase (no_gap, collision), else 0
     performed: Array  # (cases,) bool: reached the RL phase
     side: Array  # (cases,) int32: +1 toward higher y (left), -1 right, 0 no lane change
+    # A proposal's (jaxlc.validate): the log likelihood ratio of the draws so far and their
+    # sufficient statistics (info["log_w"], info["tilt"] of its env); 0, (cases, 0) otherwise.
+    log_w: Array | float = 0.0  # (cases,)
+    tilt: Array | None = None  # (cases, stats)
 
 
 @flax.struct.dataclass
@@ -105,6 +109,9 @@ class Outcome:
     cut_ins: Array  # int32
     brakes_near: Array  # int32
     hit_hazard: Array  # int32
+    # A proposal's log likelihood ratio and statistics, the start case's included (Cases).
+    log_w: Array  # float32
+    tilt: Array  # (policies, cases, stats)
     # The terms' order (a pytree's dict comes back with its keys sorted).
     names: tuple[str, ...] = flax.struct.field(pytree_node=False, default=())
 
@@ -198,28 +205,36 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
     return jax.jit(jax.vmap(make_start_case(base, max_steps))), jax.jit(rollout)
 
 
-def make_start_case(base: EnvParams, max_steps: int) -> Callable[[Array], Cases]:
+def make_start_case(
+    base: EnvParams, max_steps: int, env: LaneChangeEnv | None = None
+) -> Callable[[Array], Cases]:
     """``key -> Cases`` (unbatched): reset, then step with no action until the RL phase
-    begins, the episode ends before it, or ``max_steps`` pass."""
-    env, zero, origin = LaneChangeEnv(), jnp.zeros(action_dim(base)), origin_lane(base)
+    begins, the episode ends before it, or ``max_steps`` pass (``env``: a proposal's, whose
+    ``step`` adds ``info["log_w"]`` and ``info["tilt"]``, ``env.stats`` of them)."""
+    env = LaneChangeEnv() if env is None else env
+    zero, origin = jnp.zeros(action_dim(base)), origin_lane(base)
+    stats = getattr(env, "stats", 0)
 
     def start_case(key: Array) -> Cases:
         k_reset, k_run = jax.random.split(key)
         _, state = env.reset(k_reset, base)
 
-        def going(c: tuple[EnvState, Array]) -> Array:
-            s, reason = c
+        def going(c: tuple) -> Array:
+            s, reason, *_ = c
             return (reason == 0) & (s.ego.phase != RL) & (s.time < max_steps)
 
-        def step(c: tuple[EnvState, Array]) -> tuple[EnvState, Array]:
-            s, _ = c
+        def step(c: tuple) -> tuple:
+            s, _, log_w, tilt = c
             *_, s, _, _, _, info = env.step(jax.random.fold_in(k_run, s.time), s, zero, base)
-            return s, info["reason"]
+            tilt = tilt + info.get("tilt", 0.0)
+            return s, info["reason"], log_w + info.get("log_w", 0.0), tilt
 
-        state, reason = jax.lax.while_loop(going, step, (state, jnp.int32(0)))
+        init = (state, jnp.int32(0), jnp.float32(0.0), jnp.zeros(stats, jnp.float32))
+        state, reason, log_w, tilt = jax.lax.while_loop(going, step, init)
         performed = (reason == 0) & (state.ego.phase == RL)
         side = jnp.where(performed, state.ego.target - origin, 0).astype(jnp.int32)
-        return Cases(state, observation(state, base), k_run, reason, performed, side)
+        obs = observation(state, base)
+        return Cases(state, obs, k_run, reason, performed, side, log_w, tilt)
 
     return start_case
 
@@ -256,8 +271,15 @@ def _empty_outcome(cs: Cases, n_pol: int, p: EnvParams) -> Outcome:
         cut_ins=i0,
         brakes_near=i0,
         hit_hazard=i0,
+        log_w=jnp.broadcast_to(jnp.asarray(cs.log_w, jnp.float32), pc),
+        tilt=jnp.broadcast_to(_tilt_of(cs), pc + _tilt_of(cs).shape[1:]),
         names=reward_names(p),
     )
+
+
+def _tilt_of(cs: Cases) -> Array:
+    """``(cases, stats)`` a proposal's statistics of the start cases (``(cases, 0)`` none)."""
+    return jnp.zeros(cs.reason.shape + (0,)) if cs.tilt is None else cs.tilt
 
 
 def _accumulate(
@@ -320,13 +342,18 @@ def _accumulate(
         cut_ins=out.cut_ins + (live & info.get("cut_in", False)),
         brakes_near=out.brakes_near + jnp.where(live, info.get("brake_near", 0), 0),
         hit_hazard=jnp.where(hit, safety.hazard(overlap, new.traffic), out.hit_hazard),
+        log_w=add(out.log_w, info.get("log_w", 0.0)),
+        tilt=out.tilt + jnp.where(live[..., None], info.get("tilt", 0.0), 0.0),
     )
 
 
-def make_rollout(base: EnvParams, actor_apply: Callable, max_steps: int) -> Callable:
+def make_rollout(
+    base: EnvParams, actor_apply: Callable, max_steps: int, env: LaneChangeEnv | None = None
+) -> Callable:
     """``(Policies, Cases, traced) -> (Outcome, Trace)``: every policy on every case, from the
-    start of its RL phase until it ends, ``max_steps`` env time or the manoeuvre's step cap."""
-    env = LaneChangeEnv()
+    start of its RL phase until it ends, ``max_steps`` env time or the manoeuvre's step cap
+    (``env``: a proposal's, as ``make_start_case``'s)."""
+    env = LaneChangeEnv() if env is None else env
     limit = int(step_limit(base))  # RL steps before a timeout
 
     def rollout(pol: Policies, cs: Cases, traced: Array) -> tuple[Outcome, Trace]:

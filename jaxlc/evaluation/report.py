@@ -450,6 +450,13 @@ def _claims_section(run_dir: Path, held: dict[str, Any] | None) -> list[str]:
     return lines + ["", text.CONVERGENCE_FOOTNOTE, ""]
 
 
+def _validation_section(run_dir: Path) -> list[str]:
+    """``python -m jaxlc.validate``'s section, where the run was validated."""
+    from jaxlc.evaluation.validation_io import report_section
+
+    return report_section(run_dir)
+
+
 def build_report(run_dir: Path) -> str:
     """The report's Markdown for ``run_dir`` (needs ``eval/eval.json``)."""
     path = RunDir(run_dir).eval_json
@@ -477,6 +484,7 @@ def build_report(run_dir: Path) -> str:
             for path in sorted(RunDir(run_dir).eval.glob("heldout_*/heldout.json"))
             for line in _heldout_section(json.loads(path.read_text()), path.parent.name[8:])
         ],
+        *_validation_section(run_dir),
         *_seed_section(rows),
         "## The paper's other figures beside this run",
         "",

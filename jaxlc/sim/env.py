@@ -132,12 +132,13 @@ def _executed(state: EnvState, action: Array, p: EnvParams) -> tuple:
 
 
 def _advance(
-    key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool
+    key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool, draws: tuple = ()
 ) -> tuple[EnvState, Array, dict[str, Array]]:
     """One dt of traffic and ego; returns ``(state, reward, info)`` (no observation); ``info``
-    holds each of ``p.reward_terms`` under its name."""
+    holds each of ``p.reward_terms`` under its name. ``draws``: the step's ``(Draws,
+    TrafficDraws)`` given instead of drawn from ``key`` (a proposal's: ``jaxlc.validate``)."""
     tr, eg = state.traffic, state.ego
-    u = Draws.draw(key, p.lanes)
+    u = draws[0] if draws else Draws.draw(key, p.lanes)
     kappa = road_curvature(state, p)
     in_rl = eg.phase == RL
     held, held_long, lat, lon = _executed(state, action, p)
@@ -145,7 +146,7 @@ def _advance(
     a_ego = ego_accel(state, p, lon)
     hazards: dict[str, Array] = {}
     if p.mobil or p.braking:  # static: the paper's traffic draws and computes none of this
-        ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane)
+        ut = draws[1] if draws else TrafficDraws.draw(key, p.lanes, p.slots_per_lane)
     around = leaders.around(tr, eg, p, lane_scales(kappa, p)) if p.mobil else None
     m = move(tr, eg, traffic_accel(state, p, around), a_ego, a_lat, p, kappa)
     if p.mobil:  # lanes change before inflow, so an entrant sees who moved into its lane
@@ -280,12 +281,12 @@ class LaneChangeEnv:
         return observation(state, p), state.replace(time=jnp.int32(0))
 
     def step(
-        self, key: Array, state: EnvState, action: Array, params: EnvParams
+        self, key: Array, state: EnvState, action: Array, params: EnvParams, draws: tuple = ()
     ) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
         """Advance one dt. ``terminated``/``truncated`` refer to the RL manoeuvre (a timeout
         truncates unless ``params.terminal_timeout``); ``info`` has the reward terms, phase
-        and ``reason`` codes of ``jaxlc.sim.reward.REASONS``."""
-        state, r, info = _advance(key, state, action, params, spawn=True)
+        and ``reason`` codes of ``jaxlc.sim.reward.REASONS``. ``draws``: see ``_advance``."""
+        state, r, info = _advance(key, state, action, params, spawn=True, draws=draws)
         reason = info["reason"]
         rl = info["rl_step"]
         timeout = rl & (reason == reward.TIMEOUT)

@@ -1,0 +1,177 @@
+"""The traffic's random draws around the ego from a tilted proposal, each lane change weighted
+by its likelihood ratio (importance sampling: ``jaxlc.evaluation.rare``).
+
+A ``Proposal`` tilts, from the step the ego accepts its gap on (so the number of lane changes,
+decided before, keeps the traffic's own distribution, and an estimate per lane change needs
+no ratio of two estimates):
+
+- whether the target lane's lag yields (``p_yield``): drawn with probability ``yields``;
+- braking events (``env.braking``) of the vehicles around the ego in the RL phase (the
+  target lane's lead and lag, the own lane's leader, and every other vehicle up to ``AHEAD``
+  ahead of it in any lane, found on the state before the step):
+  an event starts with probability ``brake[role]`` per step instead of ``1 - exp(-rate dt)``,
+  its deceleration and duration from truncated exponentials of ``brake_acc`` and
+  ``brake_time``.
+
+Every other draw is the traffic's own. ``TiltedEnv.step`` hands the tilted draws to the
+simulator (``LaneChangeEnv.step(..., draws=)``) and returns in ``info`` the log ratio of the
+draws the step used (``log_w``: a braking draw counts for a vehicle that could start an event,
+the yielding draw on the step of acceptance) and the CE's statistics (``tilt``, ``STATS``).
+``nominal(params)`` draws exactly what the simulator draws, with weights of exactly 1.
+"""
+
+from __future__ import annotations
+
+import flax.struct
+import jax.numpy as jnp
+from jax import Array
+
+from jaxlc.evaluation import rare
+from jaxlc.sim.env import GAP, RL, Draws, EnvParams, EnvState, LaneChangeEnv, TrafficDraws
+from jaxlc.sim.leaders import occupancy
+from jaxlc.sim.road import current_lane
+from jaxlc.sim.state import between
+
+ROLES = ("lead", "lag", "own_leader", "ahead")
+AHEAD = 100.0  # m: the "ahead" role, every other vehicle up to this far ahead of the ego
+# The statistics a step adds up for the CE (``info["tilt"]``), in this order.
+STATS = (
+    *(f"brake_trials_{r}" for r in ROLES),
+    *(f"brake_events_{r}" for r in ROLES),
+    "brake_acc_sum",
+    "brake_time_sum",
+    "yield_trials",
+    "yield_events",
+)
+
+
+@flax.struct.dataclass
+class Proposal:
+    """A proposal's parameters (traced: the CE changes them without compiling again)."""
+
+    brake: Array  # (4,) per-step probability a braking event starts, by ROLES
+    brake_acc: Array  # () theta of the deceleration's uniform (> 0: harder)
+    brake_time: Array  # () theta of the duration's uniform (> 0: longer)
+    yields: Array  # () probability the lag yields
+    # () 1: braking is tilted from the command on (the gap search too), not from acceptance;
+    # the number of lane changes then changes with the proposal (``rare.is_ratio_estimate``).
+    from_command: Array | float = 0.0
+
+    def to_dict(self) -> dict[str, object]:
+        return {k: jnp.asarray(v).tolist() for k, v in vars(self).items()}
+
+
+def brake_probability(p: EnvParams) -> Array:
+    """The traffic's own per-step probability that a braking event starts."""
+    return -jnp.expm1(-jnp.float32(p.braking_rate) * p.dt)
+
+
+def nominal(p: EnvParams) -> Proposal:
+    """The traffic's own distribution: every weight exactly 1."""
+    return Proposal(
+        brake=jnp.full(len(ROLES), brake_probability(p), jnp.float32),
+        brake_acc=jnp.float32(0.0),
+        brake_time=jnp.float32(0.0),
+        yields=jnp.float32(p.p_yield),
+        from_command=jnp.float32(0.0),
+    )
+
+
+def from_dict(d: dict) -> Proposal:
+    return Proposal(**{k: jnp.asarray(v, jnp.float32) for k, v in d.items()})
+
+
+def roles(state: EnvState, p: EnvParams) -> Array:
+    """``(4, rows, slots)`` bool: the target lane's lead and lag, the own lane's leader (the
+    vehicles ``leaders.ego_neighbours`` names, by role), and the others up to ``AHEAD``
+    ahead."""
+    tr, eg = state.traffic, state.ego
+    occ = occupancy(tr, p)
+    lanes = jnp.arange(p.lanes)[:, None, None]
+    in_target = jnp.any(occ & (lanes == eg.target), axis=0)
+    in_own = jnp.any(occ & (lanes == current_lane(eg, p)), axis=0)
+    ahead = tr.x > eg.x
+
+    def nearest(mask: Array, ahead_of: bool) -> Array:
+        far = 1e9 if ahead_of else -1e9
+        pick = jnp.min if ahead_of else jnp.max
+        return mask & (tr.x == pick(jnp.where(mask, tr.x, far)))
+
+    near = [
+        nearest(in_target & ahead, True),
+        nearest(in_target & ~ahead, False),
+        nearest(in_own & ahead, True),
+    ]
+    others = tr.active & ahead & (tr.x < eg.x + AHEAD) & ~(near[0] | near[1] | near[2])
+    return jnp.stack([*near, others])
+
+
+class TiltedEnv(LaneChangeEnv):
+    """``LaneChangeEnv`` whose step draws from ``proposal`` (traced arrays are fine: build it
+    inside the jitted function) and reports ``log_w`` and ``tilt`` in ``info``."""
+
+    stats = len(STATS)
+
+    def __init__(self, proposal: Proposal):
+        self.proposal = proposal
+
+    def step(self, key, state, action, params, draws=()):
+        p, q = params, self.proposal
+        u = Draws.draw(key, p.lanes)
+        gap = state.ego.phase == GAP
+        u = u._replace(
+            yields=jnp.where(
+                gap, rare.tilt_bernoulli(u.yields, jnp.float32(p.p_yield), q.yields), u.yields
+            )
+        )
+        ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane) if p.mobil or p.braking else None
+        if p.braking:
+            phase = state.ego.phase
+            tilted = jnp.where(q.from_command > 0.5, phase >= GAP, phase == RL)
+            role = roles(state, p) & tilted  # (roles, rows, slots)
+            near = jnp.any(role, axis=0)
+            p_fire = brake_probability(p)
+            # A rate within 1 ppm of the traffic's is the traffic's (eager and compiled
+            # expm1 differ in the last bit): its weight is exactly 1.
+            q_role = jnp.where(jnp.abs(q.brake - p_fire) <= 1e-6 * p_fire, p_fire, q.brake)
+            q_fire = jnp.max(jnp.where(role, q_role[:, None, None], 0.0), axis=0)
+            q_fire = jnp.where(near, jnp.maximum(q_fire, 1e-12), p_fire)
+            ut = ut._replace(
+                brake_fire=rare.tilt_bernoulli(ut.brake_fire, p_fire, q_fire),
+                brake_acc=jnp.where(
+                    near, rare.tilt_exponential(ut.brake_acc, q.brake_acc), ut.brake_acc
+                ),
+                brake_time=jnp.where(
+                    near, rare.tilt_exponential(ut.brake_time, q.brake_time), ut.brake_time
+                ),
+            )
+        obs, new, r, term, trunc, info = super().step(key, state, action, params, (u, ut))
+        accept = gap & info["lane_change"]
+        log_w = jnp.where(
+            accept, rare.bernoulli_log_ratio(u.yields, jnp.float32(p.p_yield), q.yields), 0.0
+        )
+        zeros = jnp.zeros(len(ROLES))
+        stats = [zeros, zeros, jnp.zeros(2)]
+        if p.braking:
+            fired = ut.brake_fire < p_fire
+            length = between(ut.brake_time, p.braking_time_min, p.braking_time_max)
+            tr = new.traffic
+            started = fired & tr.active & (tr.brake_left == length)
+            eligible = started | (~fired & tr.active & (tr.brake_left <= 0.0))
+            used = near & eligible
+            log_w += jnp.sum(
+                jnp.where(used, rare.bernoulli_log_ratio(ut.brake_fire, p_fire, q_fire), 0.0)
+            )
+            cont = rare.exponential_log_ratio(ut.brake_acc, q.brake_acc)
+            cont += rare.exponential_log_ratio(ut.brake_time, q.brake_time)
+            log_w += jnp.sum(jnp.where(near & started, cont, 0.0))
+            trials = jnp.sum(role & eligible, axis=(1, 2))
+            events = jnp.sum(role & started, axis=(1, 2))
+            sums = jnp.stack(
+                [jnp.sum(jnp.where(near & started, x, 0.0)) for x in (ut.brake_acc, ut.brake_time)]
+            )
+            stats = [trials, events, sums]
+        yielded = (u.yields < p.p_yield).astype(jnp.float32)
+        stats.append(jnp.stack([accept, accept * yielded]).astype(jnp.float32))
+        tilt = jnp.concatenate([s.astype(jnp.float32) for s in stats])
+        return obs, new, r, term, trunc, {**info, "log_w": log_w, "tilt": tilt}

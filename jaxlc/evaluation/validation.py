@@ -1,0 +1,238 @@
+"""A policy's failure probability per lane change, by crude Monte Carlo or importance sampling
+(``python -m jaxlc.validate`` is its command line).
+
+A lane change is a held-out case (``jaxlc.evaluation.cases``: reset, the approach, then the
+manoeuvre), drawn from a key stream of its own (``validate_keys``), in chunks of ``chunk``
+cases: one jitted program (``program``) starts and rolls out a chunk under a ``Proposal``
+(``jaxlc.evaluation.proposal``; crude MC runs the simulator's own draws, no proposal), and
+``kinds`` reads each lane change's failures from the held-out outcome: any failure, each
+failed end (collision, out of bounds, timeout, unfinished) and each norm of
+``jaxlc.evaluation.safety.NORMS`` violated. ``Tally`` keeps every lane change's log weight and
+kinds (a few bytes each) and the failures with their keys, so the estimate
+(``jaxlc.evaluation.rare``) and the worst cases can be read at any chunk, Ctrl-C included.
+The IS proposal is fitted by ``fit_proposal``: multilevel cross-entropy on pilot chunks from a
+key stream apart from the estimate's.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxlc import config
+from jaxlc.evaluation import rare
+from jaxlc.evaluation.cases import Policies, columns, init_actor, make_rollout, make_start_case
+from jaxlc.evaluation.heldout import lane_change_measures
+from jaxlc.evaluation.proposal import (
+    ROLES,
+    STATS,
+    Proposal,
+    TiltedEnv,
+    brake_probability,
+    nominal,
+)
+from jaxlc.evaluation.results import OUTCOMES
+from jaxlc.evaluation.safety import NORMS
+from jaxlc.learn.networks import make_networks
+from jaxlc.sim.env import EnvParams, action_dim
+
+ENDS = ("collision", "out_of_bounds", "timeout", "unfinished")
+KINDS = ("failure", *ENDS, *(f"norm_{name}" for name, *_ in NORMS))
+VALIDATE_TAG = 0x56414C44  # "VALD": the estimate's key stream
+PILOT_TAG = 0x50494C54  # "PILT": the CE's pilot chunks
+CASE_CAP = 1000  # failures kept per model and kind, highest weight first
+POOL_STOP = 40  # the CE stops once this many failures of its kind are pooled
+SMOOTH = 0.7  # the CE's step: new = SMOOTH * fitted + (1 - SMOOTH) * old
+BRAKE_MAX = 0.05  # per-step probability of a braking event at most (one in 2 s)
+
+
+def validate_keys(seed: int, tag: int, lo: int, n: int) -> jax.Array:
+    """``(n,)`` case keys ``lo .. lo + n - 1`` of the stream ``tag``."""
+    root = jax.random.fold_in(jax.random.PRNGKey(seed), tag)
+    return jax.vmap(lambda i: jax.random.fold_in(root, i))(jnp.arange(lo, lo + n))
+
+
+@functools.lru_cache(maxsize=4)
+def program(cfg: config.Config, max_steps: int, tilted: bool) -> Callable:
+    """Jitted ``(proposal, policies, keys (chunk, 2)) -> (Outcome, Trace, Cases.performed)``
+    of one policy on a chunk of cases (the first traced); ``tilted=False``: the simulator's own
+    draws (the proposal is ignored, no log weight is computed)."""
+    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+    actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
+
+    def run(prop: Proposal, pol: Policies, keys: jax.Array) -> tuple:
+        env = TiltedEnv(prop) if tilted else None
+        cs = jax.vmap(make_start_case(base, max_steps, env))(keys)
+        out, trace = make_rollout(base, actor_net.apply, max_steps, env)(
+            pol, cs, jnp.zeros(1, jnp.int32)
+        )
+        return out, trace
+
+    return jax.jit(run)
+
+
+def policies(cfg: config.Config, actor: Any | None, k: int) -> Policies:
+    """One policy: ``actor`` params, or the scripted controller (``None``)."""
+    a = jax.tree.map(np.zeros_like, init_actor(cfg)) if actor is None else actor
+    return Policies(
+        actor=jax.tree.map(lambda x: jnp.asarray(x)[None], a),
+        k=jnp.asarray([k], jnp.int32),
+        scripted=jnp.asarray([actor is None]),
+    )
+
+
+def kinds(out: dict[str, np.ndarray], dt: float) -> np.ndarray:
+    """``(cases, len(KINDS))`` bool: each failure kind of policy 0's lane changes."""
+    reason = out["reason"][0]
+    inside = lane_change_measures(out, 0, dt)
+    cols = [reason != OUTCOMES.index("success")]
+    cols += [reason == OUTCOMES.index(e) for e in ENDS]
+    cols += [~inside[f"norm_{name}"] for name, *_ in NORMS]
+    return np.stack(cols, axis=1)
+
+
+def score(out: dict[str, np.ndarray], kind: str) -> np.ndarray:
+    """``(cases,)`` how close a lane change came to failing so: minus its lowest TTC for a
+    collision or a TTC norm, else the manoeuvre's length (a timeout is the longest)."""
+    if kind in ("collision", "norm_min_ttc_s"):
+        return -np.minimum(np.min(out["min_ttc"][0], axis=-1), 1e3)
+    return out["steps"][0].astype(np.float64)
+
+
+@dataclass
+class Tally:
+    """What the chunks so far found, per performed lane change."""
+
+    log_w: list[np.ndarray] = field(default_factory=list)
+    kinds: list[np.ndarray] = field(default_factory=list)
+    cases: list[dict[str, Any]] = field(default_factory=list)
+    started: int = 0  # cases started (performed or not)
+    ratio: bool = False  # the proposal tilts before acceptance: keep every case, ratio estimate
+    perf: list[np.ndarray] = field(default_factory=list)
+
+    def add(self, out: dict, lo: int, keys: np.ndarray, dt: float, tilted: bool) -> None:
+        perf = out["performed"][0]
+        k = kinds(out, dt)
+        log_w = out["log_w"][0].astype(np.float64) if tilted else np.zeros(perf.shape)
+        keep = np.ones_like(perf) if self.ratio else perf
+        self.log_w.append(log_w[keep])
+        self.kinds.append(k[keep] & perf[keep, None])
+        self.perf.append(perf[keep])
+        for c in np.nonzero(perf & k[:, 0])[0]:
+            self.cases.append(
+                {
+                    "index": lo + int(c),
+                    "key": [int(x) for x in keys[c]],
+                    "log_w": float(log_w[c]),
+                    "kinds": [n for n, hit in zip(KINDS, k[c], strict=True) if hit],
+                    "reason": OUTCOMES[int(out["reason"][0][c])],
+                }
+            )
+        self.cases.sort(key=lambda r: -r["log_w"])
+        del self.cases[CASE_CAP:]
+        self.started += perf.size
+
+    @property
+    def lane_changes(self) -> int:
+        return int(sum(a.sum() for a in self.perf))
+
+    def estimates(self, method: str) -> dict[str, dict[str, Any]]:
+        """Per kind: ``rare.mc_estimate`` or ``rare.is_estimate`` of the lane changes so far."""
+        if not self.log_w:
+            return {}
+        log_w, k = np.concatenate(self.log_w), np.concatenate(self.kinds)
+        if method == "mc":
+            return {
+                n: rare.mc_estimate(int(k[:, i].sum()), k.shape[0]) for i, n in enumerate(KINDS)
+            }
+        if self.ratio:
+            perf = np.concatenate(self.perf)
+            return {n: rare.is_ratio_estimate(log_w, perf, k[:, i]) for i, n in enumerate(KINDS)}
+        return {n: rare.is_estimate(log_w, k[:, i]) for i, n in enumerate(KINDS)}
+
+
+START_BRAKE = 0.005  # the CE's first proposal: a braking event per role one in 20 s
+
+
+def start_proposal(p: EnvParams) -> Proposal:
+    """The CE's start: the nominal, braking events around the ego ``START_BRAKE`` per step."""
+    nom = nominal(p)
+    return nom.replace(brake=jnp.maximum(nom.brake, START_BRAKE))
+
+
+def _fit(w: np.ndarray, st: np.ndarray, p_fire: float) -> Proposal:
+    """The CE's fit of a proposal to the elite's weights ``w`` and statistics ``st``."""
+    s = {n: st[:, i] for i, n in enumerate(STATS)}
+    events = sum(s[f"brake_events_{x}"] for x in ROLES)
+    brake = [
+        rare.ce_rate(w, s[f"brake_events_{x}"], s[f"brake_trials_{x}"], p_fire, BRAKE_MAX)
+        for x in ROLES
+    ]
+    return Proposal(
+        brake=jnp.asarray(brake, jnp.float32),
+        brake_acc=jnp.float32(rare.ce_theta(w, s["brake_acc_sum"], events)),
+        brake_time=jnp.float32(rare.ce_theta(w, s["brake_time_sum"], events)),
+        yields=jnp.float32(rare.ce_rate(w, s["yield_events"], s["yield_trials"], 0.05, 0.95)),
+    )
+
+
+def fit_proposal(
+    run: Callable,
+    pol: Policies,
+    p: EnvParams,
+    start: Proposal,
+    chunk: int,
+    *,
+    kind: str = "collision",
+    rounds: int = 6,
+    seed: int = 0,
+    log: Callable = print,
+) -> tuple[Proposal, list[dict[str, Any]]]:
+    """Multilevel cross-entropy from ``start``: each round runs a pilot chunk and moves the
+    proposal ``SMOOTH`` of the way to its elite's weighted fit. The elite: every lane change
+    of ``kind`` of the rounds so far (each weighted by its ratio to the traffic's own
+    distribution, so rounds under different proposals pool) once ``rare.MIN_ELITE`` are seen,
+    else the round's tenth closest to failing so (``score``). Stops once ``POOL_STOP``
+    failures are pooled. Returns the proposal and each round's record."""
+    prop, history, col = start, [], KINDS.index(kind)
+    p_fire = float(brake_probability(p))
+    pool: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    for r in range(rounds):
+        keys = validate_keys(seed, PILOT_TAG, r * chunk, chunk)
+        out = columns(jax.device_get(run(prop, pol, keys)[0]))
+        perf = out["performed"][0]
+        failed = kinds(out, p.dt)[perf, col]
+        pool.append((out["log_w"][0][perf], failed, out["tilt"][0][perf].astype(np.float64)))
+        log_w, hits, st = (np.concatenate(a) for a in zip(*pool, strict=True))
+        if hits.sum() >= rare.MIN_ELITE:
+            w, level = rare.elite(log_w, hits, np.zeros(hits.shape), rho=0.0)
+        else:
+            log_w, st = pool[-1][0], pool[-1][2]
+            w, level = rare.elite(log_w, failed, score(out, kind)[perf])
+        fit = _fit(w, st, p_fire).replace(from_command=start.from_command)
+        prop = jax.tree.map(lambda a, b: SMOOTH * a + (1 - SMOOTH) * b, fit, prop)
+        history.append(
+            {
+                "round": r,
+                "failures": int(failed.sum()),
+                "lane_changes": int(perf.sum()),
+                "pooled_failures": int(hits.sum()),
+                "level": level,
+                "proposal": prop.to_dict(),
+            }
+        )
+        log(
+            f"CE round {r}: {int(failed.sum())} {kind} in {int(perf.sum())} lane changes "
+            f"({int(hits.sum())} pooled), elite "
+            f"{'the failures' if not math.isfinite(level) else f'score >= {level:g}'}"
+        )
+        if hits.sum() >= POOL_STOP:
+            break
+    return prop, history

@@ -1,0 +1,201 @@
+"""What ``python -m jaxlc.validate`` writes: ``RUN_DIR/validate/`` (``write_outputs``), the
+report's section (``report_section``), each failure kind's scene (``scenes_figure``), and a
+saved case replayed as a GIF (``replay_case``)."""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxlc import config
+from jaxlc.evaluation import heldout, proposal, validation
+from jaxlc.evaluation.cases import columns
+from jaxlc.evaluation.results import OUTCOMES, EvalError
+from jaxlc.sim.env import EnvParams
+from jaxlc.study import checkpoint
+from jaxlc.study.rundir import RunDir
+
+FIELDS = ("label", "model", "seed", "method", "kind", "estimate", "lo", "hi", "upper_bound")
+FIELDS += ("rel_halfwidth", "ess", "failures", "lane_changes", "wall_s", "lane_changes_per_s")
+FIELDS += ("matmul_peak_gflops",)
+
+
+def validate_dir(run_dir: Path, out: Path | None = None) -> Path:
+    """Where the validation of ``run_dir`` goes: ``out``, or ``RUN_DIR/validate``."""
+    return Path(out) if out is not None else Path(run_dir) / "validate"
+
+
+def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: float) -> Path:
+    """``validate/validate.json``, ``validate.csv``, ``cases.json``, ``validate.md`` and the
+    figure."""
+    out = validate_dir(args.run_dir, args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = {
+        "traffic": heldout.traffic_of(cfg.env),
+        "traffic_overrides": list(args.traffic),
+        "method": args.method,
+        "kind": args.kind,
+        "chunk": args.chunk,
+        "seed": args.seed,
+        "max_steps": args.max_steps,
+        "matmul_peak_gflops": round(peak),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "models": [{k: v for k, v in r.items() if k != "cases"} for r in results],
+    }
+    (out / "validate.json").write_text(json.dumps(doc, indent=1, default=str) + "\n")
+    rows = [
+        {
+            **r["meta"],
+            **e,
+            "method": r["method"],
+            "kind": kind,
+            "wall_s": r["wall_s"],
+            "lane_changes_per_s": r["lane_changes_per_s"],
+            "matmul_peak_gflops": round(peak),
+        }
+        for r in results
+        for kind, e in r["estimates"].items()
+    ]
+    with (out / "validate.csv").open("w", newline="") as f:
+        w = csv.DictWriter(f, FIELDS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    cases = [
+        {
+            **c,
+            "model": i,
+            "label": r["meta"]["label"],
+            "checkpoint": r["meta"].get("checkpoint"),
+            "k": r["meta"].get("k") or 1,
+            "method": r["method"],
+            "proposal": r["proposal"],
+        }
+        for i, r in enumerate(results)
+        for c in r["cases"]
+    ]
+    (out / "cases.json").write_text(json.dumps(cases, indent=1) + "\n")
+    (out / "validate.md").write_text("\n".join(report_section(args.run_dir, out)) + "\n")
+    scenes_figure(args.run_dir, out, cfg, doc, cases)
+    return out
+
+
+def _sci(v: Any) -> str:
+    return "-" if v is None or not math.isfinite(v) else f"{v:.3g}"
+
+
+def report_section(run_dir: Path, out: Path | None = None) -> list[str]:
+    """``report.md``'s section: per model and kind, the probability per lane change and its
+    95% interval; nothing when the run has not been validated."""
+    path = validate_dir(run_dir, out) / "validate.json"
+    if not path.is_file():
+        return []
+    doc = json.loads(path.read_text())
+    lines = [
+        "## How rarely it fails (`python -m jaxlc.validate`)",
+        "",
+        f"{doc['method'].upper()} in {doc['traffic']}; {doc['date']}, matmul peak "
+        f"{doc['matmul_peak_gflops']} GFLOP/s. Probability per lane change, 95% interval, "
+        "relative half-width, effective sample size; `validate/validate.json`.",
+        "",
+        "| policy | kind | estimate | 95% interval | rel. half-width | ESS | lane changes | s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for m in doc["models"]:
+        for kind, e in m["estimates"].items():
+            if e["failures"] == 0 and kind != doc["kind"]:
+                continue
+            lines.append(
+                f"| {m['meta']['label']} | {kind} | {_sci(e['estimate'])} | [{_sci(e['lo'])}, "
+                f"{_sci(e['hi'])}] | {_sci(e['rel_halfwidth'])} | {_sci(e['ess'])} | "
+                f"{e['lane_changes']} | {m['wall_s']} |"
+            )
+    return lines + [""]
+
+
+def scenes_figure(run_dir: Path, out: Path, cfg: config.Config, doc: dict, cases: list[dict]):
+    """``scenes.png``: per failure kind, its highest-weight saved case replayed, the scene at
+    its last step (the ego red, the gap's lead and lag green)."""
+    kinds = [k for k in validation.KINDS if any(k in c["kinds"] for c in cases)]
+    if not kinds:
+        return None
+    from jaxlc.evaluation.plots import _save, draw_scene, plt
+
+    p = EnvParams.from_config(cfg.env)
+    fig, axes = plt.subplots(len(kinds), 1, figsize=(8, 1.3 * len(kinds) + 0.3), squeeze=False)
+    for ax, kind in zip(axes[:, 0], kinds, strict=True):
+        case = next(c for c in cases if kind in c["kinds"])  # highest weight first
+        _, tr, _ = _rerun(run_dir, cfg, doc, case)
+        draw_scene(ax, tr, 0, 0, max(int(tr["frames"][0, 0]) - 1, 0), p)
+        ax.set_axis_off()
+        n = sum(kind in c["kinds"] for c in cases)
+        ax.set_title(
+            f"{kind} ({n} saved): {case['label']}, case {case['index']}, {case['reason']}, "
+            f"log10 w = {case['log_w'] / math.log(10):.2f}",
+            fontsize=8,
+            loc="left",
+        )
+    return _save(fig, out / "scenes.png")
+
+
+def _rerun(run_dir: Path, cfg: config.Config, doc: dict, case: dict) -> tuple[dict, dict, bool]:
+    """A saved case run again (the same program, its key in every row of a chunk): the
+    outcome and trace of its row, and whether its outcome and weight are the saved ones."""
+    actor = None
+    if case["checkpoint"]:
+        actor = checkpoint.load(Path(run_dir) / case["checkpoint"])[0]
+    run = validation.program(cfg, doc["max_steps"], case["method"] == "is")
+    pol = validation.policies(cfg, actor, int(case["k"]))
+    keys = jnp.tile(jnp.asarray(case["key"], jnp.uint32)[None], (doc["chunk"], 1))
+    o, trace = jax.device_get(run(proposal.from_dict(case["proposal"]), pol, keys))
+    o, tr = columns(o), columns(trace)
+    last = max(int(tr["frames"][0, 0]) - 1, 0)
+    tr["side"] = np.asarray([1 if tr["y"][0, 0, 0] < tr["y"][0, 0, last] else -1])
+    log_w = float(o["log_w"][0][0]) if case["method"] == "is" else 0.0
+    same = OUTCOMES[int(o["reason"][0][0])] == case["reason"] and log_w == case["log_w"]
+    return o, tr, same
+
+
+def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
+    """Run ``validate/cases.json``'s case ``index`` again and draw it as
+    ``validate/case_INDEX.gif``; returns the path and whether the outcome and weight are the
+    saved ones bit for bit."""
+    out = validate_dir(run_dir, out)
+    if not (out / "cases.json").is_file():
+        raise EvalError(f"{out / 'cases.json'} is missing; run python -m jaxlc.validate first")
+    cases = json.loads((out / "cases.json").read_text())
+    if not 0 <= index < len(cases):
+        raise EvalError(f"--replay {index}: cases.json holds {len(cases)} cases")
+    doc, case = json.loads((out / "validate.json").read_text()), cases[index]
+    cfg = heldout.in_traffic(RunDir(run_dir).load_config(), doc["traffic_overrides"])
+    _, tr, same = _rerun(run_dir, cfg, doc, case)
+    return _gif(out / f"case_{index}.gif", tr, cfg, case), same
+
+
+def _gif(path: Path, tr: dict, cfg: config.Config, case: dict) -> Path:
+    from jaxlc.evaluation.plots import PillowWriter, draw_scene, plt
+
+    p = EnvParams.from_config(cfg.env)
+    fig, ax = plt.subplots(figsize=(8, 1.5))
+    writer = PillowWriter(fps=10)
+    with writer.saving(fig, path, dpi=90):
+        for f in range(max(int(tr["frames"][0, 0]), 1)):
+            ax.clear()
+            draw_scene(ax, tr, 0, 0, f, p)
+            ax.set_axis_off()
+            ax.set_title(
+                f"{case['label']}  t = {f * p.dt:4.1f} s  {case['reason']}  "
+                f"log10 w = {case['log_w'] / math.log(10):.2f}",
+                fontsize=8,
+                loc="left",
+            )
+            writer.grab_frame()
+    plt.close(fig)
+    return path
