@@ -179,9 +179,13 @@ REASONS = ("none", "success", "out_of_bounds", "collision", "timeout", "no_gap")
 
 def step_limit(p) -> Array:
     """``()`` RL steps a manoeuvre may take before it times out, ``round(manoeuvre_time_limit
-    / dt)`` (counting steps, not summing dt, keeps the limit exact in float32); ``int()`` of it
-    where ``p`` is concrete."""
-    return jnp.round(p.manoeuvre_time_limit / p.dt)
+    / dt)`` (counting steps, not summing dt, keeps the limit exact in float32); a Python
+    ``int`` where both are Python numbers, so a program's static step cap reads it under
+    ``jit`` too."""
+    t, dt = p.manoeuvre_time_limit, p.dt
+    if isinstance(t, int | float) and isinstance(dt, int | float):
+        return round(t / dt)
+    return jnp.round(t / dt)
 
 
 def end_reason(
