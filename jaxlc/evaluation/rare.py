@@ -124,8 +124,17 @@ def is_estimate(log_w: np.ndarray, failed: np.ndarray) -> dict[str, Any]:
     y = np.where(failed, w, 0.0)
     p = float(y.mean()) if n else math.nan
     se = float(y.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan
+    return _weighted_summary(p, se, y, failed, n, w)
+
+
+def _weighted_summary(
+    p: float, se: float, y: np.ndarray, failed: np.ndarray, lane_changes: int, w: np.ndarray
+) -> dict:
+    """The estimate ``p`` with standard error ``se`` as the estimators' common dict: ``y`` the
+    failures' weighted terms (the ESS's), ``w`` every sample's weight (its mean's interval)."""
+    n = w.size
     w_se = float(w.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan
-    ess = float(y.sum() ** 2 / (y**2).sum()) if y.any() else 0.0
+    mean_w = float(w.mean()) if n else math.nan
     return {
         "estimate": p,
         "lo": max(p - Z * se, 0.0),
@@ -133,11 +142,11 @@ def is_estimate(log_w: np.ndarray, failed: np.ndarray) -> dict[str, Any]:
         "upper_bound": p + float(scipy.stats.norm.ppf(CONFIDENCE)) * se if y.any() else math.nan,
         "rel_halfwidth": Z * se / p if p > 0 else math.inf,
         "failures": int(failed.sum()),
-        "ess": ess,
-        "lane_changes": int(n),
-        "mean_weight": float(w.mean()) if n else math.nan,
-        "mean_weight_lo": float(w.mean()) - Z * w_se,
-        "mean_weight_hi": float(w.mean()) + Z * w_se,
+        "ess": float(y.sum() ** 2 / (y**2).sum()) if y.any() else 0.0,
+        "lane_changes": int(lane_changes),
+        "mean_weight": mean_w,
+        "mean_weight_lo": mean_w - Z * w_se,
+        "mean_weight_hi": mean_w + Z * w_se,
     }
 
 
@@ -151,21 +160,7 @@ def is_ratio_estimate(log_w: np.ndarray, perf: np.ndarray, failed: np.ndarray) -
     num, den = np.where(failed, w, 0.0), np.where(perf, w, 0.0)
     p = float(num.sum() / den.sum()) if den.sum() > 0 else math.nan
     se = float(np.sqrt(np.sum((num - p * den) ** 2)) / den.sum()) if den.sum() > 0 else math.nan
-    ess = float(num.sum() ** 2 / (num**2).sum()) if num.any() else 0.0
-    w_se = float(w.std(ddof=1) / math.sqrt(w.size)) if w.size > 1 else math.nan
-    return {
-        "estimate": p,
-        "lo": max(p - Z * se, 0.0),
-        "hi": p + Z * se,
-        "upper_bound": p + float(scipy.stats.norm.ppf(CONFIDENCE)) * se if num.any() else math.nan,
-        "rel_halfwidth": Z * se / p if p > 0 else math.inf,
-        "failures": int(failed.sum()),
-        "ess": ess,
-        "lane_changes": int(perf.sum()),
-        "mean_weight": float(w.mean()),
-        "mean_weight_lo": float(w.mean()) - Z * w_se,
-        "mean_weight_hi": float(w.mean()) + Z * w_se,
-    }
+    return _weighted_summary(p, se, num, failed, int(perf.sum()), w)
 
 
 def elite(
