@@ -33,6 +33,7 @@ import operator
 from collections.abc import Callable, Iterable
 from typing import Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 from jax import Array
 
@@ -180,12 +181,11 @@ REASONS = ("none", "success", "out_of_bounds", "collision", "timeout", "no_gap")
 def step_limit(p) -> Array:
     """``()`` RL steps a manoeuvre may take before it times out, ``round(manoeuvre_time_limit
     / dt)`` (counting steps, not summing dt, keeps the limit exact in float32); a Python
-    ``int`` where both are Python numbers, so a program's static step cap reads it under
-    ``jit`` too."""
+    ``int`` unless either is traced, so a program's static step cap reads it under ``jit``."""
     t, dt = p.manoeuvre_time_limit, p.dt
-    if isinstance(t, int | float) and isinstance(dt, int | float):
-        return round(t / dt)
-    return jnp.round(t / dt)
+    if isinstance(t, jax.core.Tracer) or isinstance(dt, jax.core.Tracer):
+        return jnp.round(t / dt)
+    return round(float(t) / float(dt))
 
 
 def end_reason(
