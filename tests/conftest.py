@@ -19,6 +19,8 @@ CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
 _OWN_CACHE = None if os.environ.get(CACHE_ENV) else tempfile.mkdtemp(prefix="jaxlc-tests-xla-")
 if _OWN_CACHE is not None:
     os.environ[CACHE_ENV] = _OWN_CACHE
+    # every program, not only those over 1 s to compile: the small ones add up across tests
+    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
@@ -26,6 +28,8 @@ import pytest  # noqa: E402
 from jaxlc import config, sweep  # noqa: E402
 
 jax.config.update("jax_compilation_cache_dir", os.environ[CACHE_ENV])  # if jax came in first
+if _OWN_CACHE is not None:
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 SMOKE = config.CONFIG_DIR / "smoke.toml"
 
