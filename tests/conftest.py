@@ -1,13 +1,35 @@
-"""Shared fixtures: one smoke sweep per test worker (compiling is the expensive part)."""
+"""Shared fixtures: one smoke sweep per test worker (compiling is the expensive part).
+
+Compiled programs are also shared on disk: the suite sets JAX's persistent compilation cache to
+a directory of its own, made empty at the start of the run and removed at its end, so a program
+that one worker, one fixture or one ``python -m jaxlc.sweep`` subprocess compiled is loaded, not
+compiled again, by the others (the same config traced the same way gives the same program).
+A ``JAX_COMPILATION_CACHE_DIR`` already set is used as it is and left in place.
+"""
 
 import importlib.util
 import os
+import shutil
+import tempfile
 from pathlib import Path
 from types import ModuleType
 
-import pytest
+CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
+# Set before jax is imported (here and in every xdist worker and subprocess, which inherit it).
+_OWN_CACHE = None if os.environ.get(CACHE_ENV) else tempfile.mkdtemp(prefix="jaxlc-tests-xla-")
+if _OWN_CACHE is not None:
+    os.environ[CACHE_ENV] = _OWN_CACHE
+    # every program, not only those over 1 s to compile: the small ones add up across tests
+    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
 
-from jaxlc import config, sweep
+import jax  # noqa: E402
+import pytest  # noqa: E402
+
+from jaxlc import config, sweep  # noqa: E402
+
+jax.config.update("jax_compilation_cache_dir", os.environ[CACHE_ENV])  # if jax came in first
+if _OWN_CACHE is not None:
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 SMOKE = config.CONFIG_DIR / "smoke.toml"
 
@@ -69,3 +91,9 @@ def smoke_run(tmp_path_factory, smoke_cfg):
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
     """``-n auto``: the cores this process may use (``taskset`` included), not the machine's."""
     return len(os.sched_getaffinity(0))
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    """The process that made the compilation cache (xdist's controller) removes it."""
+    if _OWN_CACHE is not None:
+        shutil.rmtree(_OWN_CACHE, ignore_errors=True)

@@ -6,13 +6,12 @@ from __future__ import annotations
 import contextlib
 import io
 import re
+import shutil
 from pathlib import Path
 
 import pytest
 
-from jaxlc import config
 from jaxlc.sim.reward import REASONS
-from jaxlc.study.loop import run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
@@ -35,9 +34,9 @@ def test_the_readme_is_a_manual_with_its_example_near_the_top() -> None:
     assert first <= EXAMPLE_BY, first
 
 
-def test_the_readme_example_drives_a_trained_policy(tmp_path, monkeypatch) -> None:
-    cfg = config.load(config.CONFIG_DIR / "smoke.toml")
-    run_sweep(cfg, tmp_path / "runs" / "smoke", progress=False)  # the command the README gives
+def test_the_readme_example_drives_a_trained_policy(smoke_run, tmp_path, monkeypatch) -> None:
+    # smoke_run is run_sweep(configs/smoke.toml, progress=False): the command the README gives
+    shutil.copytree(smoke_run[0], tmp_path / "runs" / "smoke")
     monkeypatch.chdir(tmp_path)
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
