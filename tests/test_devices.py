@@ -27,7 +27,7 @@ SCRIPT = textwrap.dedent("""
     results = {}
     for n in (1, 3, 4):
         init, run = train.make_grid_fns(cfg, grid, jax.devices()[:n])
-        state, metrics = run(init(train.model_keys(cfg, grid)), 300)
+        state, metrics = run(init(train.model_keys(grid)), 300)
         assert state.episodes.shape == (grid.size,) and metrics["finite"].shape[1] == grid.size
         assert int(state.learner.step.min()) > 0, "updates must have run"
         results[n] = state

@@ -70,7 +70,7 @@ def test_a_seed_names_and_draws_the_same_model_whichever_seed_its_run_starts_fro
     g6, g3 = train.make_grid(six), train.make_grid(last3)
     cells = len(g6.cells)
     assert g3.seeds == (3, 4, 5) * cells  # the label a summary and a checkpoint path carry
-    k6, k3 = np.asarray(train.model_keys(six, g6)), np.asarray(train.model_keys(last3, g3))
+    k6, k3 = np.asarray(train.model_keys(g6)), np.asarray(train.model_keys(g3))
     np.testing.assert_array_equal(k6[[s >= 3 for s in g6.seeds]], k3)
     # train.seed = 0 keeps the keys every committed study was trained with.
     root = jax.random.PRNGKey(0)
@@ -240,7 +240,7 @@ def test_a_short_run_learns(smoke_cfg):
     )
     grid = train.make_grid(cfg)
     init, run = train.make_grid_fns(cfg, grid)
-    state = init(train.model_keys(cfg, grid))
+    state = init(train.model_keys(grid))
     while int(state.episodes.min()) < cfg.train.episodes:
         state, _ = run(state, 500)
     ret = np.asarray(state.log.ret[0])

@@ -73,7 +73,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
     rows = []
     for n in args.devices:
         init, run = train.make_grid_fns(cfg, grid, jax.devices()[:n])
-        state = init(train.model_keys(cfg, grid))
+        state = init(train.model_keys(grid))
         t0 = time.perf_counter()
         state, _ = jax.block_until_ready(run(state, steps))
         first = time.perf_counter() - t0

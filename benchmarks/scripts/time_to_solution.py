@@ -60,7 +60,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
 
     grid = train.make_grid(cfg)
     init, run = train.make_grid_fns(cfg, grid)
-    state = init(train.model_keys(cfg, grid))
+    state = init(train.model_keys(grid))
     t = cfg.train
     env_steps, found = 0, None
     while time.perf_counter() - t0 < 60 * args.max_minutes:

@@ -218,7 +218,7 @@ def _train_until(
     grid = train.make_grid(cfg)
     init, run = train.make_grid_fns(cfg, grid)
     t0 = time.perf_counter()
-    state = jax.block_until_ready(init(train.model_keys(cfg, grid)))
+    state = jax.block_until_ready(init(train.model_keys(grid)))
     # Compiled ahead, so that the timed loop below holds no compilation (timed apart).
     run_chunk = run.lower(state, cfg.train.chunk_steps).compile()
     compile_s = time.perf_counter() - t0

@@ -144,7 +144,7 @@ def make_grid(cfg: Config) -> Grid:
     )
 
 
-def model_keys(cfg: Config, grid: Grid) -> Array:
+def model_keys(grid: Grid) -> Array:
     """``(models,)`` keys, ``fold_in(PRNGKey(0), seed)``: models with the same seed share
     initial params and traffic (common random numbers make the grid's comparisons sharper),
     and a seed trains the same model whichever ``train.seed`` its run started from."""

@@ -151,7 +151,7 @@ def _train(
     grid, t = train.make_grid(cfg), cfg.train
     init, run = train.make_grid_fns(cfg, grid, jax.devices()[:n_dev])
     t0 = time.perf_counter()
-    state, host = init(train.model_keys(cfg, grid)), None
+    state, host = init(train.model_keys(grid)), None
     if resume:
         state, host = load_state(rd, state)
     book = Bookkeeping.load(host, grid.size, t0)
