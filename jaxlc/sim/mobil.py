@@ -52,8 +52,12 @@ def _idm(a: Around, f: Array, lead: Array, present: Array, lane: Array, p: EnvPa
 
 
 def _in_lane(table: Array, lane: Array, n: int) -> Array:
-    """``table[lane[i], i]`` for the first ``n`` vehicles (``table``: ``(lanes, V)``)."""
-    return jnp.take_along_axis(table[:, :n], lane[None], axis=0)[0]
+    """``table[lane[i], i]`` for the first ``n`` vehicles (``table``: ``(lanes, V)``), by a
+    one-hot over the few lanes: a gather's index array costs XLA's CPU more than the pick."""
+    pick = lane[None, :] == jnp.arange(table.shape[0])[:, None]  # (lanes, n)
+    if table.dtype == jnp.bool_:
+        return jnp.any(pick & table[:, :n], axis=0)
+    return jnp.sum(jnp.where(pick, table[:, :n], 0), axis=0, dtype=table.dtype)
 
 
 def _lead_lag(a: Around, lane: Array, n: int) -> tuple[Array, Array, Array, Array]:
