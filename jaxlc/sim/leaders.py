@@ -122,9 +122,10 @@ _BIG = 2**31 - 1
 
 def _order(x: Array, road_length: Array, bits: int) -> Array:
     """``(V,)`` int32: the vehicles by position, ties by index (``ids[r]`` is at rank ``r``).
-    Positions are keyed to ``2 * road_length / 2**(31 - bits)`` m (3.6e-5 m on 600 m with 49
-    vehicles), far below a body's length, in one int32 with the index: XLA sorts one int32
-    operand several times faster than a float key with an index beside it."""
+    Positions are keyed to ``2 * road_length / 2**(31 - bits)`` m levels, within float32's
+    rounding of the level (1.4e-4 m on 600 m with 49 vehicles), far below a body's length, in
+    one int32 with the index: XLA sorts one int32 operand several times faster than a float
+    key with an index beside it."""
     levels = 2 ** (31 - bits)
     q = jnp.floor((x + 0.5 * road_length) * (levels / (2.0 * road_length)))
     q = jnp.clip(q, 0, levels - 1).astype(jnp.int32)
