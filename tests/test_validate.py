@@ -85,8 +85,10 @@ def test_validate_writes_its_outputs(validated):
     assert e["lo"] <= e["estimate"] <= e["hi"]
     assert "braking events" in doc["traffic"] and doc["matmul_peak_gflops"] > 0
     assert (out / "validate.csv").is_file() and (out / "validate.md").is_file()
-    if json.loads((out / "cases.json").read_text()):  # each failing kind's scene, replayed
-        assert (out / "scenes.png").is_file()
+    # the fixture's traffic fails the scripted controller: its failures are kept, and each
+    # failing kind's scene is drawn from a replay
+    assert json.loads((out / "cases.json").read_text())
+    assert (out / "scenes.png").is_file()
 
 
 def test_replay_reproduces_a_case_bit_for_bit(validated):
@@ -96,8 +98,7 @@ def test_replay_reproduces_a_case_bit_for_bit(validated):
 
     run_dir, out = validated
     cases = json.loads((out / "cases.json").read_text())
-    if not cases:
-        pytest.skip("no failure in this smoke validation")
+    assert cases, "the smoke validation's traffic fails the scripted controller"
     path, same = replay_case(run_dir, 0, out)
     assert same and path.stat().st_size > 0
 

@@ -27,9 +27,9 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxlc.evaluation import rare
+from jaxlc.sim.braking import start_probability
 from jaxlc.sim.env import GAP, RL, Draws, EnvParams, EnvState, LaneChangeEnv, TrafficDraws
-from jaxlc.sim.leaders import occupancy
-from jaxlc.sim.road import current_lane
+from jaxlc.sim.leaders import ego_neighbour_roles
 from jaxlc.sim.state import between
 
 ROLES = ("lead", "lag", "own_leader", "ahead")
@@ -61,15 +61,10 @@ class Proposal:
         return {k: jnp.asarray(v).tolist() for k, v in vars(self).items()}
 
 
-def brake_probability(p: EnvParams) -> Array:
-    """The traffic's own per-step probability that a braking event starts."""
-    return -jnp.expm1(-jnp.float32(p.braking_rate) * p.dt)
-
-
 def nominal(p: EnvParams) -> Proposal:
     """The traffic's own distribution: every weight exactly 1."""
     return Proposal(
-        brake=jnp.full(len(ROLES), brake_probability(p), jnp.float32),
+        brake=jnp.full(len(ROLES), start_probability(p), jnp.float32),
         brake_acc=jnp.float32(0.0),
         brake_time=jnp.float32(0.0),
         yields=jnp.float32(p.p_yield),
@@ -82,28 +77,12 @@ def from_dict(d: dict) -> Proposal:
 
 
 def roles(state: EnvState, p: EnvParams) -> Array:
-    """``(4, rows, slots)`` bool: the target lane's lead and lag, the own lane's leader (the
-    vehicles ``leaders.ego_neighbours`` names, by role), and the others up to ``AHEAD``
-    ahead."""
+    """``(4, rows, slots)`` bool: ``leaders.ego_neighbour_roles`` (the target lane's lead and
+    lag, the own lane's leader) and the others up to ``AHEAD`` ahead."""
     tr, eg = state.traffic, state.ego
-    occ = occupancy(tr, p)
-    lanes = jnp.arange(p.lanes)[:, None, None]
-    in_target = jnp.any(occ & (lanes == eg.target), axis=0)
-    in_own = jnp.any(occ & (lanes == current_lane(eg, p)), axis=0)
-    ahead = tr.x > eg.x
-
-    def nearest(mask: Array, ahead_of: bool) -> Array:
-        far = 1e9 if ahead_of else -1e9
-        pick = jnp.min if ahead_of else jnp.max
-        return mask & (tr.x == pick(jnp.where(mask, tr.x, far)))
-
-    near = [
-        nearest(in_target & ahead, True),
-        nearest(in_target & ~ahead, False),
-        nearest(in_own & ahead, True),
-    ]
-    others = tr.active & ahead & (tr.x < eg.x + AHEAD) & ~(near[0] | near[1] | near[2])
-    return jnp.stack([*near, others])
+    near = ego_neighbour_roles(tr, eg, p)
+    others = tr.active & (tr.x > eg.x) & (tr.x < eg.x + AHEAD) & ~jnp.any(near, axis=0)
+    return jnp.concatenate([near, others[None]])
 
 
 class TiltedEnv(LaneChangeEnv):
@@ -130,7 +109,7 @@ class TiltedEnv(LaneChangeEnv):
             tilted = jnp.where(q.from_command > 0.5, phase >= GAP, phase == RL)
             role = roles(state, p) & tilted  # (roles, rows, slots)
             near = jnp.any(role, axis=0)
-            p_fire = brake_probability(p)
+            p_fire = start_probability(p)
             # A rate within 1 ppm of the traffic's is the traffic's (eager and compiled
             # expm1 differ in the last bit): its weight is exactly 1.
             q_role = jnp.where(jnp.abs(q.brake - p_fire) <= 1e-6 * p_fire, p_fire, q.brake)

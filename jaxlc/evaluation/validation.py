@@ -35,12 +35,12 @@ from jaxlc.evaluation.proposal import (
     STATS,
     Proposal,
     TiltedEnv,
-    brake_probability,
     nominal,
 )
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.evaluation.safety import NORMS
 from jaxlc.learn.networks import make_networks
+from jaxlc.sim.braking import start_probability
 from jaxlc.sim.env import EnvParams, action_dim
 
 ENDS = ("collision", "out_of_bounds", "timeout", "unfinished")
@@ -202,7 +202,7 @@ def fit_proposal(
     else the round's tenth closest to failing so (``score``). Stops once ``POOL_STOP``
     failures are pooled. Returns the proposal and each round's record."""
     prop, history, col = start, [], KINDS.index(kind)
-    p_fire = float(brake_probability(p))
+    p_fire = float(start_probability(p))
     pool: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for r in range(rounds):
         keys = validate_keys(seed, PILOT_TAG, r * chunk, chunk)

@@ -29,12 +29,17 @@ class Events(NamedTuple):
     started: Array  # (lanes, slots) bool: an event starts on this step
 
 
+def start_probability(p: EnvParams) -> Array:
+    """``()`` the probability that a vehicle not braking starts an event on one step."""
+    return -jnp.expm1(-p.braking_rate * p.dt)
+
+
 def advance(tr: Traffic, u: TrafficDraws, p: EnvParams) -> Events:
     """Every event one step on, and the events that start (``tr``: the traffic after the
     step's move and inflow; an entrant comes in with none)."""
     left = jnp.maximum(tr.brake_left - p.dt, 0.0)
     eligible = tr.active & (left <= 0.0)
-    started = eligible & (u.brake_fire < -jnp.expm1(-p.braking_rate * p.dt))
+    started = eligible & (u.brake_fire < start_probability(p))
     traffic = tr.replace(
         brake_left=jnp.where(
             started, between(u.brake_time, p.braking_time_min, p.braking_time_max), left

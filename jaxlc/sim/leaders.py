@@ -160,8 +160,13 @@ def net_gap(a: Around, back: Array, front: Array, present: Array) -> Array:
 
 def ego_neighbours(tr: Traffic, eg: Ego, p: EnvParams) -> Array:
     """``(rows, slots)`` bool: the vehicles around the ego whose headway and time-to-collision
-    the evaluation measures: the lead and lag in its target lane, the leader in the lane that
-    holds its centre (a body counts in every lane of ``occupancy``)."""
+    the evaluation measures (any of ``ego_neighbour_roles``)."""
+    return jnp.any(ego_neighbour_roles(tr, eg, p), axis=0)
+
+
+def ego_neighbour_roles(tr: Traffic, eg: Ego, p: EnvParams) -> Array:
+    """``(3, rows, slots)`` bool: the ego's lead and lag in its target lane and the leader in
+    the lane that holds its centre (a body counts in every lane of ``occupancy``)."""
     occ = occupancy(tr, p)
     lanes = jnp.arange(p.lanes)[:, None, None]
     in_target = jnp.any(occ & (lanes == eg.target), axis=0)
@@ -172,8 +177,10 @@ def ego_neighbours(tr: Traffic, eg: Ego, p: EnvParams) -> Array:
         far = gap.FAR if pick is jnp.min else -gap.FAR
         return mask & (tr.x == pick(jnp.where(mask, tr.x, far)))
 
-    return (
-        nearest(in_target & ahead, jnp.min)
-        | nearest(in_target & ~ahead, jnp.max)
-        | nearest(in_own & ahead, jnp.min)
+    return jnp.stack(
+        [
+            nearest(in_target & ahead, jnp.min),
+            nearest(in_target & ~ahead, jnp.max),
+            nearest(in_own & ahead, jnp.min),
+        ]
     )
