@@ -4,7 +4,8 @@ Each measurement is one jitted ``lax.scan`` of ``--steps`` steps of ``vmap(env.s
 N envs (random actions and per-env keys drawn inside the scan, as a trainer would), timed
 after compilation; the figure is the median of ``--repeats`` runs. ``--traffic`` names the
 traffics measured side by side: ``paper`` (the vehicles keep their lane and brake only for
-their leader) and ``hazards`` (``env.mobil`` and ``env.braking`` on, at their defaults).
+their leader), ``hazards`` (``env.mobil`` and ``env.braking`` on, at their defaults), and
+``braking`` or ``mobil`` (one of the two alone: which one costs what).
 
     python benchmarks/scripts/sim_throughput.py                       # N = 1, 64, 1024, 4096, 16384
     python benchmarks/scripts/sim_throughput.py --envs 1 64 --steps 200 --repeats 2
@@ -29,7 +30,12 @@ from jaxlc import config
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 # The traffics by name: the config overrides that make each.
-TRAFFIC = {"paper": (), "hazards": ("env.mobil=true", "env.braking=true")}
+TRAFFIC = {
+    "paper": (),
+    "braking": ("env.braking=true",),
+    "mobil": ("env.mobil=true",),
+    "hazards": ("env.mobil=true", "env.braking=true"),
+}
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:
