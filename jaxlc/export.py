@@ -177,8 +177,8 @@ def _assist(params: EnvParams) -> dict[str, Any]:
 
 
 def onnx_model(act: Any) -> Any:
-    """``act`` (``(batch, OBS_DIM) -> (batch, 1)``) as an ONNX ``ModelProto`` with a dynamic
-    batch dimension, input ``obs`` and output ``action``."""
+    """``act`` (``(batch, OBS_DIM) -> (batch, action_dim)``) as an ONNX ``ModelProto`` with a
+    dynamic batch dimension, input ``obs`` and output ``action``."""
     from jax2onnx import to_onnx  # the export extra; imported only here
 
     return to_onnx(

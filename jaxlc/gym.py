@@ -53,9 +53,9 @@ from jaxlc.sim.reward import REASONS
 ENV_ID = "jaxlc/LaneChange-v0"
 
 
-# Everything the host reads after a call travels as ONE float32 vector: fetching ~18 separate
-# scalars costs more than the simulator step itself. Integers here stay far below 2**24, so
-# float32 holds them exactly.
+# Everything the host reads after a call travels as ONE float32 vector (one device-to-host
+# copy instead of one per scalar). Integers here stay far below 2**24, so float32 holds them
+# exactly.
 _STEP_HEAD = (
     ("obs", OBS_DIM),
     ("next_obs", OBS_DIM),
@@ -127,9 +127,9 @@ class _Programs(NamedTuple):
 def _programs(params: EnvParams, max_steps: int, keep_terminal: bool) -> _Programs:
     """Jitted reset/step for one ``params``, shared by every wrapper with those params.
 
-    ``params`` is closed over rather than passed: converting its ~40 Python floats to device
-    arrays on every call took as long as the step. ``keep_terminal`` also returns the state a
-    step produced (only rendering needs it; the extra outputs cost ~15 % of a call).
+    ``params`` is closed over rather than passed (converting its Python floats to device
+    arrays on every call costs as much as the step). ``keep_terminal`` also returns the state
+    a step produced, for rendering only (the extra outputs slow every call).
     """
 
     fields = _step_fields(params)

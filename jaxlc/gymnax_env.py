@@ -66,9 +66,7 @@ class LaneChangeParams(environment.EnvParams):
     # learners bound their evaluation loops with it. The simulator's own timeout ends an
     # episode (``is_truncated``), so set ``env.manoeuvre_time_limit`` to change it.
     max_steps_in_episode: int = 100
-    # Static: compiled in as constants, as the trainer and the gymnasium wrapper do. Traced,
-    # XLA may fuse y - 1.5 W into one rounding, so the offset at the start of a manoeuvre is
-    # no longer exactly +-W and a zero action can end it out of bounds at once.
+    # Static: compiled in as constants, as the trainer and the gymnasium wrapper do.
     sim: EnvParams = struct.field(pytree_node=False, default_factory=EnvParams)
     # Env-steps the traffic between two decisions may run (``decision.fast_forward``).
     max_skip_steps: int = struct.field(pytree_node=False, default=DEFAULT_MAX_SKIP_STEPS)

@@ -22,8 +22,7 @@ final success, which every cell of a good run shares. Per model, from
 Each comparison of the paper ("X better than Y" on a measure) is decided on the difference of
 the two cells' means over seeds, signed so that a positive difference is the paper's side
 (fewer episodes for the three episode counts, more ``auc`` or ``plateau``), with its 95%
-bootstrap interval (``jaxlc.evaluation.stats.difference``), against a margin stated before
-any ten-seed study ran (``MARGIN``):
+bootstrap interval (``jaxlc.evaluation.stats.difference``), against a margin (``MARGIN``):
 
 - *no practical difference*: the whole interval lies inside (-margin, +margin);
 - *holds*: the interval lies above zero (the paper's side);
@@ -34,7 +33,7 @@ any ten-seed study ran (``MARGIN``):
 The margin is 2% of the axis the measure lives on (docs/decisions.md, "margins of the
 learning-speed comparisons").
 
-The probability of improvement P(X > Y) (rliable's) is still given beside each difference.
+The probability of improvement P(X > Y) (rliable's) is given beside each difference.
 """
 
 from __future__ import annotations

@@ -13,9 +13,12 @@ it to the traffic):
   ``1 / density``; ``theta = 0`` is the uniform itself.
 
 A lane change's ratio is the product of the ratios of the draws it used, accumulated as a sum
-of logs; ``q = p`` and ``theta = 0`` give log ratios of exactly 0. A lane change is drawn from
-the nominal with probability ``DEFENSIVE`` and from the tilt otherwise (a defensive mixture:
-its weight ``defensive`` is bounded, so the mean weight has a finite variance). The IS estimate
+of logs; ``q = p`` and ``theta = 0`` give log ratios of exactly 0. The simulator's IS
+(``jaxlc.evaluation.proposal``, ``jaxlc.evaluation.validation``) draws every lane change from
+the tilt alone; only the toy check (``toy_sample``, ``toy_estimate``) draws a sample from the
+nominal with probability ``DEFENSIVE`` and from the tilt otherwise (a defensive mixture: its
+weight ``defensive`` is at most ``1 / DEFENSIVE``; docs/decisions.md, "the defensive
+mixture"). The IS estimate
 ``mean(w * failed)`` is unbiased for any proposal that can draw every failure (no
 self-normalisation), its interval the normal one of the weighted sample, and the mean weight
 ``mean(w)``, whose expectation is 1, is its check. Crude MC counts failures, with the
@@ -38,7 +41,7 @@ from jaxlc.evaluation.stats import CONFIDENCE
 Z = float(scipy.stats.norm.ppf(0.5 + CONFIDENCE / 2))  # 1.96
 ONE_BELOW = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 THETA_MAX = 30.0  # |theta| of a truncated exponential tilt (mass ~e^-30 at the other end)
-# The nominal's share of a defensive mixture proposal: every weight at most 1 / DEFENSIVE.
+# The nominal's share of the toy check's defensive mixture: every weight at most 1 / DEFENSIVE.
 DEFENSIVE = 0.1
 MIN_ELITE = 10  # failures enough for an elite of their own, whatever their share
 

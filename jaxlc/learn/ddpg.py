@@ -79,11 +79,7 @@ def fresh(actor_params: Params, critic_params: Params) -> Learner:
 def optimizer_step(
     params: Params, grads: Params, opt: optax.OptState, lr: jax.Array, target: Params, tau: float
 ) -> tuple[Params, optax.OptState, Params]:
-    """One Adam step at the traced rate ``lr``, then the soft target update, eqs. (6)/(7).
-
-    Elementwise over every parameter, so memory-bound: on a CPU it is a large part of an
-    update's time (``benchmarks/scripts/update_throughput.py`` times it on its own).
-    """
+    """One Adam step at the traced rate ``lr``, then the soft target update, eqs. (6)/(7)."""
     updates, opt = _adam.update(grads, opt, params)
     params = jax.tree.map(lambda p, u: p - lr * u, params, updates)
     target = jax.tree.map(lambda t, p: t + tau * (p - t), target, params)

@@ -53,10 +53,9 @@ class Actor(nn.Module):
 
     With ``mirror`` (the observation's signs under the road's reflection y -> -y) the policy
     is odd under that reflection by construction: mu(s) = (f(s) - f(Ms)) / 2 with one trunk
-    f, so a left lane change is exactly the mirror image of a right one. Mirrored batches
-    only teach that symmetry, and a policy can still learn a bias on one side (a left lane
-    change that parks beside the target centre while the right one completes); here the
-    bias cancels. The params are the same pytree either way (``ddpg.symmetric_actor``). With a
+    f, so a left lane change is exactly the mirror image of a right one (why:
+    docs/decisions.md, "an actor odd under the road's reflection"). The params are the same
+    pytree either way (``ddpg.symmetric_actor``). With a
     longitudinal action (``env.longitudinal = "policy"``) that entry is even instead:
     mu(Ms) = (-lateral, +longitudinal).
     """
@@ -73,10 +72,8 @@ class Actor(nn.Module):
         if self.mirror is None:
             return jnp.tanh(self.mlp(obs))
         signs = jnp.asarray(self.mirror, obs.dtype)  # (obs_dim,)
-        # One trunk call on (2, ..., obs_dim): each layer is one product over s and Ms
-        # together (twice the rows of the plain actor's) instead of two, which XLA's CPU
-        # kernels run faster than two half-height products; the FLOPs stay twice the plain
-        # actor's (benchmarks/scripts/update_throughput.py).
+        # One trunk call on (2, ..., obs_dim): one product per layer over s and Ms together
+        # (XLA's CPU kernels prefer one tall product to two half-height ones).
         both = jnp.tanh(self.mlp(jnp.stack([obs, obs * signs])))  # (2, ..., act_dim)
         # mu(s) = (f(s) + A f(Ms)) / 2, A the action's signs: the yaw acceleration odd, the
         # longitudinal acceleration even (mu(Ms) = A mu(s)); A's entries are +-1, so for the

@@ -68,8 +68,8 @@ def _pole_placement(raw: dict[str, Array], e: Array, params: EnvParams, pole: fl
     return jnp.clip(a_lat / params.max_yaw_acc, -1.0, 1.0)[..., None]
 
 
-# The gap-fitting controller's constants (``fitting_action``), chosen by hand from a few trials
-# on held-out cases (benchmarks/gap_fitting_probe/).
+# The gap-fitting controller's constants (``fitting_action``), picked by hand
+# (docs/decisions.md, "a driver-assist layer under the policy").
 FIT_HEADWAY = 1.0  # s: the 0.9 s headway norm plus a margin for the prediction
 FIT_LOOKAHEAD = 0.8  # s: the gaps are predicted at today's speeds this far ahead
 FIT_GO_AFTER = 3.0  # s after the command: from then on a gap at the acceptance's headway will do
@@ -77,17 +77,8 @@ _FIT_READ = _READ + ("time", "lead_gap", "lead_dv", "lag_gap", "lag_dv")
 
 
 def fitting_action(obs: Array, params: EnvParams, **options: Any) -> Array:
-    """The gap-fitting reference for joint control: ``fitting_and_go``'s action.
-
-    Args:
-        obs: ``(..., OBS_DIM)`` observations.
-        params: the simulator's params.
-        **options: ``fitting_and_go``'s keywords (``pole``, ``headway``, ``lookahead``,
-            ``go_after``, ``time``).
-
-    Returns:
-        ``(..., action_dim(params))`` actions in [-1, 1].
-    """
+    """``(..., OBS_DIM) -> (..., action_dim)`` actions in [-1, 1] of the gap-fitting
+    reference for joint control: ``fitting_and_go``'s action (``options``: its keywords)."""
     return fitting_and_go(obs, params, **options)[0]
 
 

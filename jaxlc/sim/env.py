@@ -283,9 +283,12 @@ class LaneChangeEnv:
     def step(
         self, key: Array, state: EnvState, action: Array, params: EnvParams, draws: tuple = ()
     ) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
-        """Advance one dt. ``terminated``/``truncated`` refer to the RL manoeuvre (a timeout
-        truncates unless ``params.terminal_timeout``); ``info`` has the reward terms, phase
-        and ``reason`` codes of ``jaxlc.sim.reward.REASONS``. ``draws``: see ``_advance``."""
+        """Advance one dt with ``action`` ``(action_dim,)`` in [-1, 1] (read every ``k``-th RL
+        step, ignored outside the RL phase). Returns ``(obs (OBS_DIM,), state, reward (),
+        terminated (), truncated (), info)``: ``terminated``/``truncated`` refer to the RL
+        manoeuvre (a timeout truncates unless ``params.terminal_timeout``); ``info`` has the
+        reward terms, phase and ``reason`` codes of ``jaxlc.sim.reward.REASONS``. ``draws``:
+        see ``_advance``."""
         state, r, info = _advance(key, state, action, params, spawn=True, draws=draws)
         reason = info["reason"]
         rl = info["rl_step"]

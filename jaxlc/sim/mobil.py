@@ -106,8 +106,8 @@ def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
         p.vehicle_length + p.idm_s0 + jnp.maximum(v[:, None], v[None, :]) * p.idm_time_headway
     )
     # Each starter's lane, -1 for the others, written by a scatter: XLA's CPU fusion does not
-    # pull a scatter's inputs into the (V, V) comparison below, which it otherwise recomputes
-    # them in once per pair (the lane-change incentives: 10x the whole step).
+    # pull a scatter's inputs (the lane-change incentives) into the (V, V) comparison below,
+    # which would otherwise recompute them once per pair.
     code = jnp.where(fired, to, -1)
     code = jnp.zeros_like(code).at[i].set(code, unique_indices=True)  # (V,)
     clash = (code[None, :] == code[:, None]) & (code[None, :] >= 0) & near

@@ -108,7 +108,7 @@ class Draws(NamedTuple):
 class TrafficDraws(NamedTuple):
     """The step's uniform numbers of the traffic's own decisions, ``(lanes, slots)`` each, one
     per vehicle slot: drawn from ``fold_in(step key, 1)`` only with ``env.mobil`` or
-    ``env.braking``, so the paper's traffic draws exactly what it drew before."""
+    ``env.braking``, so with both off the traffic's draws are the paper's traffic's alone."""
 
     lc_fire: Array  # acts on an allowed lane change this step (< 1 - exp(-mobil_rate*dt))
     lc_time: Array  # the lane change's duration in [lane_change_time_min, _max)

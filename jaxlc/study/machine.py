@@ -68,7 +68,7 @@ def _backends_started() -> bool:
 def matmul_peak_gflops(n: int = 2048, repeats: int = 5) -> float:
     """GFLOP/s of a jitted float32 ``(n, n) @ (n, n)`` on JAX's first device, median of
     ``repeats`` calls after one to compile: the machine's speed for the work a DDPG update is
-    made of. Shared machines here measured 199 to 445 GFLOP/s."""
+    made of."""
     ka, kb = jax.random.split(jax.random.key(0))
     a = jax.random.normal(ka, (n, n), jnp.float32)
     b = jax.random.normal(kb, (n, n), jnp.float32)

@@ -36,7 +36,7 @@ from jaxlc.study import checkpoint
 BEFORE_KEY: dict[str, dict[str, Any]] = {
     "env": {"gap_min_ttc": 0.0},  # added 2026-11-23: before it, no time-to-collision test
     # symmetric_actor added 2026-11-23: before it, a plain actor; mirror_pairs added
-    # 2026-11-26, off until its study made it the default: before it, rows reflected at random
+    # 2026-11-26: before it, rows reflected at random
     "ddpg": {"symmetric_actor": False, "mirror_pairs": False},
 }
 
