@@ -1,5 +1,5 @@
 """README.md is a manual: short, its API example near the top and runnable, and every link of
-it and of docs/ pointing at something that exists."""
+it, of docs/ and of the benchmarks' READMEs and reports pointing at something that exists."""
 
 from __future__ import annotations
 
@@ -16,7 +16,11 @@ from jaxlc.sim.reward import REASONS
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 MAX_LINES, EXAMPLE_BY = 250, 80
-DOCS = [README, *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = [
+    README,
+    *sorted((ROOT / "docs").glob("*.md")),
+    *sorted((ROOT / "benchmarks").rglob("*.md")),  # the evidence, which drops heavy files
+]
 LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 
 
@@ -51,7 +55,7 @@ def _anchors(path: Path) -> set[str]:
     return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in heads}
 
 
-@pytest.mark.parametrize("doc", DOCS, ids=lambda p: p.name)
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_link_resolves(doc: Path) -> None:
     broken = []
     for target in LINK.findall(doc.read_text()):
