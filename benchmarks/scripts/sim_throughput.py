@@ -2,10 +2,11 @@
 
 Each measurement is one jitted ``lax.scan`` of ``--steps`` steps of ``vmap(env.step)`` over
 N envs (random actions and per-env keys drawn inside the scan, as a trainer would), timed
-after compilation; the figure is the median of ``--repeats`` runs. ``--traffic`` names the
-traffics measured side by side: ``paper`` (the vehicles keep their lane and brake only for
-their leader), ``hazards`` (``env.mobil`` and ``env.braking`` on, at their defaults), and
-``braking`` or ``mobil`` (one of the two alone: which one costs what).
+after compilation; the figure is the median of ``--repeats`` runs, in wall time and in the CPU
+time of all the process's threads. ``--traffic`` names the traffics measured side by side:
+``paper`` (the vehicles keep their lane and brake only for their leader), ``hazards``
+(``env.mobil`` and ``env.braking`` on, at their defaults), and ``braking`` or ``mobil`` (one
+of the two alone: which one costs what).
 
     python benchmarks/scripts/sim_throughput.py                       # N = 1, 64, 1024, 4096, 16384
     python benchmarks/scripts/sim_throughput.py --envs 1 64 --steps 200 --repeats 2
@@ -74,11 +75,12 @@ def measure(n_envs: int, steps: int, repeats: int, traffic: str = "paper") -> di
     t0 = time.perf_counter()
     state, rl = jax.block_until_ready(run(state, jax.random.PRNGKey(1)))
     compile_s = time.perf_counter() - t0
-    times = []
+    times, cpu = [], []
     for r in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         state, rl = jax.block_until_ready(run(state, jax.random.PRNGKey(2 + r)))
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
     med = statistics.median(times)
     return {
         "traffic": traffic,
@@ -86,6 +88,8 @@ def measure(n_envs: int, steps: int, repeats: int, traffic: str = "paper") -> di
         "steps": steps,
         "median_s": med,
         "env_steps_per_s": n_envs * steps / med,
+        # CPU time of every thread: on a shared machine it varies far less than wall time
+        "env_steps_per_cpu_s": n_envs * steps / statistics.median(cpu),
         "rl_share": float(rl) / (n_envs * steps),
         "first_call_s": compile_s,
     }
@@ -106,8 +110,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
         f"{date.today()}"
     )
     print(
-        f"{'traffic':>8} {'envs':>7} {'env-steps/s':>14} {'median s':>9} {'RL share':>9} "
-        f"{'first call s':>13}"
+        f"{'traffic':>8} {'envs':>7} {'env-steps/s':>14} {'per CPU-s':>12} {'median s':>9} "
+        f"{'RL share':>9} {'first call s':>13}"
     )
     rows = []
     for n in args.envs:
@@ -115,7 +119,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
             row = measure(n, args.steps, args.repeats, traffic)
             rows.append(row)
             print(
-                f"{traffic:>8} {n:>7} {row['env_steps_per_s']:>14,.0f} {row['median_s']:>9.3f} "
+                f"{traffic:>8} {n:>7} {row['env_steps_per_s']:>14,.0f} "
+                f"{row['env_steps_per_cpu_s']:>12,.0f} {row['median_s']:>9.3f} "
                 f"{row['rl_share']:>9.2f} {row['first_call_s']:>13.1f}",
                 flush=True,
             )
