@@ -45,7 +45,9 @@ def test_sim_throughput_tiny(tmp_path):
 
 def test_devices_throughput_tiny(tmp_path):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
-    env.pop("XLA_FLAGS", None)
+    # the script picks its device counts; the suite's other flags stay (tests/conftest.py)
+    flags = env.get("XLA_FLAGS", "").split()
+    env["XLA_FLAGS"] = " ".join(f for f in flags if "xla_force_host_platform_device_count" not in f)
     args = ["--devices", "1", "2", "--tiny"]
     _, rows = _bench("devices_throughput.py", args, tmp_path / "devices.csv", env)
     assert [int(r["devices"]) for r in rows] == [1, 2]
