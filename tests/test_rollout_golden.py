@@ -71,8 +71,8 @@ def test_seeded_rollout_matches_the_recorded_final_state(tmp_path):
     assert want["totals"][:, 4].sum() > 0
     for name in want.files:
         np.testing.assert_array_equal(got[name], want[name], err_msg=name)
-    # The suite compiles at LLVM's level 1 (tests/conftest.py); XLA's default level, which a
-    # user's program gets, gives the recorded state too.
+    # The suite compiles at LLVM's level 1 (tests/conftest.py); the pin is of the build a
+    # user's program gets, XLA's default level: that gives the recorded state too.
     out = tmp_path / "default_level.npz"
     flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if f != SUITE_XLA_FLAG]
     code = "import sys, numpy as np; from tests.test_rollout_golden import rollout; "
