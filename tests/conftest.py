@@ -5,6 +5,18 @@ a directory of its own, made empty at the start of the run and removed at its en
 that one worker, one fixture or one ``python -m jaxlc.sweep`` subprocess compiled is loaded, not
 compiled again, by the others (the same config traced the same way gives the same program).
 A ``JAX_COMPILATION_CACHE_DIR`` already set is used as it is and left in place.
+
+Programs are compiled at LLVM's optimisation level 1 (``SUITE_XLA_FLAG``) unless
+``XLA_FLAGS`` names a level (XLA's default is 3: ``XLA_FLAGS=--xla_backend_optimization_level=3``
+runs the suite on the build a user gets): on a CPU it compiles in about two thirds of the
+default's time. Its arithmetic may differ from the default build's in the last bits (a smoke
+sweep's checkpoints do; the 3,000-step golden rollout does not), so every comparison here is
+within one build, and the pin of the default build's numbers
+(``tests/test_rollout_golden.py``'s first test) also runs at XLA's default level, in a
+subprocess. Subprocesses inherit the flag.
+
+The test files run heaviest first (``HEAVY_FIRST``): ``--dist loadfile`` hands files to the
+workers in collection order, and a heavy file started last would run on after the rest.
 """
 
 import importlib.util
@@ -21,6 +33,9 @@ if _OWN_CACHE is not None:
     os.environ[CACHE_ENV] = _OWN_CACHE
     # every program, not only those over 1 s to compile: the small ones add up across tests
     os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
+SUITE_XLA_FLAG = "--xla_backend_optimization_level=1"
+if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {SUITE_XLA_FLAG}".strip()
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
@@ -86,6 +101,42 @@ def smoke_run(tmp_path_factory, smoke_cfg):
     """``(run_dir, summary)`` of one uninterrupted smoke sweep."""
     out = tmp_path_factory.mktemp("smoke_run")
     return out, sweep.run_sweep(smoke_cfg, out, progress=False)
+
+
+# Seconds of each file in a run on the 2-core VM, heaviest first; files not named run after.
+HEAVY_FIRST = (
+    "test_runs_evaluate.py",
+    "test_devices.py",
+    "test_validate.py",
+    "test_runs_evaluate_joint.py",
+    "test_benchmarks.py",
+    "test_traffic.py",
+    "test_env.py",
+    "test_ecosystem.py",
+    "test_evaluate.py",
+    "test_assist.py",
+    "test_train.py",
+    "test_reward_terms.py",
+    "test_faults.py",
+    "test_gym.py",
+    "test_ddpg.py",
+    "test_merge.py",
+    "test_gymnax.py",
+    "test_ranges.py",
+    "test_joint.py",
+    "test_heldout.py",
+    "test_export.py",
+    "test_notebook.py",
+    "test_params.py",
+    "test_rollout_golden.py",
+)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Heaviest files first (``--no-loadscope-reorder`` keeps this order); a file's own
+    tests keep theirs."""
+    rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:

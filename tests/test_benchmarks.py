@@ -32,9 +32,22 @@ def _bench(script: str, args: list[str], out: Path, env: dict | None = None):
         return done.stdout, list(csv.DictReader(f))
 
 
-def test_sim_throughput_tiny(tmp_path):
+def _bench_here(script: str, args: list[str], out: Path, capsys, monkeypatch):
+    """``benchmarks/script``'s ``main`` in this process (its imports and compiled programs
+    shared with the suite), with ``args`` plus its CSV option pointing at ``out``; return
+    ``(main's return, stdout, csv rows)``."""
+    monkeypatch.syspath_prepend(str(BENCH))  # a script imports its neighbours
+    capsys.readouterr()
+    got = load_benchmark(script.removesuffix(".py")).main([*args, "--csv", str(out)])
+    with out.open() as f:
+        return got, capsys.readouterr().out, list(csv.DictReader(f))
+
+
+def test_sim_throughput_tiny(tmp_path, capsys, monkeypatch):
     args = ["--envs", "1", "8", "--steps", "300", "--repeats", "1"]
-    stdout, rows = _bench("sim_throughput.py", args, tmp_path / "sim.csv")
+    _, stdout, rows = _bench_here(
+        "sim_throughput.py", args, tmp_path / "sim.csv", capsys, monkeypatch
+    )
     assert [int(r["envs"]) for r in rows] == [1, 8]
     for r in rows:
         assert float(r["env_steps_per_s"]) > 0
@@ -45,7 +58,9 @@ def test_sim_throughput_tiny(tmp_path):
 
 def test_devices_throughput_tiny(tmp_path):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
-    env.pop("XLA_FLAGS", None)
+    # the script picks its device counts; the suite's other flags stay (tests/conftest.py)
+    flags = env.get("XLA_FLAGS", "").split()
+    env["XLA_FLAGS"] = " ".join(f for f in flags if "xla_force_host_platform_device_count" not in f)
     args = ["--devices", "1", "2", "--tiny"]
     _, rows = _bench("devices_throughput.py", args, tmp_path / "devices.csv", env)
     assert [int(r["devices"]) for r in rows] == [1, 2]
@@ -56,9 +71,11 @@ def test_devices_throughput_tiny(tmp_path):
         assert abs(int(r["env_steps_per_s"]) - expected) <= 1e-3 * expected
 
 
-def test_scripted_under_noise_tiny(tmp_path):
+def test_scripted_under_noise_tiny(tmp_path, capsys, monkeypatch):
     args = ["--k", "1", "--sigma", "0", "0.2", "--envs", "16", "--steps", "700"]
-    _, rows = _bench("scripted_under_noise.py", args, tmp_path / "noise.csv")
+    out = tmp_path / "noise.csv"
+    status, _, rows = _bench_here("scripted_under_noise.py", args, out, capsys, monkeypatch)
+    assert status == 0
     assert [float(r["sigma"]) for r in rows] == [0.0, 0.2]
     for r in rows:
         ends = sum(int(r[c]) for c in ("success", "timeout", "out_of_bounds", "collision"))
@@ -75,7 +92,7 @@ def test_time_to_solution_tiny(tmp_path):
     assert float(r["matmul_peak_gflops"]) > 0 and float(r["wall_s"]) > 0
 
 
-def test_study_summary_reads_cells_and_one_seed_studies_from_eval_csv(tmp_path):
+def test_study_summary_reads_cells_and_one_seed_studies_from_eval_csv(tmp_path, capsys):
     """Two cells x 3 seeds x checkpoints 100 and 200: cell (1, 4000) collapses from 100%
     at episode 100 to 50% at 200; seed 2 alone has a model at 100% at the end."""
     fields = ["label", "model", "seed", "k", "memory", "episode", "success_rate"]
@@ -89,35 +106,27 @@ def test_study_summary_reads_cells_and_one_seed_studies_from_eval_csv(tmp_path):
     path = tmp_path / "eval.csv"
     with path.open("w", newline="") as f:
         csv.writer(f).writerows([fields, *rows])
-    done = subprocess.run(
-        [sys.executable, str(BENCH / "study_summary.py"), str(path)],
-        capture_output=True,
-        text=True,
-        timeout=HANG_GUARD_S,
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    lines = {line.split("|")[1].strip(): line for line in done.stdout.splitlines() if "| " in line}
+    capsys.readouterr()
+    load_benchmark("study_summary").main([str(path)])
+    stdout = capsys.readouterr().out
+    lines = {line.split("|")[1].strip(): line for line in stdout.splitlines() if "| " in line}
     collapsed = [c.strip() for c in lines["④ k=1 D=4000"].split("|")]
     assert collapsed[3].startswith("50.0%") and collapsed[4] == "100.0% (100)"
     assert collapsed[5] == "50.0%"  # the drop from the best checkpoint to the last
-    assert "Read as 3 one-seed studies: 1 of 3 have a model at >= 99%" in done.stdout
+    assert "Read as 3 one-seed studies: 1 of 3 have a model at >= 99%" in stdout
 
 
-def test_kink_probe_branches_share_their_traffic(smoke_run, tmp_path):
+def test_kink_probe_branches_share_their_traffic(smoke_run, capsys):
     """With every first action equal to the policy's own (spread 0), the branch rollouts
     see the same traffic, so their returns tie: the peak is at the own action, gain 0."""
     run_dir, _ = smoke_run
     ck = max(checkpoint.list_checkpoints(run_dir))
     args = ["--envs", "8", "--steps", "400", "--at", "0.5", "--horizon", "2"]
-    done = subprocess.run(
-        [sys.executable, str(BENCH / "kink_probe.py"), str(ck), *args, "--spread", "0"],
-        capture_output=True,
-        text=True,
-        timeout=HANG_GUARD_S,
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert "peaks at the policy's own first action" in done.stdout
-    assert "in 100% of them; median gain of the best a0 over mu(s*): 0.00" in done.stdout
+    capsys.readouterr()
+    load_benchmark("kink_probe").main([str(ck), *args, "--spread", "0"])
+    stdout = capsys.readouterr().out
+    assert "peaks at the policy's own first action" in stdout
+    assert "in 100% of them; median gain of the best a0 over mu(s*): 0.00" in stdout
 
 
 def test_lane_occupancy_counts_every_lane_and_sees_a_full_ring():

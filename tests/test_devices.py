@@ -56,7 +56,8 @@ SCRIPT = textwrap.dedent("""
 def test_grid_over_3_and_4_cpu_devices_matches_one_device():
     env = {
         **os.environ,
-        "XLA_FLAGS": "--xla_force_host_platform_device_count=4",
+        # the suite's own flags kept (tests/conftest.py)
+        "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=4",
         "JAX_PLATFORMS": "cpu",
     }
     done = subprocess.run(

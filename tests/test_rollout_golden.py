@@ -9,6 +9,9 @@ alone, which ``tests/test_env.py`` checks on a hand-made gap. Regenerate it only
 deliberate change of the simulator's dynamics, and say so.
 """
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import jax
@@ -17,6 +20,8 @@ import numpy as np
 
 import jaxlc
 from jaxlc import config
+
+from .conftest import HANG_GUARD_S, SUITE_XLA_FLAG
 
 GOLDEN = Path(__file__).parent / "data" / "rollout_golden.npz"
 ENVS, STEPS = 8, 3000
@@ -57,7 +62,7 @@ def rollout(traced: bool = False) -> dict[str, np.ndarray]:
     return out
 
 
-def test_seeded_rollout_matches_the_recorded_final_state():
+def test_seeded_rollout_matches_the_recorded_final_state(tmp_path):
     want = np.load(GOLDEN)
     got = rollout()
     assert sorted(got) == sorted(want.files)
@@ -66,6 +71,24 @@ def test_seeded_rollout_matches_the_recorded_final_state():
     assert want["totals"][:, 4].sum() > 0
     for name in want.files:
         np.testing.assert_array_equal(got[name], want[name], err_msg=name)
+    # The suite compiles at LLVM's level 1 (tests/conftest.py); the pin is of the build a
+    # user's program gets, XLA's default level: that gives the recorded state too.
+    out = tmp_path / "default_level.npz"
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if f != SUITE_XLA_FLAG]
+    code = "import sys, numpy as np; from tests.test_rollout_golden import rollout; "
+    code += "np.savez(sys.argv[1], **rollout())"
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(out)],
+        cwd=GOLDEN.parents[2],
+        env={**os.environ, "XLA_FLAGS": " ".join(flags)},
+        capture_output=True,
+        text=True,
+        timeout=HANG_GUARD_S,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    default = np.load(out)
+    for name in want.files:
+        np.testing.assert_array_equal(default[name], want[name], err_msg=name)
 
 
 def test_params_passed_traced_give_the_recorded_rollout():

@@ -1,16 +1,17 @@
 """Every kind of run the sweep writes evaluates to a report, or is refused in one line.
 
 Small runs reach the code paths users meet: a model never trained past its first checkpoint,
-one model of one seed, a grid that is not the paper's, a curved road, TD3, lateral and
-longitudinal control together, a run stopped
-mid-chunk, and a held-out collision record with no lag vehicle (the ego hit by its own-lane
-follower where the target lane was empty). Each is evaluated with ``python -m jaxlc.evaluate``'s
+one model of one seed, a grid that is not the paper's, a run stopped mid-chunk, and a held-out
+collision record with no lag vehicle (the ego hit by its own-lane follower where the target
+lane was empty); a curved road, TD3, and lateral and longitudinal control together are the runs
+of tests/test_runs_evaluate_joint.py. Each is evaluated with ``python -m jaxlc.evaluate``'s
 ``main``; its report must hold no ``nan`` and no traceback. Every console script answers
 ``--help`` and refuses an unknown argument with exit status 2.
 """
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import signal
@@ -19,13 +20,10 @@ import sys
 import tomllib
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from jaxlc import config, evaluate, export, figures, sweep
+from jaxlc import config, evaluate, figures, sweep
 from jaxlc.evaluation import report
-from jaxlc.policy import load_policy
-from jaxlc.sim.observation import MIRROR_SIGNS, OBS_DIM
 from jaxlc.study.rundir import RunDir
 
 from .conftest import HANG_GUARD_S, SMOKE, wait_for_line
@@ -37,38 +35,28 @@ PAPER = config.CONFIG_DIR / "paper.toml"
 PAPER_SMOKE = ["ddpg.hidden=[32,32]", "ddpg.batch_size=16", "train.envs_per_model=4"]
 PAPER_SMOKE += ["train.checkpoint_every=20", "env.warmup_time=10.0", "train.chunk_steps=100"]
 # Each run: overrides of configs/smoke.toml (20 episodes: one checkpoint of each model).
+# The runs of tests/test_runs_evaluate_joint.py (two actions, a curved road) are the others.
 RUNS = {
     "paper_smoke": [*PAPER_SMOKE, "train.episodes=20", "grid.k=[1,4]", "grid.memory=[256]"],
     "one_model_untrained": ["grid.k=[1]", "grid.memory=[256]", "train.episodes=20"],
     "non_paper_grid": ["grid.k=[1,3]", "grid.memory=[256]", "train.episodes=20"],
-    # lateral and longitudinal control together, the headway term named
-    "joint": [
-        "grid.k=[2]",
-        "grid.memory=[256]",
-        "train.episodes=20",
-        "env.longitudinal='policy'",
-        "env.reward_terms=['r_s','r_e','r_d','r_gap']",
-        "env.w_headway=2.0",
-    ],
-    "curved_td3": [
-        "grid.k=[2]",
-        "grid.memory=[512]",
-        "train.episodes=20",
-        "env.curvature=[-0.004,0.004]",
-        "ddpg.learner='td3'",
-    ],
 }
 
 
-@pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def train_runs(tmp_path_factory: pytest.TempPathFactory, runs: dict) -> dict[str, Path]:
+    """``{name: run directory}`` of one sweep per entry of ``runs`` (name: overrides)."""
     out = {}
-    for name, overrides in RUNS.items():
+    for name, overrides in runs.items():
         rd = tmp_path_factory.mktemp(name)
         base = PAPER if name.startswith("paper") else SMOKE
         sweep.run_sweep(config.load(base, overrides), rd, force=True, progress=False)
         out[name] = rd
     return out
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    return train_runs(tmp_path_factory, RUNS)
 
 
 def _report_is_clean(run_dir: Path) -> str:
@@ -85,38 +73,27 @@ def _verdict_claims() -> list[str]:
     return [line.split(" | ")[0][2:] for line in block.splitlines() if line.startswith("| (")]
 
 
-@pytest.mark.parametrize("name", list(RUNS))
-def test_every_run_evaluates_to_a_report(runs, name, capsys) -> None:
-    assert evaluate.main([str(runs[name]), *ARGS]) == 0, capsys.readouterr().err
-    text = _report_is_clean(runs[name])
+def check_run_evaluates(run_dir: Path, name: str, overrides: list[str], capsys) -> None:
+    """``evaluate.main`` on ``run_dir`` (run ``name`` of ``overrides``) writes a clean report
+    whose claims section names README.md's claims and whose rows name every cell."""
+    assert evaluate.main([str(run_dir), *ARGS]) == 0, capsys.readouterr().err
+    text = _report_is_clean(run_dir)
     # one section on the paper's claims, naming the claims of README.md's verdict
     assert text.count("claims") and text.count("## The paper's claims\n") == 1
     section = text.split("## The paper's claims\n")[1].split("\n## ")[0]
     named = [line.split(" | ")[0][2:] for line in section.splitlines() if line.startswith("| (")]
     assert sorted(named) == sorted(_verdict_claims())
-    rows = json.loads((runs[name] / "eval" / "eval.json").read_text())["rows"]
+    rows = json.loads((run_dir / "eval" / "eval.json").read_text())["rows"]
     cells = {r["label"] for r in rows if r["model"] is not None}
     base = PAPER if name.startswith("paper") else SMOKE
-    assert len(cells) == len(config.load(base, RUNS[name]).grid.k)
+    assert len(cells) == len(config.load(base, overrides).grid.k)
     for label in cells:
         assert label in text
 
 
-def test_a_joint_run_loads_and_exports_its_two_actions(runs, tmp_path) -> None:
-    """A run of ``env.longitudinal = "policy"``: its checkpoint acts with two entries, the
-    lateral odd and the longitudinal even under the road's reflection, and its export says so."""
-    run_dir = runs["joint"]
-    path, _ = export.pick_checkpoint(run_dir)
-    act, meta = load_policy(path)
-    obs = np.random.default_rng(0).normal(size=(16, OBS_DIM)).astype(np.float32)
-    a, a_m = np.asarray(act(obs)), np.asarray(act(obs * np.asarray(MIRROR_SIGNS, np.float32)))
-    assert a.shape == (16, 2)
-    np.testing.assert_array_equal(a_m, a * np.array([-1.0, 1.0], np.float32))
-    out = tmp_path / "policy.stablehlo"
-    assert export.main([str(run_dir), "--format", "stablehlo", "--out", str(out)]) == 0
-    side = json.loads(out.with_name(out.name + ".json").read_text())["output"]
-    assert side["shape"] == ["batch", 2]
-    assert [e["mirror_sign"] for e in side["entries"]] == [-1.0, 1.0]
+@pytest.mark.parametrize("name", list(RUNS))
+def test_every_run_evaluates_to_a_report(runs, name, capsys) -> None:
+    check_run_evaluates(runs[name], name, RUNS[name], capsys)
 
 
 def test_a_collision_with_no_lag_vehicle_prints_dashes(runs) -> None:
@@ -178,19 +155,30 @@ def _scripts() -> dict[str, str]:
     return doc["project"]["scripts"]
 
 
+def _exit_status(main) -> int:
+    """The exit status ``sys.exit(main())`` gives, as a console script runs it."""
+    try:
+        code = main()
+    except SystemExit as stop:
+        code = stop.code
+    return 0 if code is None else code
+
+
 @pytest.mark.parametrize("script", list(_scripts()))
-def test_every_console_script_answers_help_and_refuses_unknown_arguments(script) -> None:
-    module = _scripts()[script].split(":")[0]
-    run = [sys.executable, "-c", f"import sys, {module} as m; sys.exit(m.main())"]
-    ok = subprocess.run([*run, "--help"], capture_output=True, text=True, timeout=HANG_GUARD_S)
-    assert ok.returncode == 0 and "usage:" in ok.stdout, ok.stderr
-    bad = subprocess.run(
-        [*run, "runs/none", "--no-such-option"],
-        capture_output=True,
-        text=True,
-        timeout=HANG_GUARD_S,
-    )
-    assert bad.returncode == 2 and "--no-such-option" in bad.stderr, bad.stderr
+def test_every_console_script_answers_help_and_refuses_unknown_arguments(
+    script, monkeypatch, capsys
+) -> None:
+    """Each script's entry point with the command line in ``sys.argv``, as the installed
+    script calls it (tests/test_train.py runs two of them from the venv's ``bin``)."""
+    module, func = _scripts()[script].split(":")
+    main = getattr(importlib.import_module(module), func)
+    monkeypatch.setattr(sys, "argv", [script, "--help"])
+    capsys.readouterr()
+    status, out = _exit_status(main), capsys.readouterr()
+    assert status == 0 and "usage:" in out.out, out.err
+    monkeypatch.setattr(sys, "argv", [script, "runs/none", "--no-such-option"])
+    status, err = _exit_status(main), capsys.readouterr().err
+    assert status == 2 and "--no-such-option" in err, err
 
 
 def test_figures_of_a_missing_run_directory_exit_2(tmp_path, capsys) -> None:
