@@ -23,6 +23,8 @@ from jaxlc import config
 
 from .conftest import HANG_GUARD_S, SUITE_XLA_FLAG
 
+DEFAULT_XLA_FLAG = "--xla_backend_optimization_level=3"  # XLA's own default
+
 GOLDEN = Path(__file__).parent / "data" / "rollout_golden.npz"
 ENVS, STEPS = 8, 3000
 
@@ -72,11 +74,13 @@ def test_seeded_rollout_matches_the_recorded_final_state(tmp_path):
     for name in want.files:
         np.testing.assert_array_equal(got[name], want[name], err_msg=name)
     # The suite compiles at LLVM's level 1 (tests/conftest.py); the pin is of the build a
-    # user's program gets, XLA's default level: that gives the recorded state too.
+    # user's program gets, XLA's default level 3: that gives the recorded state too. Named,
+    # because the subprocess imports conftest, which sets level 1 where no level is named.
     out = tmp_path / "default_level.npz"
     flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if f != SUITE_XLA_FLAG]
-    code = "import sys, numpy as np; from tests.test_rollout_golden import rollout; "
-    code += "np.savez(sys.argv[1], **rollout())"
+    flags.append(DEFAULT_XLA_FLAG)
+    code = "import os, sys, numpy as np; from tests.test_rollout_golden import rollout; "
+    code += "np.savez(sys.argv[1], **rollout(), xla_flags=os.environ['XLA_FLAGS'])"
     done = subprocess.run(
         [sys.executable, "-c", code, str(out)],
         cwd=GOLDEN.parents[2],
@@ -87,6 +91,7 @@ def test_seeded_rollout_matches_the_recorded_final_state(tmp_path):
     )
     assert done.returncode == 0, done.stderr[-3000:]
     default = np.load(out)
+    assert str(default["xla_flags"]).split()[-1] == DEFAULT_XLA_FLAG
     for name in want.files:
         np.testing.assert_array_equal(default[name], want[name], err_msg=name)
 
