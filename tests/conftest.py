@@ -22,6 +22,7 @@ workers in collection order, and a heavy file started last would run on after th
 import importlib.util
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 from types import ModuleType
@@ -54,7 +55,10 @@ BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks" / "scripts"
 
 
 def load_benchmark(name: str) -> ModuleType:
-    """``benchmarks/scripts/NAME.py`` as a module (the benchmarks are scripts, not a package)."""
+    """``benchmarks/scripts/NAME.py`` as a module (the benchmarks are scripts, not a package),
+    its folder on ``sys.path`` as when it runs as a script (a script imports its neighbours)."""
+    if str(BENCHMARKS) not in sys.path:
+        sys.path.insert(0, str(BENCHMARKS))
     spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -12,16 +12,14 @@ import numpy as np
 from jaxlc import config
 from jaxlc.study import checkpoint
 
-from .conftest import HANG_GUARD_S, load_benchmark
-
-BENCH = Path(__file__).resolve().parent.parent / "benchmarks" / "scripts"
+from .conftest import BENCHMARKS, HANG_GUARD_S, load_benchmark
 
 
 def _bench(script: str, args: list[str], out: Path, env: dict | None = None):
     """Run ``benchmarks/script`` with ``args`` plus its CSV option pointing at ``out``;
     return ``(stdout, csv rows)``."""
     done = subprocess.run(
-        [sys.executable, str(BENCH / script), *args, "--csv", str(out)],
+        [sys.executable, str(BENCHMARKS / script), *args, "--csv", str(out)],
         capture_output=True,
         text=True,
         timeout=HANG_GUARD_S,
@@ -32,22 +30,19 @@ def _bench(script: str, args: list[str], out: Path, env: dict | None = None):
         return done.stdout, list(csv.DictReader(f))
 
 
-def _bench_here(script: str, args: list[str], out: Path, capsys, monkeypatch):
+def _bench_here(script: str, args: list[str], out: Path, capsys):
     """``benchmarks/script``'s ``main`` in this process (its imports and compiled programs
     shared with the suite), with ``args`` plus its CSV option pointing at ``out``; return
     ``(main's return, stdout, csv rows)``."""
-    monkeypatch.syspath_prepend(str(BENCH))  # a script imports its neighbours
     capsys.readouterr()
     got = load_benchmark(script.removesuffix(".py")).main([*args, "--csv", str(out)])
     with out.open() as f:
         return got, capsys.readouterr().out, list(csv.DictReader(f))
 
 
-def test_sim_throughput_tiny(tmp_path, capsys, monkeypatch):
+def test_sim_throughput_tiny(tmp_path, capsys):
     args = ["--envs", "1", "8", "--steps", "300", "--repeats", "1"]
-    _, stdout, rows = _bench_here(
-        "sim_throughput.py", args, tmp_path / "sim.csv", capsys, monkeypatch
-    )
+    _, stdout, rows = _bench_here("sim_throughput.py", args, tmp_path / "sim.csv", capsys)
     assert [int(r["envs"]) for r in rows] == [1, 8]
     for r in rows:
         assert float(r["env_steps_per_s"]) > 0
@@ -71,10 +66,10 @@ def test_devices_throughput_tiny(tmp_path):
         assert abs(int(r["env_steps_per_s"]) - expected) <= 1e-3 * expected
 
 
-def test_scripted_under_noise_tiny(tmp_path, capsys, monkeypatch):
+def test_scripted_under_noise_tiny(tmp_path, capsys):
     args = ["--k", "1", "--sigma", "0", "0.2", "--envs", "16", "--steps", "700"]
     out = tmp_path / "noise.csv"
-    status, _, rows = _bench_here("scripted_under_noise.py", args, out, capsys, monkeypatch)
+    status, _, rows = _bench_here("scripted_under_noise.py", args, out, capsys)
     assert status == 0
     assert [float(r["sigma"]) for r in rows] == [0.0, 0.2]
     for r in rows:

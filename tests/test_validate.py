@@ -136,9 +136,7 @@ def test_benchmark_scripts_tiny(tmp_path, monkeypatch):
     import json
     import sys
 
-    from .conftest import BENCHMARKS, load_benchmark
-
-    monkeypatch.syspath_prepend(str(BENCHMARKS))  # a script imports its neighbours
+    from .conftest import load_benchmark
 
     def run(script: str, *args: str) -> None:
         monkeypatch.setattr(sys, "argv", [script, *args, "--out", str(tmp_path)])
