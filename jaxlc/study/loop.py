@@ -162,7 +162,7 @@ def _train(
     tracker = TensorBoard(tensorboard, metas) if tensorboard is not None and lead else None
     last_save, hold = time.perf_counter(), bool(os.environ.get(HOLD_ENV))
     chunk_env_steps = t.chunk_steps * t.envs_per_model * grid.size
-    signum = 0
+    signum, first_chunk_s = 0, None
     try:
         while not _finished(counters, t):
             # Read between chunks only: there the state and the bookkeeping agree, so the
@@ -186,6 +186,8 @@ def _train(
                 if hold:
                     hold_for_a_signal(stop)
             rate = chunk_env_steps / (time.perf_counter() - t_chunk)
+            if first_chunk_s is None:  # compilation included: compile ~ this - a later chunk
+                first_chunk_s = time.perf_counter() - t_chunk
             bar.update(np.minimum(counters["episodes"], t.episodes), metrics, rate)
             if tracker is not None:  # only the log fields the curves read cross over
                 log = to_host(
@@ -200,7 +202,7 @@ def _train(
     if signum:  # saved even before a first chunk: --resume always has a state to go on from
         save_state(rd, state, book.dump())
         raise Interrupted(signum)
-    return _finish(rd, cfg, grid, state, counters["episodes"], book, n_dev)
+    return _finish(rd, cfg, grid, state, counters["episodes"], book, n_dev, first_chunk_s)
 
 
 def _finished(counters: dict[str, np.ndarray], t: config.TrainConfig) -> bool:
@@ -226,14 +228,17 @@ def _finish(
     episodes: np.ndarray,
     book: Bookkeeping,
     n_dev: int,
+    first_chunk_s: float | None,
 ) -> dict[str, Any]:
-    """Save the final state; write metrics and summary (process 0); return the summary."""
+    """Save the final state; write metrics and summary (process 0); return the summary.
+    ``first_chunk_s``: this process's first chunk, its compilation included."""
     host = book.dump()  # once: the saved state and the summary share its wall time
     save_state(rd, state, host)
     log = {k: np.asarray(v) for k, v in to_host(state.log).columns().items()}
     lead = jax.process_index() == 0
     summary = {
         "wall_s": float(host["wall_s"]),
+        "first_chunk_s": first_chunk_s,
         "env_steps": book.env_steps,
         "models": summarise(cfg, grid, log, episodes),
         "config_hash": cfg.hash(),
