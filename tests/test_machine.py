@@ -82,3 +82,5 @@ def test_the_sweep_summary_names_the_machine_speed(smoke_run):
     first = (run_dir / "summary.md").read_text().splitlines()[0]
     assert f"matmul peak of this machine {summary['matmul_peak_gflops']:.0f} GFLOP/s" in first
     assert f"({summary['env_steps'] / summary['wall_s']:,.0f}/s)" in first
+    # the first chunk, its compilation included, is part of the run's wall time
+    assert 0 < summary["first_chunk_s"] <= summary["wall_s"]

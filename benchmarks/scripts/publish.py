@@ -25,7 +25,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:  # tables/ and the sibling scripts it runs, from anywhere
     sys.path.insert(0, str(HERE))
 
-from tables import heldout, joint, learning, pairs, roads, speed, verdict  # noqa: E402
+from tables import gpu, heldout, joint, learning, pairs, roads, speed, verdict  # noqa: E402
 
 ROOT = HERE.parents[1]
 README = ROOT / "README.md"
@@ -36,7 +36,7 @@ DOCS = (
     ROOT / "docs" / "benchmarks.md",
     *sorted((ROOT / "benchmarks").glob("*/README.md")),
 )
-MODULES = (verdict, heldout, roads, joint, pairs, speed, learning)
+MODULES = (verdict, heldout, roads, joint, pairs, speed, gpu, learning)
 
 
 def _blocks() -> dict[str, Callable[[], str]]:

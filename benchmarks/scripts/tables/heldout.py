@@ -11,7 +11,8 @@ from tables.common import BENCHMARKS, duration_rule, load
 DEFAULT_STUDY = BENCHMARKS / "study_symmetric_cpu_s3"  # today's default, three seeds per cell
 TEN_SEEDS = BENCHMARKS / "study_default_cpu_s10"  # today's default, ten seeds per cell
 PLAIN_ACTOR = BENCHMARKS / "study_heldout_cpu_s3"  # the plain actor, three seeds per cell
-PAPER_STUDY = BENCHMARKS / "study_paper_cpu_s1"  # configs/paper.toml, one seed per cell
+PAPER_STUDY = BENCHMARKS / "study_paper_gpu_s10"  # configs/paper.toml, ten seeds per cell
+PAPER_ONE_SEED = BENCHMARKS / "study_paper_cpu_s1"  # configs/paper.toml, one seed per cell
 
 
 def heldout_cells(study: Path = DEFAULT_STUDY) -> str:
@@ -43,4 +44,5 @@ BLOCKS = {
     "heldout-cells-s10": lambda: heldout_cells(TEN_SEEDS),
     "plain-actor-cells": lambda: heldout_cells(PLAIN_ACTOR),
     "paper-cells": lambda: heldout_cells(PAPER_STUDY),
+    "paper-cells-s1": lambda: heldout_cells(PAPER_ONE_SEED),
 }

@@ -14,7 +14,7 @@ from jaxlc.paper.grid import is_best
 from jaxlc.study.rundir import RunDir
 from tables.common import BENCHMARKS, load
 
-PAPER_STUDY = BENCHMARKS / "study_paper_cpu_s1"  # configs/paper.toml, one seed per cell
+PAPER_STUDY = BENCHMARKS / "study_paper_gpu_s10"  # configs/paper.toml, ten seeds per cell
 VERDICT_STUDY = BENCHMARKS / "study_default_cpu_s10"  # configs/default.toml, ten seeds per cell
 
 # Measures counted in episodes (written whole, "ep"); the others are written to 3 figures.
