@@ -257,3 +257,17 @@ def test_the_protocol_comes_from_the_runs_eval_table_and_flags_override_it(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "'eval.chunk'" in err[0] and ">= 1" in err[0], err
     assert not (tmp_path / "eval").exists()
+
+
+def test_a_batch_of_case_starts_is_each_case_started_alone() -> None:
+    """``make_start_cases`` steps the batch together, then finishes its slowest cases in
+    blocks of ``n // SPILL``: every case's start equals the plain vmapped start bit for bit,
+    and the batch's approach lengths differ (so both stages ran)."""
+    base = EnvParams.from_config(config.load(SMOKE).env)
+    keys = cases.heldout_keys(0, 48)
+    plain = jax.jit(jax.vmap(cases.make_start_case(base, 600)))(keys)
+    batched = jax.jit(cases.make_start_cases(base, 600))(keys)
+    for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(batched), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    steps = np.asarray(plain.state.time)
+    assert steps.max() > np.sort(steps)[-(48 // cases.SPILL) - 1], steps

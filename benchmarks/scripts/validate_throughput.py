@@ -27,7 +27,7 @@ import numpy as np
 
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
-from jaxlc.evaluation.cases import columns, make_start_case
+from jaxlc.evaluation.cases import columns, make_start_cases
 from jaxlc.sim.env import EnvParams
 from jaxlc.study import machine
 
@@ -47,7 +47,7 @@ def mc_chunk(traffic: str, chunk: int, repeats: int) -> dict:
     cfg = heldout.in_traffic(config.load(), TRAFFIC[traffic])
     base = EnvParams.from_config(cfg.env)
     run = validation.program(cfg, config.EvalConfig().max_steps, False)
-    start = jax.jit(jax.vmap(make_start_case(base, config.EvalConfig().max_steps)))
+    start = jax.jit(make_start_cases(base, config.EvalConfig().max_steps))
     pol, nom = validation.policies(cfg, None, 1), proposal.nominal(base)
     times, lcs, steps = [], [], []
     for r in range(repeats + 1):

@@ -44,6 +44,7 @@ from jaxlc.sim.reward import names as reward_names
 from jaxlc.sim.road import ego_yaw_rate, origin_lane, road_curvature
 
 PROTOCOL = config.EvalConfig()  # the defaults of the [eval] table: cases, step cap, chunk
+SPILL = 16  # make_start_cases: once at most 1/SPILL of a batch still approaches, it finishes apart
 
 
 @flax.struct.dataclass
@@ -202,7 +203,40 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
             out_specs=P("models"),
             check_vma=False,  # per-policy work only, no collectives to check
         )
-    return jax.jit(jax.vmap(make_start_case(base, max_steps))), jax.jit(rollout)
+    return jax.jit(make_start_cases(base, max_steps)), jax.jit(rollout)
+
+
+def _start_parts(base: EnvParams, max_steps: int, env: LaneChangeEnv | None) -> tuple:
+    """``(begin, going, step, finish)`` of one case's start: ``begin(key) -> carry`` resets,
+    ``step`` advances the carry one dt with no action while ``going``, ``finish(carry) ->
+    Cases``. The carry is ``(state, reason, log_w, tilt, k_run)``."""
+    env = LaneChangeEnv() if env is None else env
+    zero, origin = jnp.zeros(action_dim(base)), origin_lane(base)
+    stats = getattr(env, "stats", 0)
+
+    def begin(key: Array) -> tuple:
+        k_reset, k_run = jax.random.split(key)
+        _, state = env.reset(k_reset, base)
+        return state, jnp.int32(0), jnp.float32(0.0), jnp.zeros(stats, jnp.float32), k_run
+
+    def going(c: tuple) -> Array:
+        s, reason, *_ = c
+        return (reason == 0) & (s.ego.phase != RL) & (s.time < max_steps)
+
+    def step(c: tuple) -> tuple:
+        s, _, log_w, tilt, k_run = c
+        *_, s, _, _, _, info = env.step(jax.random.fold_in(k_run, s.time), s, zero, base)
+        tilt = tilt + info.get("tilt", 0.0)
+        return s, info["reason"], log_w + info.get("log_w", 0.0), tilt, k_run
+
+    def finish(c: tuple) -> Cases:
+        state, reason, log_w, tilt, k_run = c
+        performed = (reason == 0) & (state.ego.phase == RL)
+        side = jnp.where(performed, state.ego.target - origin, 0).astype(jnp.int32)
+        obs = observation(state, base)
+        return Cases(state, obs, k_run, reason, performed, side, log_w, tilt)
+
+    return begin, going, step, finish
 
 
 def make_start_case(
@@ -211,32 +245,37 @@ def make_start_case(
     """``key -> Cases`` (unbatched): reset, then step with no action until the RL phase
     begins, the episode ends before it, or ``max_steps`` pass (``env``: a proposal's, whose
     ``step`` adds ``info["log_w"]`` and ``info["tilt"]``, ``env.stats`` of them)."""
-    env = LaneChangeEnv() if env is None else env
-    zero, origin = jnp.zeros(action_dim(base)), origin_lane(base)
-    stats = getattr(env, "stats", 0)
+    begin, going, step, finish = _start_parts(base, max_steps, env)
+    return lambda key: finish(jax.lax.while_loop(going, step, begin(key)))
 
-    def start_case(key: Array) -> Cases:
-        k_reset, k_run = jax.random.split(key)
-        _, state = env.reset(k_reset, base)
 
-        def going(c: tuple) -> Array:
-            s, reason, *_ = c
-            return (reason == 0) & (s.ego.phase != RL) & (s.time < max_steps)
+def make_start_cases(
+    base: EnvParams, max_steps: int, env: LaneChangeEnv | None = None
+) -> Callable[[Array], Cases]:
+    """``keys (n, 2) -> Cases (n,)``: ``make_start_case`` over a batch, each case bit for bit
+    as alone. The batch steps together while more than ``n // SPILL`` of its cases go on; the
+    rest finish in blocks of that many, so the slowest cases' approach (up to ``max_steps``)
+    no longer holds the whole batch."""
+    begin, going, step, finish = _start_parts(base, max_steps, env)
+    alone = jax.vmap(lambda c: jax.lax.while_loop(going, step, c))
 
-        def step(c: tuple) -> tuple:
-            s, _, log_w, tilt = c
-            *_, s, _, _, _, info = env.step(jax.random.fold_in(k_run, s.time), s, zero, base)
-            tilt = tilt + info.get("tilt", 0.0)
-            return s, info["reason"], log_w + info.get("log_w", 0.0), tilt
+    def start_cases(keys: Array) -> Cases:
+        m = max(1, keys.shape[0] // SPILL)
+        on = jax.vmap(going)
 
-        init = (state, jnp.int32(0), jnp.float32(0.0), jnp.zeros(stats, jnp.float32))
-        state, reason, log_w, tilt = jax.lax.while_loop(going, step, init)
-        performed = (reason == 0) & (state.ego.phase == RL)
-        side = jnp.where(performed, state.ego.target - origin, 0).astype(jnp.int32)
-        obs = observation(state, base)
-        return Cases(state, obs, k_run, reason, performed, side, log_w, tilt)
+        def together(c: tuple) -> tuple:
+            return tree.where(on(c), jax.vmap(step)(c), c)
 
-    return start_case
+        def block(c: tuple) -> tuple:
+            rows = jnp.argsort(~on(c), stable=True)[:m]  # (m,) going cases first
+            done = alone(jax.tree.map(lambda a: a[rows], c))
+            return jax.tree.map(lambda a, d: a.at[rows].set(d), c, done)
+
+        c = jax.lax.while_loop(lambda c: on(c).sum() > m, together, jax.vmap(begin)(keys))
+        c = jax.lax.while_loop(lambda c: on(c).any(), block, c)
+        return jax.vmap(finish)(c)
+
+    return start_cases
 
 
 def _empty_outcome(cs: Cases, n_pol: int, p: EnvParams) -> Outcome:

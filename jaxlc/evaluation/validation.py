@@ -28,7 +28,7 @@ import numpy as np
 
 from jaxlc import config
 from jaxlc.evaluation import rare
-from jaxlc.evaluation.cases import Policies, columns, init_actor, make_rollout, make_start_case
+from jaxlc.evaluation.cases import Policies, columns, init_actor, make_rollout, make_start_cases
 from jaxlc.evaluation.heldout import lane_change_measures
 from jaxlc.evaluation.proposal import (
     ROLES,
@@ -69,7 +69,7 @@ def program(cfg: config.Config, max_steps: int, tilted: bool) -> Callable:
 
     def run(prop: Proposal, pol: Policies, keys: jax.Array) -> tuple:
         env = TiltedEnv(prop) if tilted else None
-        cs = jax.vmap(make_start_case(base, max_steps, env))(keys)
+        cs = make_start_cases(base, max_steps, env)(keys)
         out, trace = make_rollout(base, actor_net.apply, max_steps, env)(
             pol, cs, jnp.zeros(1, jnp.int32)
         )
