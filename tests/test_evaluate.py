@@ -264,10 +264,11 @@ def test_a_batch_of_case_starts_is_each_case_started_alone() -> None:
     blocks of ``n // SPILL``: every case's start equals the plain vmapped start bit for bit,
     and the batch's approach lengths differ (so both stages ran)."""
     base = EnvParams.from_config(config.load(SMOKE).env)
-    keys = cases.heldout_keys(0, 48)
+    n = cases.SPILL_MIN_BATCH
+    keys = cases.heldout_keys(0, n)
     plain = jax.jit(jax.vmap(cases.make_start_case(base, 600)))(keys)
     batched = jax.jit(cases.make_start_cases(base, 600))(keys)
     for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(batched), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     steps = np.asarray(plain.state.time)
-    assert steps.max() > np.sort(steps)[-(48 // cases.SPILL) - 1], steps
+    assert steps.max() > np.sort(steps)[-(n // cases.SPILL) - 1], steps

@@ -45,6 +45,8 @@ from jaxlc.sim.road import ego_yaw_rate, origin_lane, road_curvature
 
 PROTOCOL = config.EvalConfig()  # the defaults of the [eval] table: cases, step cap, chunk
 SPILL = 16  # make_start_cases: once at most 1/SPILL of a batch still approaches, it finishes apart
+# A smaller batch's slowest cases cost it little: it runs as one vmapped loop (one compiled step).
+SPILL_MIN_BATCH = 4 * SPILL
 
 
 @flax.struct.dataclass
@@ -253,14 +255,16 @@ def make_start_cases(
     base: EnvParams, max_steps: int, env: LaneChangeEnv | None = None
 ) -> Callable[[Array], Cases]:
     """``keys (n, 2) -> Cases (n,)``: ``make_start_case`` over a batch, each case bit for bit
-    as alone. The batch steps together while more than ``n // SPILL`` of its cases go on; the
-    rest finish in blocks of that many, so the slowest cases' approach (up to ``max_steps``)
-    no longer holds the whole batch."""
+    as alone. From ``SPILL_MIN_BATCH`` cases on, the batch steps together while more than
+    ``n // SPILL`` of its cases go on and the rest finish in blocks of that many, so the
+    slowest cases' approach (up to ``max_steps``) no longer holds the whole batch."""
     begin, going, step, finish = _start_parts(base, max_steps, env)
     alone = jax.vmap(lambda c: jax.lax.while_loop(going, step, c))
 
     def start_cases(keys: Array) -> Cases:
-        m = max(1, keys.shape[0] // SPILL)
+        if keys.shape[0] < SPILL_MIN_BATCH:
+            return jax.vmap(finish)(alone(jax.vmap(begin)(keys)))
+        m = keys.shape[0] // SPILL
         on = jax.vmap(going)
 
         def together(c: tuple) -> tuple:
