@@ -33,11 +33,7 @@ step() {  # NAME CAP_S COMMAND...: COMMAND under min(CAP_S, what is left), SIGIN
   return $rc
 }
 
-{ date -u; nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
-  lscpu | grep -m1 "Model name"; nproc
-  python3 -c "import sys, jax, flax, optax; print(sys.version.split()[0], 'jax', jax.__version__, 'flax', flax.__version__, 'optax', optax.__version__, jax.devices())"
-  git rev-parse --short HEAD 2>/dev/null
-} > "$B/machine.txt" 2>&1
+bash $S/machine_info.sh > "$B/machine.txt" 2>&1
 step sim_paper 120 python3 $S/sim_throughput.py --envs $envs --steps 200 --repeats 3 \
   --traffic paper --csv "$B/sim_paper.csv"
 for m in $models; do

@@ -12,9 +12,7 @@ set -u
 export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD
 end=$(( $(date +%s) + $1 )); shift
 OUT=${OUT:-out}; mkdir -p "$OUT"
-{ date -u; nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
-  python3 -c "import sys, jax, flax, optax; print(sys.version.split()[0], 'jax', jax.__version__, 'flax', flax.__version__, 'optax', optax.__version__, jax.devices())"
-} > "$OUT/machine.txt" 2>&1
+bash "$(dirname "$0")/machine_info.sh" > "$OUT/machine.txt" 2>&1
 while [ $# -ge 2 ]; do
   name=$1; args=$2; shift 2; run=runs/$name; mkdir -p "$run"
   left=$(( end - $(date +%s) )); [ "$left" -gt 60 ] || break

@@ -7,10 +7,9 @@ One chunk of ``--chunk`` lane-change cases of the scripted controller, as ``pyth
 jaxlc.validate --method mc`` runs them (``jaxlc.evaluation.validation.program``: every case
 reset and warmed up, its approach (``cases.make_start_cases``), its manoeuvre (a vmapped
 ``while_loop``, as long as the chunk's slowest manoeuvre)), median of ``--repeats`` after
-compiling. Its env-steps are the
-steps its cases needed (warm-up, approach, manoeuvre); beside them the scan of
-``sim_throughput.py`` at ``--chunk`` envs, in the same process. Writes ``OUT/throughput.csv``
-with the matmul peak before and after.
+compiling. Its env-steps are the steps its cases needed (warm-up, approach, manoeuvre);
+beside them the scan of ``sim_throughput.py`` at ``--chunk`` envs, in the same process.
+Writes ``OUT/throughput.csv`` with the matmul peak before and after.
 """
 
 from __future__ import annotations

@@ -185,9 +185,10 @@ def _train(
                 last_save = time.perf_counter()
                 if hold:
                     hold_for_a_signal(stop)
-            rate = chunk_env_steps / (time.perf_counter() - t_chunk)
+            elapsed = time.perf_counter() - t_chunk
+            rate = chunk_env_steps / elapsed
             if first_chunk_s is None:  # compilation included: compile ~ this - a later chunk
-                first_chunk_s = time.perf_counter() - t_chunk
+                first_chunk_s = elapsed
             bar.update(np.minimum(counters["episodes"], t.episodes), metrics, rate)
             if tracker is not None:  # only the log fields the curves read cross over
                 log = to_host(
