@@ -19,9 +19,10 @@ from jaxlc import config, evaluate, sweep
 from jaxlc.evaluation import cases, heldout, results, safety
 from jaxlc.evaluation.report_text import FIGURES
 from jaxlc.evaluation.results import OUTCOMES
+from jaxlc.learn.networks import make_networks
 from jaxlc.policy import actor_fn
 from jaxlc.sim.controller import scripted_action
-from jaxlc.sim.env import EnvParams
+from jaxlc.sim.env import EnvParams, LaneChangeEnv
 from jaxlc.study import checkpoint
 
 from .conftest import HANG_GUARD_S
@@ -272,3 +273,56 @@ def test_a_batch_of_case_starts_is_each_case_started_alone() -> None:
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     steps = np.asarray(plain.state.time)
     assert steps.max() > np.sort(steps)[-(n // cases.SPILL) - 1], steps
+
+
+def test_a_rollout_of_a_batch_is_each_case_rolled_out_alone(monkeypatch) -> None:
+    """``make_rollout`` runs most of the batch together, then finishes its slowest cases in
+    blocks of ``n // SPILL``: every policy's outcome and trace on every case equal those of
+    the plain loop over the whole batch bit for bit, and the manoeuvres' lengths differ (so
+    both stages ran)."""
+    cfg = config.load(SMOKE)
+    base = EnvParams.from_config(cfg.env)
+    n = cases.SPILL_MIN_BATCH
+    cs = jax.jit(cases.make_start_cases(base, 600))(cases.heldout_keys(0, n))
+    actor = cases.init_actor(cfg, jax.random.PRNGKey(1))
+    pol = cases.Policies(
+        actor=jax.tree.map(lambda a: np.stack([a, a]), actor),
+        k=np.asarray([1, 2], np.int32),
+        scripted=np.asarray([True, False]),
+    )
+    traced = np.asarray(cases.pick_traced(cs, 3))
+    apply = make_networks(cfg.ddpg, 1)[0].apply
+    batched = jax.jit(cases.make_rollout(base, apply, 600))(pol, cs, traced)
+    monkeypatch.setattr(cases, "SPILL_MIN_BATCH", n + 1)  # the plain loop
+    plain = jax.jit(cases.make_rollout(base, apply, 600))(pol, cs, traced)
+    for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(batched), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    steps = np.asarray(plain[0].steps).max(axis=0)  # (cases,) the longest of the policies'
+    assert np.asarray(cs.performed).sum() > n // cases.SPILL
+    assert steps.max() > np.sort(steps)[-(n // cases.SPILL) - 1], steps
+
+
+@pytest.mark.parametrize("traffic", [[], ["env.mobil=true", "env.braking=true"]])
+def test_the_traffic_only_warm_up_gives_the_full_warm_ups_traffic(traffic) -> None:
+    """``reset(..., traffic_only=True)`` (the validation's cases) warms the same traffic as
+    the full step, to float32 rounding, with lane changes and braking events too, and leaves
+    the ego at its reset values (WAIT, at rest)."""
+    over = [*traffic, "env.braking_rate=3600", "env.mobil_rate=2"] if traffic else []
+    base = EnvParams.from_config(config.load(SMOKE, over).env)
+    env = LaneChangeEnv()
+    keys = cases.heldout_keys(1, 128)
+    full = jax.jit(jax.vmap(lambda k: env.reset(k, base)[1]))(keys)
+    fast = jax.jit(jax.vmap(lambda k: env.reset(k, base, traffic_only=True)[1]))(keys)
+    assert np.asarray(full.traffic.active).sum() > 128 * 3  # a filled road
+    if traffic:
+        assert np.asarray(full.traffic.lc_time < 1e3).any()  # some lane changes happened
+    leaves = jax.tree_util.tree_leaves_with_path(full.traffic)
+    for (path, a), b in zip(leaves, jax.tree.leaves(fast.traffic), strict=True):
+        a, b = np.asarray(a), np.asarray(b)
+        if a.dtype.kind == "f":
+            np.testing.assert_allclose(b, a, rtol=1e-6, err_msg=jax.tree_util.keystr(path))
+        else:
+            np.testing.assert_array_equal(b, a, err_msg=jax.tree_util.keystr(path))
+    assert (np.asarray(fast.ego.phase) == 0).all()
+    assert (np.asarray(fast.ego.x) == 0).all() and (np.asarray(fast.ego.v) == 0).all()
+    assert (np.asarray(full.ego.x) > 0).any()  # the full warm-up lets the ego coast

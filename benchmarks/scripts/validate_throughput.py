@@ -47,7 +47,7 @@ def mc_chunk(traffic: str, chunk: int, repeats: int) -> dict:
     cfg = heldout.in_traffic(config.load(), TRAFFIC[traffic])
     base = EnvParams.from_config(cfg.env)
     run = validation.program(cfg, config.EvalConfig().max_steps, False)
-    start = jax.jit(make_start_cases(base, config.EvalConfig().max_steps))
+    start = jax.jit(make_start_cases(base, config.EvalConfig().max_steps, traffic_warmup=True))
     pol, nom = validation.policies(cfg, None, 1), proposal.nominal(base)
     times, lcs, steps = [], [], []
     for r in range(repeats + 1):

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Sequence
+from functools import partial
 from typing import Any
 
 import flax.struct
@@ -121,7 +122,8 @@ class Outcome:
 
 @flax.struct.dataclass
 class Trace:
-    """The drawn cases, frame 0 = start of the RL phase: ``(policies, traced, frames, ...)``."""
+    """The drawn cases, frame 0 = start of the RL phase: ``(policies, traced, frames, ...)``;
+    frames past a case's ``frames`` are 0."""
 
     x: Array  # ego front bumper, m
     y: Array  # ego centre line, m
@@ -208,8 +210,11 @@ def programs(cfg: config.Config, max_steps: int, devices: int = 1) -> tuple[Any,
     return jax.jit(make_start_cases(base, max_steps)), jax.jit(rollout)
 
 
-def _start_parts(base: EnvParams, max_steps: int, env: LaneChangeEnv | None) -> tuple:
-    """``(begin, going, step, finish)`` of one case's start: ``begin(key) -> carry`` resets,
+def _start_parts(
+    base: EnvParams, max_steps: int, env: LaneChangeEnv | None, traffic_warmup: bool = False
+) -> tuple:
+    """``(begin, going, step, finish)`` of one case's start: ``begin(key) -> carry`` resets
+    (``env.reset``'s ``traffic_only`` warm-up with ``traffic_warmup``),
     ``step`` advances the carry one dt with no action while ``going``, ``finish(carry) ->
     Cases``. The carry is ``(state, reason, log_w, tilt, k_run)``."""
     env = LaneChangeEnv() if env is None else env
@@ -218,7 +223,7 @@ def _start_parts(base: EnvParams, max_steps: int, env: LaneChangeEnv | None) -> 
 
     def begin(key: Array) -> tuple:
         k_reset, k_run = jax.random.split(key)
-        _, state = env.reset(k_reset, base)
+        _, state = env.reset(k_reset, base, traffic_only=traffic_warmup)
         return state, jnp.int32(0), jnp.float32(0.0), jnp.zeros(stats, jnp.float32), k_run
 
     def going(c: tuple) -> Array:
@@ -252,13 +257,15 @@ def make_start_case(
 
 
 def make_start_cases(
-    base: EnvParams, max_steps: int, env: LaneChangeEnv | None = None
+    base: EnvParams, max_steps: int, env: LaneChangeEnv | None = None, traffic_warmup: bool = False
 ) -> Callable[[Array], Cases]:
     """``keys (n, 2) -> Cases (n,)``: ``make_start_case`` over a batch, each case bit for bit
     as alone. From ``SPILL_MIN_BATCH`` cases on, the batch steps together while more than
     ``n // SPILL`` of its cases go on and the rest finish in blocks of that many, so the
-    slowest cases' approach (up to ``max_steps``) no longer holds the whole batch."""
-    begin, going, step, finish = _start_parts(base, max_steps, env)
+    slowest cases' approach (up to ``max_steps``) no longer holds the whole batch.
+    ``traffic_warmup``: the cases are reset with ``env.reset``'s traffic-only warm-up (the
+    validation's cases; the evaluation's keep the full one)."""
+    begin, going, step, finish = _start_parts(base, max_steps, env, traffic_warmup)
     alone = jax.vmap(lambda c: jax.lax.while_loop(going, step, c))
 
     def start_cases(keys: Array) -> Cases:
@@ -354,14 +361,9 @@ def _accumulate(
     # The yaw rate the success test reads: relative to the lane's (omega on a straight road).
     yaw = ego_yaw_rate(new.ego, jnp.broadcast_to(road_curvature(new, p), live.shape), p)
     ttc, thw = (jnp.where(counted, x, jnp.inf) for x in safety.conflicts(new, p))
-    hit = live & (info["reason"] == COLLISION)
     step, entered = info["episode_steps"], counted[..., 0]  # counted: (lead, lag, own)
     starts = live & entered & (out.lcm_start < 0)
     ends = live & entered & safety.crossed(new, p) & (out.lcm_end < 0)
-    kappa = jnp.broadcast_to(road_curvature(new, p), live.shape)  # (policies, cases)
-    overlap = jax.vmap(jax.vmap(overlaps, (0, 0, None, 0)), (0, 0, None, 0))(
-        new.traffic, new.ego, p, kappa
-    )
     return out.replace(
         reason=jnp.where(live, info["reason"], out.reason),
         ret=add(out.ret, r),
@@ -380,14 +382,55 @@ def _accumulate(
         lcm_end=jnp.where(ends, step, out.lcm_end),
         min_ttc=jnp.where(live[..., None], jnp.minimum(out.min_ttc, ttc), out.min_ttc),
         min_thw=jnp.where(live[..., None], jnp.minimum(out.min_thw, thw), out.min_thw),
-        partner=jnp.where(hit, safety.partner(overlap, new.traffic, new.ego, p), out.partner),
-        hit_speed=jnp.where(hit, new.ego.v, out.hit_speed),
         cut_ins=out.cut_ins + (live & info.get("cut_in", False)),
         brakes_near=out.brakes_near + jnp.where(live, info.get("brake_near", 0), 0),
-        hit_hazard=jnp.where(hit, safety.hazard(overlap, new.traffic), out.hit_hazard),
         log_w=add(out.log_w, info.get("log_w", 0.0)),
         tilt=out.tilt + jnp.where(live[..., None], info.get("tilt", 0.0), 0.0),
     )
+
+
+def _collisions(out: Outcome, final: EnvState, cs: Cases, p: EnvParams) -> Outcome:
+    """``out`` with the vehicle hit, what it was doing and the ego's speed, read from each
+    case's ``final`` state (``(policies, cases, ...)``): a case freezes on the step its
+    manoeuvre ends, so a collision's final state is the one of the collision."""
+    hit = cs.performed & (out.reason == COLLISION)  # (policies, cases)
+    kappa = jnp.broadcast_to(road_curvature(final, p), hit.shape)
+    overlap = jax.vmap(jax.vmap(overlaps, (0, 0, None, 0)), (0, 0, None, 0))(
+        final.traffic, final.ego, p, kappa
+    )
+    return out.replace(
+        partner=jnp.where(hit, safety.partner(overlap, final.traffic, final.ego, p), 0),
+        hit_speed=jnp.where(hit, final.ego.v, out.hit_speed),
+        hit_hazard=jnp.where(hit, safety.hazard(overlap, final.traffic), 0),
+    )
+
+
+def _run_cases(going: Callable, body: Callable, c: tuple, n: int) -> tuple:
+    """``make_rollout``'s loop over ``n`` cases: ``c`` is ``(i, per-case leaves (policies,
+    cases, ...) whose third is ``done``, trace)``, ``body(rows, c)`` one step of the cases
+    ``rows`` (``c``'s per-case leaves theirs). Below ``SPILL_MIN_BATCH`` cases, one loop
+    over all; from it, the share of the cases that performs a lane change in the paper's
+    traffic (~70%; any more finish in the blocks) runs together until at most ``n // SPILL``
+    go on, then blocks of that many, live first, each from the time the first part stopped."""
+    if n < SPILL_MIN_BATCH:
+        return jax.lax.while_loop(going, partial(body, jnp.arange(n)), c)
+    m = n // SPILL
+
+    def live_count(c: tuple) -> Array:  # () cases with a policy still live
+        return jnp.sum(~jnp.all(c[1][2], axis=0))
+
+    def spill(c: tuple, size: int, stop: int) -> tuple:
+        """Run ``size`` cases, live first, while more than ``stop`` of them go on."""
+        i0, cases, trace = c
+        rows = jnp.argsort(jnp.all(cases[2], axis=0), stable=True)[:size]  # (size,)
+        sub = jax.tree.map(lambda a: a[:, rows], cases)
+        i, sub, trace = jax.lax.while_loop(
+            lambda s: going(s) & (live_count(s) > stop), partial(body, rows), (i0, sub, trace)
+        )
+        return i, jax.tree.map(lambda a, d: a.at[:, rows].set(d), cases, sub), trace
+
+    c = spill(c, n - n // 4, m)
+    return jax.lax.while_loop(going, lambda c: (c[0], *spill(c, m, 0)[1:]), c)
 
 
 def make_rollout(
@@ -395,42 +438,50 @@ def make_rollout(
 ) -> Callable:
     """``(Policies, Cases, traced) -> (Outcome, Trace)``: every policy on every case, from the
     start of its RL phase until it ends, ``max_steps`` env time or the manoeuvre's step cap
-    (``env``: a proposal's, as ``make_start_case``'s)."""
+    (``env``: a proposal's, as ``make_start_case``'s). From ``SPILL_MIN_BATCH`` cases on,
+    most cases step together and the slowest finish in blocks (``_run_cases``), each case bit
+    for bit as in one loop over the batch: the cases with no lane change and the quick
+    manoeuvres no longer wait on the slowest."""
     env = LaneChangeEnv() if env is None else env
-    limit = int(step_limit(base))  # RL steps before a timeout
+    limit = int(step_limit(base))
 
     def rollout(pol: Policies, cs: Cases, traced: Array) -> tuple[Outcome, Trace]:
-        n_pol = pol.k.shape[0]
+        n_pol, n = pol.k.shape[0], cs.reason.shape[0]
         bcast = functools.partial(jax.tree.map, lambda a: jnp.broadcast_to(a, (n_pol,) + a.shape))
         state, obs, side = bcast(cs.state), bcast(cs.obs), bcast(cs.side).astype(jnp.float32)
+        case_keys = bcast(cs.key)  # (policies, cases, 2)
         trace = _empty_trace(n_pol, traced.shape[0], limit + 2, base)
         trace = _record(trace, 0, state, traced, jnp.ones((n_pol, traced.shape[0]), bool), base)
 
         def step_policy(k: Array, keys: Array, s: EnvState, a: Array) -> tuple:
             return jax.vmap(env.step, (0, 0, 0, None))(keys, s, a, base.replace(k=k))
 
-        def body(c: tuple) -> tuple:
-            i, state, obs, done, out, trace, hist, entered = c
-            mu = jax.vmap(actor_apply)(pol.actor, obs)  # (policies, cases, action_dim)
+        def body(rows: Array, c: tuple) -> tuple:
+            """One step of the cases ``rows`` ``(r,)``; ``c``'s per-case leaves are theirs."""
+            i, (state, obs, done, out, hist, entered), trace = c
+            mu = jax.vmap(actor_apply)(pol.actor, obs)  # (policies, r, action_dim)
             action = jnp.where(pol.scripted[:, None, None], baseline_action(obs, base), mu)
-            keys = jax.vmap(jax.vmap(jax.random.fold_in))(bcast(cs.key), state.time)
+            keys = jax.vmap(jax.vmap(jax.random.fold_in))(case_keys[:, rows], state.time)
             new_obs, new, r, _, _, info = jax.vmap(step_policy)(pol.k, keys, state, action)
-            live = ~done  # (policies, cases); only live cases are in the RL phase
+            live = ~done  # (policies, r); only live cases are in the RL phase
             (j_y, h_y), (j_x, h_x) = (
                 safety.windowed_jerk(h, a, base.dt)
                 for h, a in zip(hist, (safety.lateral_acc(new), new.ego.accel), strict=True)
             )
             jerk, hist = (j_y, j_x), (h_y, h_x)
             counted, entered = safety.counted(new, base, entered)
-            out = _accumulate(out, live, new, r, info, side, jerk, counted, base)
+            out = _accumulate(out, live, new, r, info, side[:, rows], jerk, counted, base)
             done = done | (live & ((info["reason"] != 0) | (new.time >= max_steps)))
             # Finished cases freeze, so their last frame is where the manoeuvre ended.
             state, obs = tree.where(live, (new, new_obs), (state, obs))
-            trace = _record(trace, i + 1, state, traced, live[:, traced], base)
-            return i + 1, state, obs, done, out, trace, hist, entered
+            # The traced cases among rows: their position there, and whether present.
+            at = rows[None, :] == traced[:, None]  # (traced, r)
+            pos, present = jnp.argmax(at, axis=1), jnp.any(at, axis=1)
+            trace = _record(trace, i + 1, state, pos, live[:, pos] & present, base)
+            return i + 1, (state, obs, done, out, hist, entered), trace
 
         def going(c: tuple) -> Array:
-            i, _, _, done, *_ = c
+            i, (_, _, done, *_), _ = c
             return (i <= limit) & jnp.any(~done)
 
         # The lateral and longitudinal accelerations of the last 0.5 s, each held at its
@@ -440,10 +491,12 @@ def make_rollout(
         hist = tuple(jnp.broadcast_to(a[..., None], window) for a in (a0, state.ego.accel))
         out0 = _empty_outcome(cs, n_pol, base)
         _, entered = safety.counted(state, base, jnp.zeros(a0.shape, bool))
-        init = (jnp.int32(0), state, obs, ~bcast(cs.performed), out0, trace, hist, entered)
-        *_, out, trace, _, _ = jax.lax.while_loop(going, body, init)
+        cases = (state, obs, ~bcast(cs.performed), out0, hist, entered)
+        c = (jnp.int32(0), cases, trace)
+        _, (final, _, _, out, _, _), trace = _run_cases(going, body, c, n)
         # A case still running here hit the cap: its reason stays 0, "unfinished".
-        return out.replace(overshoot=jnp.maximum(out.overshoot, 0.0)), trace
+        out = _collisions(out.replace(overshoot=jnp.maximum(out.overshoot, 0.0)), final, cs, base)
+        return out, trace
 
     return rollout
 
@@ -472,9 +525,10 @@ def _empty_trace(n_pol: int, n_traced: int, frames: int, p: EnvParams) -> Trace:
 def _record(
     trace: Trace, i: Array | int, state: EnvState, traced: Array, live: Array, p: EnvParams
 ) -> Trace:
-    """Write frame ``i`` of the traced cases (``live``: ``(policies, traced)``, counts it)."""
-    eg, tr, nb = state.ego, state.traffic, state.nb
-    kappa = jnp.broadcast_to(road_curvature(state, p), eg.x.shape)[:, traced]
+    """Write frame ``i`` of the traced cases, ``state``'s cases ``traced``, where ``live``
+    ``(policies, traced)``, and count it there."""
+    st = jax.tree.map(lambda a: a[:, traced], state)
+    eg, tr, nb = st.ego, st.traffic, st.nb
     values = {
         "x": eg.x,
         "y": eg.y,
@@ -488,9 +542,18 @@ def _record(
         "has_lead": nb.has_a1,
         "has_lag": nb.has_b1,
     }
-    new = {k: getattr(trace, k).at[:, :, i].set(v[:, traced]) for k, v in values.items()}
-    frames = trace.frames + live.astype(jnp.int32)
-    return trace.replace(**new, frames=frames, curvature=kappa.astype(jnp.float32))
+
+    def keep(old: Array, new: Array) -> Array:  # (policies, traced, ...) where live
+        return jnp.where(live.reshape(live.shape + (1,) * (new.ndim - 2)), new, old)
+
+    new = {
+        k: getattr(trace, k).at[:, :, i].set(keep(getattr(trace, k)[:, :, i], v))
+        for k, v in values.items()
+    }
+    kappa = jnp.broadcast_to(road_curvature(st, p), eg.x.shape).astype(jnp.float32)
+    return trace.replace(
+        **new, frames=trace.frames + live.astype(jnp.int32), curvature=keep(trace.curvature, kappa)
+    )
 
 
 def pick_traced(cases: Cases, n: int) -> np.ndarray:

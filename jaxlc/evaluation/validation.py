@@ -2,7 +2,8 @@
 (``python -m jaxlc.validate`` is its command line).
 
 A lane change is a held-out case (``jaxlc.evaluation.cases``: reset, the approach, then the
-manoeuvre), drawn from a key stream of its own (``validate_keys``), in chunks of ``chunk``
+manoeuvre; its warm-up steps the traffic alone, ``env.reset``'s ``traffic_only``), drawn from
+a key stream of its own (``validate_keys``), in chunks of ``chunk``
 cases: one jitted program (``program``) starts and rolls out a chunk under a ``Proposal``
 (``jaxlc.evaluation.proposal``; crude MC runs the simulator's own draws, no proposal), and
 ``kinds`` reads each lane change's failures from the held-out outcome: any failure, each
@@ -69,7 +70,7 @@ def program(cfg: config.Config, max_steps: int, tilted: bool) -> Callable:
 
     def run(prop: Proposal, pol: Policies, keys: jax.Array) -> tuple:
         env = TiltedEnv(prop) if tilted else None
-        cs = make_start_cases(base, max_steps, env)(keys)
+        cs = make_start_cases(base, max_steps, env, traffic_warmup=True)(keys)
         out, trace = make_rollout(base, actor_net.apply, max_steps, env)(
             pol, cs, jnp.zeros(1, jnp.int32)
         )

@@ -40,6 +40,7 @@ both give the same rollout, its reals to float32 rounding (``tests/test_rollout_
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -50,7 +51,7 @@ from jaxlc.sim import braking, leaders, mobil, reward
 from jaxlc.sim.collision import collided
 from jaxlc.sim.controller import assist_action
 from jaxlc.sim.ego import ego_accel, ego_phase, gap_decision, held_action, held_long_action
-from jaxlc.sim.motion import move
+from jaxlc.sim.motion import Motion, move
 from jaxlc.sim.observation import (  # noqa: F401 (OBS_DIM, MIRROR_SIGNS, GAP_CLIP re-exported)
     GAP_CLIP,
     MIRROR_SIGNS,
@@ -131,36 +132,66 @@ def _executed(state: EnvState, action: Array, p: EnvParams) -> tuple:
     return held, held_long, lat, lon
 
 
+class TrafficStep(NamedTuple):
+    """The traffic's part of one step (``_move_traffic``)."""
+
+    motion: Motion  # every vehicle, the ego included, one dt on, before inflow
+    before_inflow: Traffic  # after the lane changes' start, before inflow (an entrant's speeds)
+    traffic: Traffic  # the traffic after the step
+    spawned: Array  # () bool: the origin lane's entrant became the ego
+    around: leaders.Around | None  # with env.mobil: leaders by position, before the move
+    lane_changes: mobil.Decision | None  # with env.mobil
+    events: braking.Events | None  # with env.braking
+
+
+def _move_traffic(
+    state: EnvState,
+    u: Draws,
+    ut: TrafficDraws | None,
+    a_ego: Array,
+    a_lat: Array,
+    can_spawn: Array,
+    p: EnvParams,
+    kappa: Array,
+) -> TrafficStep:
+    """Every vehicle's acceleration and move, the lane changes (env.mobil), inflow and the
+    braking events (env.braking); the ego moves by ``a_ego`` and ``a_lat``."""
+    tr, eg = state.traffic, state.ego
+    around = leaders.around(tr, eg, p, lane_scales(kappa, p)) if p.mobil else None
+    m = move(tr, eg, traffic_accel(state, p, around), a_ego, a_lat, p, kappa)
+    lc = events = None
+    if p.mobil:  # lanes change before inflow, so an entrant sees who moved into its lane
+        lc = mobil.decide(tr, around, ut, p)
+        tr = mobil.advance(tr, m.active, lc, ut, p)
+    traffic, spawned = inflow(tr, m, ego_lanes(eg, p), can_spawn, u, p, kappa)
+    if p.braking:
+        events = braking.advance(traffic, ut, p)
+        traffic = events.traffic
+    return TrafficStep(m, tr, traffic, spawned, around, lc, events)
+
+
 def _advance(
     key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool, draws: tuple = ()
 ) -> tuple[EnvState, Array, dict[str, Array]]:
     """One dt of traffic and ego; returns ``(state, reward, info)`` (no observation); ``info``
     holds each of ``p.reward_terms`` under its name. ``draws``: the step's ``(Draws,
     TrafficDraws)`` given instead of drawn from ``key`` (a proposal's: ``jaxlc.validate``)."""
-    tr, eg = state.traffic, state.ego
+    eg = state.ego
     u = draws[0] if draws else Draws.draw(key, p.lanes)
     kappa = road_curvature(state, p)
     in_rl = eg.phase == RL
     held, held_long, lat, lon = _executed(state, action, p)
     a_lat = p.max_yaw_acc * lat
     a_ego = ego_accel(state, p, lon)
-    hazards: dict[str, Array] = {}
+    ut = None
     if p.mobil or p.braking:  # static: the paper's traffic draws and computes none of this
         ut = draws[1] if draws else TrafficDraws.draw(key, p.lanes, p.slots_per_lane)
-    around = leaders.around(tr, eg, p, lane_scales(kappa, p)) if p.mobil else None
-    m = move(tr, eg, traffic_accel(state, p, around), a_ego, a_lat, p, kappa)
-    if p.mobil:  # lanes change before inflow, so an entrant sees who moved into its lane
-        lc = mobil.decide(tr, around, ut, p)
-        tr = mobil.advance(tr, m.active, lc, ut, p)
-        hazards = mobil.counts(lc, around, eg, p)
-    occupied = ego_lanes(eg, p)
-    traffic, spawned = inflow(tr, m, occupied, (eg.phase == WAIT) & spawn, u, p, kappa)
+    t = _move_traffic(state, u, ut, a_ego, a_lat, (eg.phase == WAIT) & spawn, p, kappa)
+    traffic, spawned = t.traffic, t.spawned
+    hazards = mobil.counts(t.lane_changes, t.around, eg, p) if p.mobil else {}
+    ego = ego_phase(eg, t.motion, a_ego, held, held_long, spawned, t.before_inflow, u, p)
     if p.braking:
-        events = braking.advance(traffic, ut, p)
-        traffic = events.traffic
-    ego = ego_phase(eg, m, a_ego, held, held_long, spawned, tr, u, p)
-    if p.braking:
-        hazards |= braking.counts(events, ego, p)
+        hazards |= braking.counts(t.events, ego, p)
     if p.curvature_drawn:  # a new episode, a new road (the traffic keeps its s and lanes)
         kappa = jnp.where(spawned, between(u.curvature, p.curvature_min, p.curvature_max), kappa)
     nb, leader_gap, leader_v = observe_lanes(traffic, ego, p, kappa)
@@ -207,6 +238,16 @@ def _advance(
     return state, r, info
 
 
+def _warm_traffic(key: Array, state: EnvState, p: EnvParams) -> EnvState:
+    """One warm-up step of the traffic alone: ``_advance``'s traffic, with its draws, while no
+    ego is on the road and none spawns; the ego is not moved."""
+    u = Draws.draw(key, p.lanes)
+    ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane) if p.mobil or p.braking else None
+    zero, kappa = jnp.float32(0.0), road_curvature(state, p)
+    t = _move_traffic(state, u, ut, zero, zero, jnp.bool_(False), p, kappa)
+    return state.replace(traffic=t.traffic, time=state.time + 1)
+
+
 class LaneChangeEnv:
     """Functional env; every method is pure and jittable, and vmaps over key/state/action."""
 
@@ -221,9 +262,16 @@ class LaneChangeEnv:
     def action_space(self, params: EnvParams) -> Box:
         return Box(-1.0, 1.0, (action_dim(params),))
 
-    def reset(self, key: Array, params: EnvParams) -> tuple[Array, EnvState]:
+    def reset(
+        self, key: Array, params: EnvParams, traffic_only: bool = False
+    ) -> tuple[Array, EnvState]:
         """``(obs, state)``: an empty road, then ``warmup_steps`` of traffic (the ego spawns on
-        a later step); ``obs`` is ``(OBS_DIM,)``, ``key`` a PRNG key."""
+        a later step); ``obs`` is ``(OBS_DIM,)``, ``key`` a PRNG key. ``traffic_only``
+        (static): the warm-up steps the traffic alone (``_warm_traffic``) at half the cost;
+        the ego, off the road all along, keeps its reset values where the full step lets it
+        coast (nothing after its spawn reads them). Its traffic is the full step's to float32
+        rounding, not to the bit: XLA's CPU code rounds an entry's headway one ulp apart in
+        a few lanes in 10^4."""
         p, lanes, slots = params, params.lanes, params.slots_per_lane
         k_init, k_warm = jax.random.split(key)
         u = jax.random.uniform(k_init, (4, lanes))
@@ -275,9 +323,16 @@ class LaneChangeEnv:
         state = EnvState(traffic, ego, nb, leader_gap, leader_v, jnp.int32(0), road)
 
         def warm(s: EnvState, k: Array) -> tuple[EnvState, None]:
+            if traffic_only:
+                return _warm_traffic(k, s, p), None
             return _advance(k, s, jnp.zeros(action_dim(p)), p, spawn=False)[0], None
 
         state, _ = jax.lax.scan(warm, state, jax.random.split(k_warm, p.warmup_steps))
+        if traffic_only:
+            nb, leader_gap, leader_v = observe_lanes(
+                state.traffic, state.ego, p, road_curvature(state, p)
+            )
+            state = state.replace(nb=nb, leader_gap=leader_gap, leader_v=leader_v)
         return observation(state, p), state.replace(time=jnp.int32(0))
 
     def step(
