@@ -14,6 +14,7 @@ from tables.common import BENCHMARKS, csv_rows
 BENCH = BENCHMARKS / "bench_cpu_2026-11-24"  # the session every other speed figure is from
 ACTORS = BENCHMARKS / "bench_actors_cpu_2026-11-26"  # the plain, odd and paired actors
 REJAX = BENCHMARKS / "vs_rejax_cpu"  # Rejax's learners beside jaxlc's DDPG
+VALIDATE = BENCHMARKS / "validate_cpu_2026-11-27"  # crude MC's speed, validate_throughput.py
 
 
 def bench(name: str) -> tuple[dict[str, str], ...]:
@@ -347,6 +348,31 @@ def sb3_table() -> str:
     return "\n".join(lines)
 
 
+def validate_speed_table() -> str:
+    """Crude MC's lane changes per second and its env-steps per second against the
+    simulator's at the same envs (``validate_throughput.py``'s CSV, one session)."""
+    rows = csv_rows(VALIDATE / "throughput_warmup.csv")
+    names = {"paper": "the paper's", "braking": "braking events (2 per vehicle-hour)"}
+    lines = [
+        f"| traffic, {int(rows[0]['envs']):,} envs | lane changes/s per model | MC env-steps/s | "
+        "`sim_throughput.py` env-steps/s | share (target ≥ 50%) |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {names[r['traffic']]} | {float(r['lane_changes_per_s']):,.1f} | "
+            f"{int(r['env_steps_per_s']):,} | {int(r['sim_env_steps_per_s']):,} | "
+            f"{100 * float(r['share_of_sim']):.1f}% |"
+        )
+    peaks = [int(r[k]) for r in rows for k in ("matmul_peak_before", "matmul_peak_after")]
+    lines += [
+        "",
+        f"{rows[0]['date']}, the idle 2-core VM, matmul peak {min(peaks)}–{max(peaks)} GFLOP/s; "
+        "MC's env-steps count the warm-up's traffic-only steps.",
+    ]
+    return "\n".join(lines)
+
+
 BLOCKS = {
     "sim": sim_table,
     "highway": highway_table,
@@ -357,4 +383,5 @@ BLOCKS = {
     "sb3": sb3_table,
     "scripted-noise": scripted_noise_table,
     "time-to-solution": time_to_solution,
+    "validate-speed": validate_speed_table,
 }
