@@ -443,7 +443,7 @@ def make_rollout(
     for bit as in one loop over the batch: the cases with no lane change and the quick
     manoeuvres no longer wait on the slowest."""
     env = LaneChangeEnv() if env is None else env
-    limit = int(step_limit(base))
+    limit = int(step_limit(base))  # RL steps before a timeout
 
     def rollout(pol: Policies, cs: Cases, traced: Array) -> tuple[Outcome, Trace]:
         n_pol, n = pol.k.shape[0], cs.reason.shape[0]
