@@ -5,9 +5,9 @@ simulator's own (``sim_throughput.py``) at the same number of envs.
 
 One chunk of ``--chunk`` lane-change cases of the scripted controller, as ``python -m
 jaxlc.validate --method mc`` runs them (``jaxlc.evaluation.validation.program``: every case
-reset and warmed up, its approach (``cases.make_start_cases``), its manoeuvre (a vmapped
-``while_loop``, as long as the chunk's slowest manoeuvre)), median of ``--repeats`` after
-compiling. Its env-steps are the steps its cases needed (warm-up, approach, manoeuvre);
+reset with its traffic-only warm-up, its approach (``cases.make_start_cases``), its manoeuvre
+(``cases.make_rollout``)), median of ``--repeats`` after compiling. Its env-steps are the
+steps its cases needed (warm-up, approach, manoeuvre; the warm-up's are the traffic's alone);
 beside them the scan of ``sim_throughput.py`` at ``--chunk`` envs, in the same process.
 Writes ``OUT/throughput.csv`` with the matmul peak before and after.
 """

@@ -144,6 +144,16 @@ class TrafficStep(NamedTuple):
     events: braking.Events | None  # with env.braking
 
 
+def _step_draws(key: Array, p: EnvParams, draws: tuple = ()) -> tuple[Draws, TrafficDraws | None]:
+    """The step's ``(Draws, TrafficDraws)`` from ``key``, or ``draws`` where given; no
+    ``TrafficDraws`` (None) in the paper's traffic, which draws and computes none of them."""
+    u = draws[0] if draws else Draws.draw(key, p.lanes)
+    ut = None
+    if p.mobil or p.braking:  # static
+        ut = draws[1] if draws else TrafficDraws.draw(key, p.lanes, p.slots_per_lane)
+    return u, ut
+
+
 def _move_traffic(
     state: EnvState,
     u: Draws,
@@ -177,15 +187,12 @@ def _advance(
     holds each of ``p.reward_terms`` under its name. ``draws``: the step's ``(Draws,
     TrafficDraws)`` given instead of drawn from ``key`` (a proposal's: ``jaxlc.validate``)."""
     eg = state.ego
-    u = draws[0] if draws else Draws.draw(key, p.lanes)
+    u, ut = _step_draws(key, p, draws)
     kappa = road_curvature(state, p)
     in_rl = eg.phase == RL
     held, held_long, lat, lon = _executed(state, action, p)
     a_lat = p.max_yaw_acc * lat
     a_ego = ego_accel(state, p, lon)
-    ut = None
-    if p.mobil or p.braking:  # static: the paper's traffic draws and computes none of this
-        ut = draws[1] if draws else TrafficDraws.draw(key, p.lanes, p.slots_per_lane)
     t = _move_traffic(state, u, ut, a_ego, a_lat, (eg.phase == WAIT) & spawn, p, kappa)
     traffic, spawned = t.traffic, t.spawned
     hazards = mobil.counts(t.lane_changes, t.around, eg, p) if p.mobil else {}
@@ -241,8 +248,7 @@ def _advance(
 def _warm_traffic(key: Array, state: EnvState, p: EnvParams) -> EnvState:
     """One warm-up step of the traffic alone: ``_advance``'s traffic, with its draws, while no
     ego is on the road and none spawns; the ego is not moved."""
-    u = Draws.draw(key, p.lanes)
-    ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane) if p.mobil or p.braking else None
+    u, ut = _step_draws(key, p)
     zero, kappa = jnp.float32(0.0), road_curvature(state, p)
     t = _move_traffic(state, u, ut, zero, zero, jnp.bool_(False), p, kappa)
     return state.replace(traffic=t.traffic, time=state.time + 1)

@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 from jaxlc import config
+from jaxlc.evaluation import validation
 from jaxlc.paper import claims
 from jaxlc.paper.grid import is_best
 from jaxlc.study.rundir import RunDir
@@ -115,25 +116,21 @@ def validated_table() -> str:
         "|---|---|---|---|---|---|",
     ]
 
-    def rate(e: dict) -> str:
+    def rate(e: dict, ends: list[str]) -> str:  # ends: the kinds that occurred, if any
         if e["failures"] == 0:
             return f"0 of them: < {e['upper_bound']:.3g}"
         interval = f"{e['estimate']:.2g} [{e['lo']:.2g}, {e['hi']:.2g}]"
-        return f"{e['failures']} ({', '.join(e['why'])}): {interval}"
+        return f"{e['failures']} ({', '.join(ends)}): {interval}"
 
     for folder in VALIDATED:
         doc = json.loads((folder / "validate.json").read_text())
         for m in doc["models"]:
             est = m["estimates"]
-            failed = [
-                k
-                for k in ("collision", "out_of_bounds", "timeout", "unfinished")
-                if est[k]["failures"]
-            ]
+            ends = [k.replace("_", " ") + "s" for k in validation.ENDS if est[k]["failures"]]
             lines.append(
                 f"| {m['meta']['label']}, seed {m['meta']['seed']} | {doc['traffic']} | "
-                f"{est['failure']['lane_changes']:,} | {rate(est['collision'] | {'why': []})} | "
-                f"{rate(est['failure'] | {'why': [k.replace('_', ' ') + 's' for k in failed]})} | "
+                f"{est['failure']['lane_changes']:,} | {rate(est['collision'], [])} | "
+                f"{rate(est['failure'], ends)} | "
                 f"{m['wall_s']:,.1f} ({doc['matmul_peak_gflops']} GFLOP/s) |"
             )
     return "\n".join(lines)
