@@ -273,7 +273,7 @@ class LaneChangeEnv:
     ) -> tuple[Array, EnvState]:
         """``(obs, state)``: an empty road, then ``warmup_steps`` of traffic (the ego spawns on
         a later step); ``obs`` is ``(OBS_DIM,)``, ``key`` a PRNG key. ``traffic_only``
-        (static): the warm-up steps the traffic alone (``_warm_traffic``) at half the cost;
+        (static): the warm-up steps the traffic alone (``_warm_traffic``), a fraction of the cost;
         the ego, off the road all along, keeps its reset values where the full step lets it
         coast (nothing after its spawn reads them). Its traffic is the full step's to float32
         rounding, not to the bit: XLA's CPU code rounds an entry's headway one ulp apart in
