@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.stats
 
 import jaxlc
 from jaxlc import config
@@ -97,6 +98,35 @@ def test_two_drivers_do_not_start_into_one_spot_on_one_step():
     d = _decide(p, s)
     assert bool(d.fired[0, 1]) and bool(d.fired[2, 3])
     assert int(d.start.sum()) == 1
+
+
+def test_at_most_starters_of_one_env_start_on_one_step_the_first_in_slot_order():
+    p = jaxlc.make(config.load(overrides=HAZARDS))[1]
+    # twelve cars 30 m apart at 10 m/s in lane 0, lane 1 empty: each gains by moving left,
+    # and none is within another's safe distance (22 m), so each would start
+    cars = [(0, 500.0 - 30.0 * i, 10.0) for i in range(12)]
+    d = _decide(p, _traffic(p, cars))
+    fired = np.flatnonzero(np.asarray(d.fired).reshape(-1))
+    assert fired.size > mobil.STARTERS
+    started = np.flatnonzero(np.asarray(d.start).reshape(-1))
+    assert list(started) == list(fired[: mobil.STARTERS])
+
+
+def test_the_traffic_draws_are_uniform_and_independent():
+    p = jaxlc.make(config.load(overrides=HAZARDS))[1]
+    keys = jax.random.split(jax.random.PRNGKey(11), 4096)
+    u = jax.vmap(lambda k: TrafficDraws.draw(k, p.lanes, p.slots_per_lane))(keys)
+    u = np.stack([np.asarray(a) for a in u], axis=1).reshape(4096, -1)  # (keys, numbers)
+    assert ((u >= 0.0) & (u < 1.0)).all()
+    for per_number in (u[:, 0], u[:, 7], u[:, -1], u.reshape(-1)):  # across keys; all at once
+        assert scipy.stats.kstest(per_number, "uniform").pvalue > 1e-4
+    # neighbouring numbers of one step and one number of neighbouring keys: uncorrelated
+    r_next = np.corrcoef(u[:, :-1].reshape(-1), u[:, 1:].reshape(-1))[0, 1]
+    r_keys = np.corrcoef(u[:-1].reshape(-1), u[1:].reshape(-1))[0, 1]
+    assert abs(r_next) < 0.01 and abs(r_keys) < 0.01
+    # the step's key alone decides them: the same key, the same numbers
+    again = TrafficDraws.draw(keys[3], p.lanes, p.slots_per_lane)
+    assert np.array_equal(np.stack([np.asarray(a) for a in again]).reshape(-1), u[3])
 
 
 def _pairwise_around(x, occ):

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 from jax import Array
 
@@ -76,9 +77,11 @@ def around(tr: Traffic, eg: Ego, p: EnvParams, scale: Array) -> Around:
     """Leaders and followers of every vehicle in every lane, the ego counted where its body
     is (``road.ego_lanes``) while it is on the road. ``scale`` ``(lanes,)``: ``lane_scales``.
 
-    One sort of the env's vehicles by position (``_order``), then per lane the nearest
-    vehicle counting in it before and after each rank (prefix scans): ``O(V log V)`` per env
-    where comparing every pair costs ``lanes * V**2``."""
+    One sort of the env's vehicles by position (``_order``); per lane, the ranks of the
+    vehicles counting in it compacted in rank order (a running count, as one matrix product,
+    and a scatter), so that the nearest one ahead of rank ``r`` is the compacted entry at the
+    count up to ``r``: ``O(V log V)`` per env where comparing every pair costs
+    ``lanes * V**2``."""
     hx, _ = kinematics.half_extents(eg.psi, p.vehicle_length, p.vehicle_width)
     x = jnp.append(tr.x.reshape(-1), eg.x)
     v = jnp.append(tr.v.reshape(-1), eg.v)
@@ -88,36 +91,38 @@ def around(tr: Traffic, eg: Ego, p: EnvParams, scale: Array) -> Around:
         [occupancy(tr, p).reshape(p.lanes, -1), ego_lanes(eg, p)[:, None]], axis=1
     )
     n = x.shape[0]
-    bits = max(1, (n - 1).bit_length())  # static: an index in the key's low bits
-    ids = _order(x, p.road_length, bits)  # (V,) int32 the vehicle at each rank
-    # Per lane and rank, "rank << bits | id" of a vehicle counting in that lane, else a
-    # sentinel: the nearest one after a rank is the smallest code after it.
-    code = jnp.arange(n, dtype=jnp.int32) * (1 << bits) + ids  # (V,)
+    ids = _order(x, p.road_length, max(1, (n - 1).bit_length()))  # (V,) the vehicle at each rank
     in_lane = occ[:, ids]  # (lanes, V) by rank
-    none_ahead, none_behind = jnp.int32(_BIG), jnp.int32(-1)
-    ahead = _shift(jnp.where(in_lane, code, none_ahead), 1, none_ahead)
-    behind = _shift(jnp.where(in_lane, code, none_behind), -1, none_behind)
-    nxt = _scan(ahead, jnp.minimum, 1, none_ahead)
-    prv = _scan(behind, jnp.maximum, -1, none_behind)
-    # Back in slot order by a scatter, not a gather: XLA's CPU fusion would pull the scans
-    # into every reader of a gather and redo them per element read.
-    nxt, prv = (jnp.zeros_like(c).at[:, ids].set(c, unique_indices=True) for c in (nxt, prv))
-    mask = (1 << bits) - 1
+    # (lanes, V) how many count in the lane up to each rank, included: a product with a
+    # triangle of ones (exact in float32) costs XLA's CPU less than a cumulative sum.
+    tri = jnp.triu(jnp.ones((n, n), jnp.float32))  # static; HIGHEST: no TF32/bf16 on a GPU
+    upto = jnp.dot(in_lane.astype(jnp.float32), tri, precision=jax.lax.Precision.HIGHEST)
+    upto = upto.astype(jnp.int32)
+    before = upto - in_lane  # counted strictly before each rank
+    # (lanes, 2V + 1) per lane the vehicles counting in it, in rank order, then n (none);
+    # the others are written past V, each to its own place: XLA's CPU scatters unique
+    # indices faster than ones it must drop.
+    packed = jnp.where(in_lane, upto - 1, n + 1 + jnp.arange(n))
+    compact = jax.vmap(
+        lambda at: jnp.full(2 * n + 1, n, jnp.int32).at[at].set(ids, unique_indices=True)
+    )(packed)
+    nxt = jnp.take_along_axis(compact, upto, axis=1)  # (lanes, V) by rank, n where none
+    prv = jnp.take_along_axis(compact, jnp.maximum(before - 1, 0), axis=1)
+    prv = jnp.where(before > 0, prv, n)
+    rank = jnp.zeros(n, jnp.int32).at[ids].set(jnp.arange(n, dtype=jnp.int32), unique_indices=True)
+    lead, lag = nxt[:, rank], prv[:, rank]  # (lanes, V) in slot order
     return Around(
         x=x,
         v=v,
         v0=v0,
         length=length,
         occ=occ,
-        lead=nxt & mask,
-        has_lead=nxt != none_ahead,
-        lag=jnp.maximum(prv, 0) & mask,
-        has_lag=prv != none_behind,
+        lead=jnp.minimum(lead, n - 1),
+        has_lead=lead < n,
+        lag=jnp.minimum(lag, n - 1),
+        has_lag=lag < n,
         scale=scale,
     )
-
-
-_BIG = 2**31 - 1
 
 
 def _order(x: Array, road_length: Array, bits: int) -> Array:
@@ -130,24 +135,6 @@ def _order(x: Array, road_length: Array, bits: int) -> Array:
     q = jnp.floor((x + 0.5 * road_length) * (levels / (2.0 * road_length)))
     q = jnp.clip(q, 0, levels - 1).astype(jnp.int32)
     return jnp.sort(q * (1 << bits) + jnp.arange(x.shape[0], dtype=jnp.int32)) & ((1 << bits) - 1)
-
-
-def _shift(a: Array, by: int, fill: Array) -> Array:
-    """``a`` moved ``by`` places along its last axis (``+1``: entry ``r`` takes ``r + 1``'s),
-    ``fill`` where nothing moves in."""
-    pad = jnp.full(a.shape[:-1] + (abs(by),), fill, a.dtype)
-    return jnp.concatenate([a[..., by:], pad] if by > 0 else [pad, a[..., :by]], axis=-1)
-
-
-def _scan(a: Array, op, direction: int, identity: Array) -> Array:
-    """Inclusive scan of ``op`` along the last axis, from the end (``direction=1``) or the
-    start (``-1``), by doubling: ``log2(V)`` elementwise steps (``lax.cummin`` lowers to a
-    slower loop on the CPU)."""
-    k = 1
-    while k < a.shape[-1]:
-        a = op(a, _shift(a, direction * k, identity))
-        k *= 2
-    return a
 
 
 def net_gap(a: Around, back: Array, front: Array, present: Array) -> Array:

@@ -13,15 +13,18 @@ bias ``mobil_bias_right``, b_safe the ego's gap test's ``b_safe``. The ego is a 
 ahead of it in its lane only where the ego's own braking would stay within b_safe. Of the two
 sides the larger incentive is taken. A driver acts on an allowed change at ``mobil_rate`` per
 second (the step's draw ``lc_fire``); of two drivers starting toward the same lane within a
-safe distance of each other on one step, the one in the lower slot goes. The change lasts a
-drawn ``U(lane_change_time_min, _max)`` s along ``leaders.profile``; meanwhile the body counts
-in both lanes (``leaders.occupancy``): it leads and follows in each.
+safe distance of each other on one step, the one in the lower slot goes, and of an env's
+drivers acting on one step the first ``STARTERS`` in slot order may start (the others act
+again on a later step's draw). The change lasts a drawn ``U(lane_change_time_min, _max)`` s
+along ``leaders.profile``; meanwhile the body counts in both lanes (``leaders.occupancy``): it
+leads and follows in each.
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 from jax import Array
 
@@ -32,6 +35,7 @@ from jaxlc.sim.road import current_lane
 from jaxlc.sim.state import GAP, Ego, EnvParams, Traffic, TrafficDraws, between
 
 NEVER = 1e4  # s since the last lane change of a vehicle that has made none
+STARTERS = 8  # static: the most drivers of one env that start a lane change on one step
 
 
 class Decision(NamedTuple):
@@ -40,7 +44,7 @@ class Decision(NamedTuple):
     allowed: Array  # bool: eligible, and MOBIL allows a change to one side
     fired: Array  # bool: allowed, and the driver acts this step
     start: Array  # bool: fired and not held back by a nearer starter
-    to: Array  # int32 the lane it moves to (where allowed)
+    to: Array  # int32 the lane it moves to where allowed, else -1
 
 
 def _idm(a: Around, f: Array, lead: Array, present: Array, lane: Array, p: EnvParams):
@@ -98,22 +102,28 @@ def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
     to = jnp.where(go_left, left_to, right_to).astype(jnp.int32)
     eligible = tr.active.reshape(-1) & ~changing(tr).reshape(-1)
     eligible &= tr.lc_time.reshape(-1) >= p.mobil_interval
-    allowed = eligible & (left_ok | right_ok)
+    # Each allowed driver's new lane, -1 for the others, behind a barrier: XLA's CPU fusion
+    # would otherwise pull the incentives (several gathers, seven IDM evaluations) into
+    # every reader and recompute them once per reader (each output, each pick below).
+    choice = jax.lax.optimization_barrier(jnp.where(eligible & (left_ok | right_ok), to, -1))
+    allowed = choice >= 0
     fired = allowed & (u.lc_fire.reshape(-1) < -jnp.expm1(-p.mobil_rate * p.dt))
     # Two starters toward one lane, closer than a follower's safe distance: the lower goes.
-    x, v = a.x[:n], a.v[:n]
+    # Only the first STARTERS acting drivers are compared pair by pair: comparing all V**2
+    # pairs was most of the traffic's step.
+    pick = fired[None, :] & ((jnp.cumsum(fired) - 1)[None, :] == jnp.arange(STARTERS)[:, None])
+    k = jnp.sum(jnp.where(pick, i[None, :], 0), axis=1)  # (K,) the picked drivers (0: none)
+    valid = jnp.any(pick, axis=1)  # (K,)
+    x, v, to_k = a.x[k], a.v[k], choice[k]
     near = jnp.abs(x[:, None] - x[None, :]) < (
         p.vehicle_length + p.idm_s0 + jnp.maximum(v[:, None], v[None, :]) * p.idm_time_headway
     )
-    # Each starter's lane, -1 for the others, written by a scatter: XLA's CPU fusion does not
-    # pull a scatter's inputs (the lane-change incentives) into the (V, V) comparison below,
-    # which would otherwise recompute them once per pair.
-    code = jnp.where(fired, to, -1)
-    code = jnp.zeros_like(code).at[i].set(code, unique_indices=True)  # (V,)
-    clash = (code[None, :] == code[:, None]) & (code[None, :] >= 0) & near
-    start = fired & ~jnp.any(clash & (i[None, :] < i[:, None]), axis=1)
+    clash = (to_k[None, :] == to_k[:, None]) & valid[None, :] & near  # (K, K)
+    first = jnp.arange(STARTERS)
+    go = valid & ~jnp.any(clash & (first[None, :] < first[:, None]), axis=1)  # (K,)
+    start = jnp.any(pick & go[:, None], axis=0)  # (N,)
     shape = tr.x.shape
-    return Decision(*(b.reshape(shape) for b in (allowed, fired, start, to)))
+    return Decision(*(b.reshape(shape) for b in (allowed, fired, start, choice)))
 
 
 def advance(tr: Traffic, moved: Array, d: Decision, u: TrafficDraws, p: EnvParams) -> Traffic:

@@ -107,8 +107,9 @@ class Draws(NamedTuple):
 
 class TrafficDraws(NamedTuple):
     """The step's uniform numbers of the traffic's own decisions, ``(lanes, slots)`` each, one
-    per vehicle slot: drawn from ``fold_in(step key, 1)`` only with ``env.mobil`` or
-    ``env.braking``, so with both off the traffic's draws are the paper's traffic's alone."""
+    per vehicle slot: 64 bits drawn from ``fold_in(step key, 1)``, one counter-based hash of
+    them per number (``_mix``), only with ``env.mobil`` or ``env.braking``, so with both off
+    the traffic's draws are the paper's traffic's alone."""
 
     lc_fire: Array  # acts on an allowed lane change this step (< 1 - exp(-mobil_rate*dt))
     lc_time: Array  # the lane change's duration in [lane_change_time_min, _max)
@@ -118,8 +119,20 @@ class TrafficDraws(NamedTuple):
 
     @classmethod
     def draw(cls, key: Array, lanes: int, slots: int) -> TrafficDraws:
-        u = jax.random.uniform(jax.random.fold_in(key, 1), (5, lanes, slots))
-        return cls(*u)
+        # 64 bits of threefry from the step's key, then a counter-based hash per number:
+        # threefry for all 5 * lanes * slots numbers cost as much as the rest of the
+        # traffic's step.
+        s0, s1 = jax.random.bits(jax.random.fold_in(key, 1), (2,), jnp.uint32)
+        ctr = jnp.arange(5 * lanes * slots, dtype=jnp.uint32).reshape(5, lanes, slots)
+        h = _mix(_mix(ctr ^ s0) + s1)
+        return cls(*((h >> 8).astype(jnp.float32) * (1.0 / (1 << 24))))
+
+
+def _mix(h: Array) -> Array:
+    """A bijective 32-bit integer hash (Wellons' ``lowbias32``: full avalanche, bias 0.17)."""
+    h = (h ^ (h >> 16)) * jnp.uint32(0x7FEB352D)
+    h = (h ^ (h >> 15)) * jnp.uint32(0x846CA68B)
+    return h ^ (h >> 16)
 
 
 def between(u: Array, lo: Array, hi: Array) -> Array:
