@@ -29,7 +29,7 @@ def test_every_env_config_field_is_a_param_converted_by_the_table():
     assert set(CONVERSIONS) <= params
     # Static fields are not leaves: a vmapped batch may differ in every other field.
     leaves = len(jax.tree_util.tree_leaves(p))
-    statics = STATIC | {"warmup_steps", "curvature_drawn", "reward_terms"}
+    statics = STATIC | {"warmup_steps", "mobil_deciders", "curvature_drawn", "reward_terms"}
     assert leaves == len(params) - len(statics)
 
 
@@ -39,13 +39,14 @@ def test_env_params_spells_env_config_in_its_order_with_its_converted_defaults()
     names = [f.name for f in dataclasses.fields(EnvParams)]
     from_config = [f.name for f in dataclasses.fields(EnvConfig) if f.name not in DERIVED]
     assert names[: len(from_config)] == from_config
-    derived = {"warmup_steps", "curvature", "curvature_min", "curvature_max", "curvature_drawn"}
+    derived = {"warmup_steps", "mobil_deciders", "curvature", "curvature_min", "curvature_max"}
+    derived |= {"curvature_drawn"}
     assert set(names[len(from_config) :]) == derived | {"reward_terms", "gamma", "k"}
     assert EnvParams() == EnvParams.from_config(EnvConfig())
     assert EnvParams().gamma == config.DDPGConfig().gamma  # the learner's default discount
     assert STATIC == {
         "lanes", "slots_per_lane", "longitudinal", "assist", "mobil", "braking",
-        "warmup_steps", "curvature_drawn", "reward_terms",
+        "warmup_steps", "mobil_deciders", "curvature_drawn", "reward_terms",
     }  # fmt: skip
 
 

@@ -80,11 +80,11 @@ def test_mobil_leaves_a_slow_leader_for_a_free_lane_only_when_it_is_safe():
     # lane 0: a car at 25 m/s, 20 m behind a truck at 10 m/s; lane 1 empty around them
     free = _decide(p, _traffic(p, [(0, 300.0, 10.0), (0, 275.0, 25.0)]))
     assert bool(free.start[0, 1]) and int(free.to[0, 1]) == 1  # moves left, to lane 1
-    assert not bool(free.allowed[0, 0])  # the truck gains nothing itself
+    assert bool(free.weighed[0, 0]) and not bool(free.allowed[0, 0])  # the truck gains nothing
     # with politeness 0.2 the truck moves over for the car (its gain weighs), and of the
     # two starting into one spot on one step only the truck goes
     both = _decide(polite, _traffic(p, [(0, 300.0, 10.0), (0, 275.0, 25.0)]))
-    assert bool(both.fired[0, 0]) and bool(both.fired[0, 1])
+    assert bool(both.allowed[0, 0]) and bool(both.allowed[0, 1])
     assert bool(both.start[0, 0]) and not bool(both.start[0, 1])
     # the same with a fast car 8 m behind in lane 1: it would brake harder than b_safe
     blocked = _decide(p, _traffic(p, [(0, 300.0, 10.0), (0, 275.0, 25.0), (1, 262.0, 30.0)]))
@@ -96,20 +96,31 @@ def test_two_drivers_do_not_start_into_one_spot_on_one_step():
     # lanes 0 and 2 each hold a car behind a slow truck, side by side: both want lane 1
     s = _traffic(p, [(0, 300.0, 10.0), (0, 275.0, 25.0), (2, 300.0, 10.0), (2, 275.0, 25.0)])
     d = _decide(p, s)
-    assert bool(d.fired[0, 1]) and bool(d.fired[2, 3])
+    assert bool(d.allowed[0, 1]) and bool(d.allowed[2, 3])
     assert int(d.start.sum()) == 1
 
 
-def test_at_most_starters_of_one_env_start_on_one_step_the_first_in_slot_order():
-    p = jaxlc.make(config.load(overrides=HAZARDS))[1]
-    # twelve cars 30 m apart at 10 m/s in lane 0, lane 1 empty: each gains by moving left,
-    # and none is within another's safe distance (22 m), so each would start
+def test_of_the_drivers_acting_on_one_step_the_first_deciders_weigh_a_change():
+    p = jaxlc.make(config.load(overrides=HAZARDS))[1].replace(mobil_deciders=5)
+    # twelve cars 30 m apart at 10 m/s in lane 0, lane 1 empty: each gains by moving left (the
+    # first for its follower), none within another's safe distance (22 m); every driver acts
     cars = [(0, 500.0 - 30.0 * i, 10.0) for i in range(12)]
-    d = _decide(p, _traffic(p, cars))
-    fired = np.flatnonzero(np.asarray(d.fired).reshape(-1))
-    assert fired.size > mobil.STARTERS
-    started = np.flatnonzero(np.asarray(d.start).reshape(-1))
-    assert list(started) == list(fired[: mobil.STARTERS])
+    d = jax.device_get(_decide(p, _traffic(p, cars)))
+    assert d.eligible.sum() == 12
+    assert list(np.flatnonzero(d.weighed)) == [0, 1, 2, 3, 4]  # slot order, first five
+    assert list(np.flatnonzero(d.start)) == [0, 1, 2, 3, 4]
+    assert (d.to[0, :5] == 1).all() and (d.to.reshape(-1)[5:] == -1).all()
+    # with room for all, every driver starts
+    d = jax.device_get(_decide(p.replace(mobil_deciders=48), _traffic(p, cars)))
+    assert list(np.flatnonzero(d.start)) == list(range(12))
+
+
+@pytest.mark.parametrize("rate", [0.5, 2.0, 10.0])
+def test_the_deciders_cover_every_driver_acting_but_one_step_in_a_million(rate):
+    p = jaxlc.make(config.load(overrides=(*HAZARDS, f"env.mobil_rate={rate}")))[1]
+    n, q = p.lanes * p.slots_per_lane, -np.expm1(-rate * p.dt)
+    k = p.mobil_deciders
+    assert scipy.stats.binom.sf(k, n, q) <= 1e-6 < scipy.stats.binom.sf(k - 1, n, q)
 
 
 def test_the_traffic_draws_are_uniform_and_independent():

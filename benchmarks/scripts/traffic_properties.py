@@ -7,8 +7,9 @@ controller driving the egos, every step checked for
 - a lane change started where MOBIL's safety criterion forbids it: the new follower (the ego
   included), found by brute force in the state before the step, would brake harder than
   ``b_safe`` or stand closer than ``s0`` behind it;
-- the rates: lane changes started per allowed vehicle-step and braking events per eligible
-  vehicle-step against ``1 - exp(-rate * dt)``, with their 99.9% Clopper-Pearson intervals.
+- the rates: drivers weighing a lane change per eligible vehicle-step (a driver past the env's
+  ``mobil_deciders`` on one step does not) and braking events per eligible vehicle-step against
+  ``1 - exp(-rate * dt)``, with their 99.9% Clopper-Pearson intervals.
 
     python benchmarks/scripts/traffic_properties.py --envs 256 --steps 100000
     python benchmarks/scripts/traffic_properties.py --envs 64 --steps 400 --rates default
@@ -35,7 +36,8 @@ from jaxlc.sim.leaders import changing, occupancy, vehicle_y
 from jaxlc.sim.road import ego_lanes
 
 HIGHEST = ("env.mobil_rate=10.0", "env.braking_rate=3600.0")  # the ranges' upper ends
-COUNTS = ("lc_allowed", "lc_fired", "lc_started", "brake_eligible", "brake_started", "cut_in")
+COUNTS = ("lc_eligible", "lc_weighed", "lc_allowed", "lc_started")
+COUNTS += ("brake_eligible", "brake_started", "cut_in")
 
 
 def _unsafe_starts(before, after, p) -> jax.Array:
@@ -122,7 +124,7 @@ def check(
             totals[name] = totals.get(name, 0) + int(value)
         done += min(chunk, steps)
     rates = {
-        "lane_change": ("lc_fired", "lc_allowed", float(p.mobil_rate)),
+        "lane_change": ("lc_weighed", "lc_eligible", float(p.mobil_rate)),
         "braking": ("brake_started", "brake_eligible", float(p.braking_rate)),
     }
     for name, (k, n, rate) in rates.items():

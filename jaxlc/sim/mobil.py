@@ -12,19 +12,20 @@ bias ``mobil_bias_right``, b_safe the ego's gap test's ``b_safe``. The ego is a 
 (``leaders.around`` counts it where its body is), so a vehicle moves into the ego's gap or
 ahead of it in its lane only where the ego's own braking would stay within b_safe. Of the two
 sides the larger incentive is taken. A driver acts on an allowed change at ``mobil_rate`` per
-second (the step's draw ``lc_fire``); of two drivers starting toward the same lane within a
-safe distance of each other on one step, the one in the lower slot goes, and of an env's
-drivers acting on one step the first ``STARTERS`` in slot order may start (the others act
-again on a later step's draw). The change lasts a drawn ``U(lane_change_time_min, _max)`` s
-along ``leaders.profile``; meanwhile the body counts in both lanes (``leaders.occupancy``): it
-leads and follows in each.
+second: by thinning, an eligible driver weighs a change when the step's draw ``lc_fire`` fires
+and starts it when MOBIL allows, so only the few drivers whose draw fired are weighed, the
+first ``mobil_deciders`` of an env in slot order (``params``: a binomial tail of 1e-6 per
+env-step at the config's rate and a full road; a driver past them weighs again on a later
+step's draw). Of two drivers starting toward the same lane within a safe distance of each
+other on one step, the one in the lower slot goes. The change lasts a drawn
+``U(lane_change_time_min, _max)`` s along ``leaders.profile``; meanwhile the body counts in
+both lanes (``leaders.occupancy``): it leads and follows in each.
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 from jax import Array
 
@@ -35,15 +36,15 @@ from jaxlc.sim.road import current_lane
 from jaxlc.sim.state import GAP, Ego, EnvParams, Traffic, TrafficDraws, between
 
 NEVER = 1e4  # s since the last lane change of a vehicle that has made none
-STARTERS = 8  # static: the most drivers of one env that start a lane change on one step
 
 
 class Decision(NamedTuple):
     """One step's lane-change decisions, ``(lanes, slots)`` each (slot order)."""
 
-    allowed: Array  # bool: eligible, and MOBIL allows a change to one side
-    fired: Array  # bool: allowed, and the driver acts this step
-    start: Array  # bool: fired and not held back by a nearer starter
+    eligible: Array  # bool: on the road, not changing lanes, its last start long enough ago
+    weighed: Array  # bool: eligible, its draw fired, and among the env's first deciders
+    allowed: Array  # bool: weighed, and MOBIL allows a change to one side
+    start: Array  # bool: allowed and not held back by a nearer starter
     to: Array  # int32 the lane it moves to where allowed, else -1
 
 
@@ -55,29 +56,46 @@ def _idm(a: Around, f: Array, lead: Array, present: Array, lane: Array, p: EnvPa
     return idm_with_params(a.v[f], a.v0[f], g, v_lead, p), g
 
 
-def _in_lane(table: Array, lane: Array, n: int) -> Array:
-    """``table[lane[i], i]`` for the first ``n`` vehicles (``table``: ``(lanes, V)``), by a
-    one-hot over the few lanes: a gather's index array costs XLA's CPU more than the pick."""
-    pick = lane[None, :] == jnp.arange(table.shape[0])[:, None]  # (lanes, n)
-    if table.dtype == jnp.bool_:
-        return jnp.any(pick & table[:, :n], axis=0)
-    return jnp.sum(jnp.where(pick, table[:, :n], 0), axis=0, dtype=table.dtype)
+def _in_lane(table: Array, lane: Array, cols: Array) -> Array:
+    """``table[lane[j], cols[j]]`` (``table``: ``(lanes, V)``), by a one-hot over the few
+    lanes: a gather's two index arrays cost XLA's CPU more than the pick."""
+    t = table[:, cols]  # (lanes, K)
+    pick = lane[None, :] == jnp.arange(table.shape[0])[:, None]  # (lanes, K)
+    if t.dtype == jnp.bool_:
+        return jnp.any(pick & t, axis=0)
+    return jnp.sum(jnp.where(pick, t, 0), axis=0, dtype=t.dtype)
 
 
-def _lead_lag(a: Around, lane: Array, n: int) -> tuple[Array, Array, Array, Array]:
-    """``(lead, has_lead, lag, has_lag)`` of the first ``n`` vehicles in lanes ``lane`` ``(n,)``."""
-    return tuple(_in_lane(t, lane, n) for t in (a.lead, a.has_lead, a.lag, a.has_lag))
+def _lead_lag(a: Around, lane: Array, cols: Array) -> tuple[Array, Array, Array, Array]:
+    """``(lead, has_lead, lag, has_lag)`` of vehicles ``cols`` ``(K,)`` in lanes ``lane``."""
+    return tuple(_in_lane(t, lane, cols) for t in (a.lead, a.has_lead, a.lag, a.has_lag))
+
+
+def _written(a: Array) -> Array:
+    """``a`` itself, written by a scatter: XLA's CPU fusion does not pull a scatter's inputs
+    into its readers, which would otherwise recompute them (here the step's draws, gathers and
+    IDM evaluations) once per element they read."""
+    return jnp.zeros_like(a).at[jnp.arange(a.shape[0])].set(a, unique_indices=True)
 
 
 def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
     """Which vehicles start a lane change on this step, and to which lane (``a``: the state's
     ``leaders.around``; positions are those of the state before the step's move)."""
-    n = tr.x.size
+    n, k = tr.x.size, p.mobil_deciders
     i = jnp.arange(n)
-    lane = tr.lane.reshape(-1)
-    cur_lead, has_cur, old, has_old = _lead_lag(a, lane, n)
-    a_c, _ = _idm(a, i, cur_lead, has_cur, lane, p)
-    a_o, _ = _idm(a, old, i, True, lane, p)
+    eligible = tr.active.reshape(-1) & ~changing(tr).reshape(-1)
+    eligible &= tr.lc_time.reshape(-1) >= p.mobil_interval
+    acts = eligible & (u.lc_fire.reshape(-1) < -jnp.expm1(-p.mobil_rate * p.dt))  # (N,)
+    # (K,) the deciders, n where none: compacted by a scatter, which also keeps the draws
+    # from being recomputed by every reader (``_written``).
+    at = jnp.where(acts, jnp.cumsum(acts) - 1, k)  # a driver's place among them; >= K: none
+    c = jnp.full(k, n, jnp.int32).at[at].set(i, mode="drop")
+    valid = c < n
+    c = jnp.minimum(c, n - 1)
+    lane = tr.lane.reshape(-1)[c]
+    cur_lead, has_cur, old, has_old = _lead_lag(a, lane, c)
+    a_c, _ = _idm(a, c, cur_lead, has_cur, lane, p)
+    a_o, _ = _idm(a, old, c, True, lane, p)
     at_o, _ = _idm(a, old, cur_lead, has_cur, lane, p)
     gain_o = jnp.where(has_old, at_o - a_o, 0.0)
 
@@ -85,10 +103,10 @@ def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
         to = lane + d
         ok = (to >= 0) & (to < p.lanes)
         to = jnp.clip(to, 0, p.lanes - 1)
-        lead, has_lead, new, has_new = _lead_lag(a, to, n)
-        at_c, front = _idm(a, i, lead, has_lead, to, p)
+        lead, has_lead, new, has_new = _lead_lag(a, to, c)
+        at_c, front = _idm(a, c, lead, has_lead, to, p)
         a_n, _ = _idm(a, new, lead, has_lead, to, p)
-        at_n, back = _idm(a, new, i, True, to, p)
+        at_n, back = _idm(a, new, c, True, to, p)
         gain_n = jnp.where(has_new, at_n - a_n, 0.0)
         incentive = at_c - a_c + p.mobil_politeness * (gain_n + gain_o)
         incentive = incentive - p.mobil_threshold - d * p.mobil_bias_right
@@ -99,31 +117,25 @@ def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
     left_ok, left_gain, left_to = side(1)
     right_ok, right_gain, right_to = side(-1)
     go_left = left_ok & (~right_ok | (left_gain >= right_gain))
-    to = jnp.where(go_left, left_to, right_to).astype(jnp.int32)
-    eligible = tr.active.reshape(-1) & ~changing(tr).reshape(-1)
-    eligible &= tr.lc_time.reshape(-1) >= p.mobil_interval
-    # Each allowed driver's new lane, -1 for the others, behind a barrier: XLA's CPU fusion
-    # would otherwise pull the incentives (several gathers, seven IDM evaluations) into
-    # every reader and recompute them once per reader (each output, each pick below).
-    choice = jax.lax.optimization_barrier(jnp.where(eligible & (left_ok | right_ok), to, -1))
-    allowed = choice >= 0
-    fired = allowed & (u.lc_fire.reshape(-1) < -jnp.expm1(-p.mobil_rate * p.dt))
+    to = jnp.where(valid & (left_ok | right_ok), jnp.where(go_left, left_to, right_to), -1)
+    to = _written(to.astype(jnp.int32))  # (K,) the new lane, -1 where not allowed
+    allowed = to >= 0
     # Two starters toward one lane, closer than a follower's safe distance: the lower goes.
-    # Only the first STARTERS acting drivers are compared pair by pair: comparing all V**2
-    # pairs was most of the traffic's step.
-    pick = fired[None, :] & ((jnp.cumsum(fired) - 1)[None, :] == jnp.arange(STARTERS)[:, None])
-    k = jnp.sum(jnp.where(pick, i[None, :], 0), axis=1)  # (K,) the picked drivers (0: none)
-    valid = jnp.any(pick, axis=1)  # (K,)
-    x, v, to_k = a.x[k], a.v[k], choice[k]
+    x, v = a.x[c], a.v[c]
     near = jnp.abs(x[:, None] - x[None, :]) < (
         p.vehicle_length + p.idm_s0 + jnp.maximum(v[:, None], v[None, :]) * p.idm_time_headway
     )
-    clash = (to_k[None, :] == to_k[:, None]) & valid[None, :] & near  # (K, K)
-    first = jnp.arange(STARTERS)
-    go = valid & ~jnp.any(clash & (first[None, :] < first[:, None]), axis=1)  # (K,)
-    start = jnp.any(pick & go[:, None], axis=0)  # (N,)
-    shape = tr.x.shape
-    return Decision(*(b.reshape(shape) for b in (allowed, fired, start, choice)))
+    clash = (to[None, :] == to[:, None]) & allowed[None, :] & near  # (K, K)
+    first = jnp.arange(k)
+    start = allowed & ~jnp.any(clash & (first[None, :] < first[:, None]), axis=1)
+    # Back to slots by a scatter.
+    to_slot = jnp.where(valid, c, n)  # (K,) n: written past the end and dropped
+
+    def slots(b: Array, fill: int) -> Array:  # (K,) -> (N,)
+        return jnp.full(n + 1, fill, b.dtype).at[to_slot].set(b)[:n]
+
+    out = (eligible, slots(valid, 0), slots(allowed, 0), slots(start, 0), slots(to, -1))
+    return Decision(*(b.reshape(tr.x.shape) for b in out))
 
 
 def advance(tr: Traffic, moved: Array, d: Decision, u: TrafficDraws, p: EnvParams) -> Traffic:
@@ -142,10 +154,10 @@ def advance(tr: Traffic, moved: Array, d: Decision, u: TrafficDraws, p: EnvParam
 
 
 def counts(d: Decision, a: Around, eg: Ego, p: EnvParams) -> dict[str, Array]:
-    """The step's lane changes for ``info``: how many were allowed, fired and started (``()``
-    int32 each), and ``cut_in`` (``()`` bool): one starts into the ego's gap, between its lead
-    and lag in the target lane, or into the ego's lane between it and its leader, once the ego
-    has its command (GAP or RL)."""
+    """The step's lane changes for ``info``: how many drivers were eligible, weighed a change,
+    were allowed one and started it (``()`` int32 each), and ``cut_in`` (``()`` bool): one
+    starts into the ego's gap, between its lead and lag in the target lane, or into the ego's
+    lane between it and its leader, once the ego has its command (GAP or RL)."""
     ego = a.x.shape[0] - 1
     x = a.x[:ego].reshape(d.start.shape)
 
@@ -158,8 +170,9 @@ def counts(d: Decision, a: Around, eg: Ego, p: EnvParams) -> dict[str, Array]:
     lag = jnp.where(a.has_lag[t, ego], a.x[a.lag[t, ego]], -FAR)
     into = between_of(t, lag) | between_of(current_lane(eg, p), eg.x)
     return {
+        "lc_eligible": jnp.sum(d.eligible, dtype=jnp.int32),
+        "lc_weighed": jnp.sum(d.weighed, dtype=jnp.int32),
         "lc_allowed": jnp.sum(d.allowed, dtype=jnp.int32),
-        "lc_fired": jnp.sum(d.fired, dtype=jnp.int32),
         "lc_started": jnp.sum(d.start, dtype=jnp.int32),
         "cut_in": (eg.phase >= GAP) & jnp.any(d.start & into),
     }

@@ -12,6 +12,7 @@ and defaults), so a new simulator setting is a field of both.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -135,6 +136,10 @@ class EnvParams:
     braking_time_max: float = 3.0
     # derived from EnvConfig's DERIVED fields
     warmup_steps: int = _static(400)  # round(warmup_time / dt)
+    # The most drivers of one env that weigh a lane change on one step (``mobil.decide``):
+    # ``deciders`` at the config's mobil_rate, so that more act on one step with probability
+    # under 1e-6 even with every slot filled (a batch of traffics: the highest rate's).
+    mobil_deciders: int = _static(12)
     # The road's curvature (1/m, > 0 bends toward +y): the constant ``curvature``, or, when
     # ``curvature_drawn`` (static: it adds a leaf to the state), one drawn per episode from
     # U(curvature_min, curvature_max) as the ego spawns and kept in ``EnvState.curvature``.
@@ -158,6 +163,9 @@ class EnvParams:
             if f.name not in DERIVED
         }
         values["warmup_steps"] = int(round(env.warmup_time / env.dt))
+        values["mobil_deciders"] = deciders(
+            env.lanes * env.slots_per_lane, -math.expm1(-env.mobil_rate * env.dt)
+        )
         lo, hi = curvature_range(env.curvature)
         values["curvature"] = lo if lo == hi else 0.5 * (lo + hi)
         values["curvature_min"], values["curvature_max"] = lo, hi
@@ -167,6 +175,25 @@ class EnvParams:
         except KeyError as e:
             raise ConfigError(f"config key 'env.reward_terms': {e.args[0]}") from None
         return cls(**values, gamma=gamma, k=k)
+
+
+def deciders(n: int, q: float, tail: float = 1e-6) -> int:
+    """The least ``k`` with P(Binomial(n, q) > k) <= ``tail``: of ``n`` drivers each acting
+    with probability ``q`` on a step, more than ``k`` act on one step that rarely."""
+    if q <= 0.0:
+        return 1
+    if q >= 1.0:
+        return n
+
+    def pmf(j: int) -> float:
+        log_comb = math.lgamma(n + 1) - math.lgamma(j + 1) - math.lgamma(n - j + 1)
+        return math.exp(log_comb + j * math.log(q) + (n - j) * math.log1p(-q))
+
+    k, above = n, 0.0  # above: P(more than k act)
+    while k > 1 and above + pmf(k) <= tail:
+        above += pmf(k)
+        k -= 1
+    return k
 
 
 # The fields that fix array shapes or loop lengths (declared with ``_static`` above).
