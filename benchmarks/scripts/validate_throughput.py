@@ -32,15 +32,16 @@ from jaxlc.sim.env import EnvParams
 from jaxlc.study import machine
 
 HERE = Path(__file__).resolve().parent
-TRAFFIC = {"paper": (), "braking": ("env.braking=true",)}
 
 
 def _sim_throughput():
     spec = importlib.util.spec_from_file_location("sim_throughput", HERE / "sim_throughput.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    module.TRAFFIC.update(TRAFFIC)
     return module
+
+
+TRAFFIC = _sim_throughput().TRAFFIC  # the traffics by name: the simulator benchmark's
 
 
 def mc_chunk(traffic: str, chunk: int, repeats: int) -> dict:

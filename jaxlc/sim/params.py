@@ -138,7 +138,8 @@ class EnvParams:
     warmup_steps: int = _static(400)  # round(warmup_time / dt)
     # The most drivers of one env that weigh a lane change on one step (``mobil.decide``):
     # ``deciders`` at the config's mobil_rate, so that more act on one step with probability
-    # under 1e-6 even with every slot filled (a batch of traffics: the highest rate's).
+    # under 1e-6 even with every slot filled (a batch of traffics with traced rates should
+    # carry its highest rate's).
     mobil_deciders: int = _static(12)
     # The road's curvature (1/m, > 0 bends toward +y): the constant ``curvature``, or, when
     # ``curvature_drawn`` (static: it adds a leaf to the state), one drawn per episode from

@@ -111,7 +111,7 @@ class TrafficDraws(NamedTuple):
     them per number (``_mix``), only with ``env.mobil`` or ``env.braking``, so with both off
     the traffic's draws are the paper's traffic's alone."""
 
-    lc_fire: Array  # acts on an allowed lane change this step (< 1 - exp(-mobil_rate*dt))
+    lc_fire: Array  # the driver weighs a lane change this step (< 1 - exp(-mobil_rate*dt))
     lc_time: Array  # the lane change's duration in [lane_change_time_min, _max)
     brake_fire: Array  # a braking event starts (< 1 - exp(-braking_rate*dt))
     brake_acc: Array  # its deceleration in [braking_decel_min, _max)
@@ -120,8 +120,8 @@ class TrafficDraws(NamedTuple):
     @classmethod
     def draw(cls, key: Array, lanes: int, slots: int) -> TrafficDraws:
         # 64 bits of threefry from the step's key, then a counter-based hash per number:
-        # threefry for all 5 * lanes * slots numbers cost as much as the rest of the
-        # traffic's step.
+        # threefry for each of the 5 * lanes * slots numbers was most of what braking
+        # events added to the paper traffic's step.
         s0, s1 = jax.random.bits(jax.random.fold_in(key, 1), (2,), jnp.uint32)
         ctr = jnp.arange(5 * lanes * slots, dtype=jnp.uint32).reshape(5, lanes, slots)
         h = _mix(_mix(ctr ^ s0) + s1)
