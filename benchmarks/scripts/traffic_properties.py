@@ -36,8 +36,10 @@ from jaxlc.sim.leaders import changing, occupancy, vehicle_y
 from jaxlc.sim.road import ego_lanes
 
 HIGHEST = ("env.mobil_rate=10.0", "env.braking_rate=3600.0")  # the ranges' upper ends
-COUNTS = ("lc_eligible", "lc_weighed", "lc_allowed", "lc_started")
-COUNTS += ("brake_eligible", "brake_started", "cut_in")
+COUNTS = (
+    *("lc_eligible", "lc_weighed", "lc_allowed", "lc_started"),
+    *("brake_eligible", "brake_started", "cut_in"),
+)
 
 
 def _unsafe_starts(before, after, p) -> jax.Array:

@@ -41,7 +41,8 @@ def _sim_throughput():
     return module
 
 
-TRAFFIC = _sim_throughput().TRAFFIC  # the traffics by name: the simulator benchmark's
+SIM = _sim_throughput()  # the simulator benchmark, loaded once
+TRAFFIC = SIM.TRAFFIC  # the traffics by name: the simulator benchmark's
 
 
 def mc_chunk(traffic: str, chunk: int, repeats: int) -> dict:
@@ -79,12 +80,11 @@ def main() -> None:
     ap.add_argument("--traffic", nargs="+", default=["paper", "braking"], choices=TRAFFIC)
     ap.add_argument("--out", type=Path, default=HERE.parent / "validate_cpu_2026-11-26")
     args = ap.parse_args()
-    sim = _sim_throughput()
     peak0 = machine.matmul_peak_gflops()
     rows = []
     for t in args.traffic:
         mc = mc_chunk(t, args.chunk, args.repeats)
-        s = sim.measure(args.chunk, args.steps, args.repeats, t)
+        s = SIM.measure(args.chunk, args.steps, args.repeats, t)
         mc["sim_env_steps_per_s"] = round(s["env_steps_per_s"])
         mc["share_of_sim"] = round(mc["env_steps_per_s"] / s["env_steps_per_s"], 3)
         rows.append(mc)
