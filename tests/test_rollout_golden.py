@@ -21,9 +21,10 @@ import numpy as np
 import jaxlc
 from jaxlc import config
 
-from .conftest import HANG_GUARD_S, SUITE_XLA_FLAG
+from .conftest import HANG_GUARD_S, SUITE_XLA_FLAGS
 
-DEFAULT_XLA_FLAG = "--xla_backend_optimization_level=3"  # XLA's own default
+# XLA's own defaults, named: the subprocess imports conftest, which sets the suite's otherwise
+DEFAULT_XLA_FLAGS = ("--xla_backend_optimization_level=3", "--xla_cpu_use_fusion_emitters=true")
 
 GOLDEN = Path(__file__).parent / "data" / "rollout_golden.npz"
 ENVS, STEPS = 8, 3000
@@ -73,12 +74,11 @@ def test_seeded_rollout_matches_the_recorded_final_state(tmp_path):
     assert want["totals"][:, 4].sum() > 0
     for name in want.files:
         np.testing.assert_array_equal(got[name], want[name], err_msg=name)
-    # The suite compiles at LLVM's level 1 (tests/conftest.py); the pin is of the build a
-    # user's program gets, XLA's default level 3: that gives the recorded state too. Named,
-    # because the subprocess imports conftest, which sets level 1 where no level is named.
+    # The suite compiles with its own flags (tests/conftest.py); the pin is of the build a
+    # user's program gets, XLA's defaults: that gives the recorded state too.
     out = tmp_path / "default_level.npz"
-    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if f != SUITE_XLA_FLAG]
-    flags.append(DEFAULT_XLA_FLAG)
+    flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if f not in SUITE_XLA_FLAGS]
+    flags += DEFAULT_XLA_FLAGS
     code = "import os, sys, numpy as np; from tests.test_rollout_golden import rollout; "
     code += "np.savez(sys.argv[1], **rollout(), xla_flags=os.environ['XLA_FLAGS'])"
     done = subprocess.run(
@@ -91,7 +91,7 @@ def test_seeded_rollout_matches_the_recorded_final_state(tmp_path):
     )
     assert done.returncode == 0, done.stderr[-3000:]
     default = np.load(out)
-    assert str(default["xla_flags"]).split()[-1] == DEFAULT_XLA_FLAG
+    assert str(default["xla_flags"]).split()[-2:] == list(DEFAULT_XLA_FLAGS)
     for name in want.files:
         np.testing.assert_array_equal(default[name], want[name], err_msg=name)
 

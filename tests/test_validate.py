@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxlc import config
 from jaxlc.evaluation import rare
 
 
@@ -113,7 +114,8 @@ def test_nominal_proposal_weights_are_one(smoke_run):
 
     cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
     base = EnvParams.from_config(cfg.env)
-    run = validation.program(cfg, 600, True)
+    # the validated fixture's program (``validate``'s default step cap): loaded, not compiled
+    run = validation.program(cfg, config.EvalConfig().max_steps, True)
     keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, 64)
     out = columns(
         jax.device_get(run(proposal.nominal(base), validation.policies(cfg, None, 1), keys)[0])
