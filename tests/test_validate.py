@@ -57,6 +57,7 @@ def test_mc_estimate_is_clopper_pearson():
 
 # The command on a smoke run, in the traffic that brakes (the tilt's own draws included).
 TRAFFIC = ["env.braking=true", "env.braking_rate=200", "env.gap_min_ttc=0"]
+CHUNK = 64  # cases per program: the fixture's and the nominal test's, so one program serves both
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +67,7 @@ def validated(smoke_run, tmp_path_factory):
 
     run_dir, _ = smoke_run
     out = tmp_path_factory.mktemp("validate")
-    args = ["--model", "scripted", "--method", "is", "--kind", "failure", "--chunk", "64"]
+    args = ["--model", "scripted", "--method", "is", "--kind", "failure", "--chunk", str(CHUNK)]
     args += ["--lane-changes", "60", "--out", str(out), "--traffic", *TRAFFIC]
     assert validate.main([str(run_dir), *args]) == 0
     return run_dir, out
@@ -116,7 +117,7 @@ def test_nominal_proposal_weights_are_one(smoke_run):
     base = EnvParams.from_config(cfg.env)
     # the validated fixture's program (``validate``'s default step cap): loaded, not compiled
     run = validation.program(cfg, config.EvalConfig().max_steps, True)
-    keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, 64)
+    keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, CHUNK)
     out = columns(
         jax.device_get(run(proposal.nominal(base), validation.policies(cfg, None, 1), keys)[0])
     )
