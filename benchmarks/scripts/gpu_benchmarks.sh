@@ -2,23 +2,30 @@
 # The benchmarks of docs/benchmarks.md's GPU section, in order of priority, each under what is
 # left of DEADLINE_S (and its own cap), its CSV, JSON and output into runs/bench, packed into
 # $OUT/bench.tgz after every step, so a call stopped at its limit returns what finished:
-#   bash benchmarks/scripts/gpu_benchmarks.sh DEADLINE_S [SIZES]
+#   bash benchmarks/scripts/gpu_benchmarks.sh DEADLINE_S [SIZES] [RUN]
 # SIZES: "gpu" (the default: 4,096-262,144 envs, 9/90/900 models, 1/10/100 seeds per cell) or
 # "cpu" (the sizes a 2-core CPU runs in minutes: the same scripts, for the CPU figure beside)
 # or "smoke" (configs/smoke.toml and the smallest sizes: a check of this script, seconds).
-# The 100-seed sweep runs 500 episodes per model (the full 5000 would outlast a device call).
-# Validation: the default's ④ (the 1-seed sweep's) by crude Monte Carlo for what time is left,
-# stopped with SIGINT, which jaxlc.validate answers by writing what it has.
+# The sweeps run SWEEP_EPISODES episodes per model (200 unless set; the full 5000 at three seed
+# counts would outlast a device call): their wall time, the first chunk (compilation) apart.
+# RUN: a trained run (default: the 1-seed sweep's) whose checkpoints the held-out evaluation's
+# cost and the validation drive; the validation is model VALIDATE_MODEL (default ④) by crude
+# Monte Carlo, stopped with SIGINT, which jaxlc.validate answers by writing what it has: with
+# VALIDATE_S set, for that many seconds after the updates (RUN must exist then); else last, for
+# what is left.
 set -u
 export PYTHONUNBUFFERED=1 PYTHONPATH=$PWD TQDM_DISABLE=1
 end=$(( $(date +%s) + $1 )); sizes=${2:-gpu}
 OUT=${OUT:-out}; B=runs/bench; S=benchmarks/scripts; rm -rf "$B"; mkdir -p "$B" "$OUT"
-config=""; model=④; update=""
+run=${3:-runs/bench_s1}; model=${VALIDATE_MODEL:-④}; episodes=${SWEEP_EPISODES:-200}
+heldout="--policies 90 --lane-changes 1000"
+config=""; update=""
 case $sizes in
   gpu) envs="4096 32768 262144"; hazard_envs="4096 32768 65536"; models="9 90 900"
        seeds="1 10 100"; chunk=65536 ;;
   cpu) envs="4096 32768"; hazard_envs="4096"; models="9 90"; seeds="1"; chunk=2048 ;;
-  *) envs="64"; hazard_envs="64"; models="9"; seeds="1"; chunk=64; model=0
+  *) envs="64"; hazard_envs="64"; models="9"; seeds="1"; chunk=64; model=0; episodes=40
+     heldout="--policies 2 --lane-changes 20"
      config="--config configs/smoke.toml"; update="--tiny" ;;
 esac
 
@@ -40,16 +47,17 @@ for m in $models; do
   step "update_$m" 90 python3 $S/update_throughput.py --models "$m" --repeats 5 $update \
     --out "$B/update_$m.csv"
 done
+[ -n "${VALIDATE_S:-}" ] && [ -d "$run" ] && step validate "$VALIDATE_S" python3 -m jaxlc.validate \
+  "$run" --model "$model" --method mc --lane-changes 100000000 --chunk $chunk --out "$B/validate"
 for s in $seeds; do
-  extra=""; [ "$s" -ge 100 ] && extra="train.episodes=500"
-  step "sweep_s$s" 240 python3 -m jaxlc.sweep $config --no-progress --seeds "$s" $extra \
+  step "sweep_s$s" 120 python3 -m jaxlc.sweep $config --no-progress --seeds "$s" \
+    train.episodes=$episodes \
     --out "runs/bench_s$s" --force && cp "runs/bench_s$s/summary.json" "$B/sweep_s$s.json"
 done
-step heldout 120 python3 $S/heldout_cost.py runs/bench_s1 --policies 90 --lane-changes 1000 \
-  --out "$B"
+step heldout 90 python3 $S/heldout_cost.py "$run" $heldout --out "$B"
 step sim_hazards 120 python3 $S/sim_throughput.py --envs $hazard_envs --steps 200 --repeats 3 \
   --traffic hazards --csv "$B/sim_hazards.csv"
-step validate 600 python3 -m jaxlc.validate runs/bench_s1 --model "$model" --method mc \
-  --lane-changes 100000000 --chunk $chunk --out "$B/validate"
+[ -z "${VALIDATE_S:-}" ] && step validate 600 python3 -m jaxlc.validate "$run" --model "$model" \
+  --method mc --lane-changes 100000000 --chunk $chunk --out "$B/validate"
 date -u >> "$B/timing.txt"
 tar czf "$OUT/bench.tgz" -C runs bench
