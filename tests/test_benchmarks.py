@@ -2,12 +2,15 @@
 asserted, only that each measured the real work and wrote its table."""
 
 import csv
+import importlib
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from jaxlc import config
 from jaxlc.study import checkpoint
@@ -190,3 +193,22 @@ def test_failed_cases_lists_each_failed_lane_change_of_each_policy(tmp_path):
         ("model", 13, "collision", 30, 1.5),
     ]
     assert (tmp_path / "failed_cases.csv").read_text().count("\n") == 4  # header + 3 rows
+
+
+def test_sweep_timing_keeps_the_timing_and_counts_the_models(smoke_run, smoke_cfg, tmp_path):
+    """The light summary a GPU benchmark commits: the run's timing and size without its
+    per-model rows, and a steady rate after the first chunk that counts the env-steps the
+    first chunk did not (``tables/gpu.sweep_steady``)."""
+    run_dir, summary = smoke_run
+    out = tmp_path / "sweep.json"
+    load_benchmark("sweep_timing").main(run_dir, out)
+    light = json.loads(out.read_text())
+    assert light["models"] == len(summary["models"]) and "config" not in light
+    assert light["wall_s"] == summary["wall_s"] and light["env_steps"] == summary["env_steps"]
+    t = smoke_cfg.train
+    assert (light["episodes_per_model"], light["envs_per_model"]) == (t.episodes, t.envs_per_model)
+    first = t.chunk_steps * t.envs_per_model * light["models"]
+    assert 0 < first < light["env_steps"]
+    gpu = importlib.import_module("tables.gpu")  # load_benchmark put its folder on sys.path
+    expected = (light["env_steps"] - first) / (light["wall_s"] - light["first_chunk_s"])
+    assert gpu.sweep_steady(light) == pytest.approx(expected)

@@ -52,7 +52,8 @@ done
 for s in $seeds; do
   step "sweep_s$s" 120 python3 -m jaxlc.sweep $config --no-progress --seeds "$s" \
     train.episodes=$episodes \
-    --out "runs/bench_s$s" --force && cp "runs/bench_s$s/summary.json" "$B/sweep_s$s.json"
+    --out "runs/bench_s$s" --force &&
+    python3 $S/sweep_timing.py "runs/bench_s$s" "$B/sweep_s$s.json"
 done
 step heldout 90 python3 $S/heldout_cost.py "$run" $heldout --out "$B"
 step sim_hazards 120 python3 $S/sim_throughput.py --envs $hazard_envs --steps 200 --repeats 3 \

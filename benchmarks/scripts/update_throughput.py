@@ -144,11 +144,13 @@ def matmul_call(n: int) -> Callable[[], jax.Array]:
     return lambda: dot(a, b)
 
 
-def _scanned(body: Callable, carry: object, steps: int) -> Callable[[], object]:
-    """``steps`` iterations of ``carry = body(carry)`` in one jitted ``lax.scan``: buffers are
-    updated in place, as in the grid update's scan, and a call costs one dispatch."""
-    run = jax.jit(lambda c: jax.lax.scan(lambda c, _: (body(c), None), c, None, steps)[0])
-    return lambda: run(carry)
+def _scanned(body: Callable, carry: object, steps: int, *consts: object) -> Callable[[], object]:
+    """``steps`` iterations of ``carry = body(carry, *consts)`` in one jitted ``lax.scan``:
+    buffers are updated in place, as in the grid update's scan, and a call costs one dispatch.
+    ``consts`` are arguments, not captured: at 900 models they are gigabytes, which a closure
+    would bake into the program as constants (compiling for minutes)."""
+    run = jax.jit(lambda c, *k: jax.lax.scan(lambda c, _: (body(c, *k), None), c, None, steps)[0])
+    return lambda: run(carry, *consts)
 
 
 def stream_call(n: int, steps: int) -> Callable[[], object]:
@@ -156,7 +158,7 @@ def stream_call(n: int, steps: int) -> Callable[[], object]:
     ``8 n`` bytes and writes ``4 n``, the memory bandwidth that an elementwise pass sees."""
     ka, kb = jax.random.split(jax.random.key(5))
     b = jax.random.normal(kb, (n,))
-    return _scanned(lambda a: a + 1e-3 * b, jax.random.normal(ka, (n,)), steps)
+    return _scanned(lambda a, b: a + 1e-3 * b, jax.random.normal(ka, (n,)), steps, b)
 
 
 def kernels_call(
@@ -174,14 +176,13 @@ def kernels_call(
         (jax.random.normal(ka, (models, m, k)), jax.random.normal(kb, (models, k, n)))
         for (m, k, n), (ka, kb) in zip(products, map(jax.random.split, keys), strict=True)
     ]
-    right = [b for _, b in ab]
 
-    def body(left: list[jax.Array]) -> list[jax.Array]:
+    def body(left: list[jax.Array], right: list[jax.Array]) -> list[jax.Array]:
         out = [jnp.einsum("bmk,bkn->bmn", a, b) for a, b in zip(left, right, strict=True)]
         tick = 1e-30 * sum(o[:, 0, 0] for o in out)  # (models,)
         return [a.at[:, 0, 0].add(tick) for a in left]
 
-    return _scanned(body, [a for a, _ in ab], steps)
+    return _scanned(body, [a for a, _ in ab], steps, [b for _, b in ab])
 
 
 def _learners(cfg: DDPGConfig, models: int, key: jax.Array) -> ddpg.Learner:
@@ -209,7 +210,7 @@ def optimizer_call(cfg: DDPGConfig, models: int, steps: int) -> Callable[[], obj
         )
         return ddpg.Learner(a, c, a_t, c_t, a_opt, c_opt, lrn.step + 1)
 
-    return _scanned(lambda lrn: jax.vmap(one)(lrn, grads), lrn, steps)
+    return _scanned(lambda lrn, grads: jax.vmap(one)(lrn, grads), lrn, steps, grads)
 
 
 def grid_update_call(

@@ -9,7 +9,7 @@ import json
 from pathlib import Path
 
 from jaxlc import config
-from jaxlc.evaluation import validation
+from jaxlc.evaluation import rare, validation
 from jaxlc.paper import claims
 from jaxlc.paper.grid import is_best
 from jaxlc.study.rundir import RunDir
@@ -28,6 +28,13 @@ VALIDATED = {
         for n in ("", "_3M")
         for m in (3, 4, 5)
     },
+}
+# ④ of seed 0 (the first row above) on a GPU, one device call per key stream (seeds 0 and 1),
+# pooled: independent lane changes, so their counts add.
+POOLED = {
+    " (GPU, key streams 0 and 1 pooled)": [
+        BENCHMARKS / "bench_gpu_2026-11-27" / "gpu" / f"validate_keys{k}" for k in (0, 1)
+    ],
 }
 
 # Measures counted in episodes (written whole, "ep"); the others are written to 3 figures.
@@ -119,7 +126,8 @@ def validated_table() -> str:
     """Claim (d)'s strongest form: each validated policy's lane changes, its collisions and
     failures of any kind, each as a rate per lane change (a one-sided 95% bound where none
     occurred, else the estimate and its 95% interval), the traffic and the wall time
-    (``python -m jaxlc.validate``'s ``validate.json``)."""
+    (``python -m jaxlc.validate``'s ``validate.json``); a ``POOLED`` row adds the counts of
+    one policy's runs on independent key streams."""
     lines = [
         "| policy | traffic | lane changes | collisions per lane change (95%) | "
         "failures of any kind per lane change (95%) | wall s (matmul peak) |",
@@ -132,17 +140,33 @@ def validated_table() -> str:
         interval = f"{e['estimate']:.2g} [{e['lo']:.2g}, {e['hi']:.2g}]"
         return f"{e['failures']} ({', '.join(ends)}): {interval}"
 
+    def row(meta: dict, trained: str, traffic: str, est: dict, wall: str) -> str:
+        ends = [k.replace("_", " ") + "s" for k in validation.ENDS if est[k]["failures"]]
+        return (
+            f"| {meta['label']}, seed {meta['seed']}{trained} | {traffic} | "
+            f"{est['failure']['lane_changes']:,} | {rate(est['collision'], [])} | "
+            f"{rate(est['failure'], ends)} | {wall} |"
+        )
+
     for folder, trained in VALIDATED.items():
         doc = json.loads((folder / "validate.json").read_text())
         for m in doc["models"]:
-            est = m["estimates"]
-            ends = [k.replace("_", " ") + "s" for k in validation.ENDS if est[k]["failures"]]
-            lines.append(
-                f"| {m['meta']['label']}, seed {m['meta']['seed']}{trained} | {doc['traffic']} | "
-                f"{est['failure']['lane_changes']:,} | {rate(est['collision'], [])} | "
-                f"{rate(est['failure'], ends)} | "
-                f"{m['wall_s']:,.1f} ({doc['matmul_peak_gflops']} GFLOP/s) |"
+            wall = f"{m['wall_s']:,.1f} ({doc['matmul_peak_gflops']} GFLOP/s)"
+            lines.append(row(m["meta"], trained, doc["traffic"], m["estimates"], wall))
+    for trained, folders in POOLED.items():
+        docs = [json.loads((f / "validate.json").read_text()) for f in folders]
+        ms = [d["models"][0] for d in docs]  # one policy per call
+        est = {
+            k: rare.mc_estimate(
+                *(sum(m["estimates"][k][c] for m in ms) for c in ("failures", "lane_changes"))
             )
+            for k in ("failure", *validation.ENDS)
+        }
+        wall = " + ".join(
+            f"{m['wall_s']:,.1f} ({d['matmul_peak_gflops']:,} GFLOP/s)"
+            for m, d in zip(ms, docs, strict=True)
+        )
+        lines.append(row(ms[0]["meta"], trained, docs[0]["traffic"], est, wall))
     return "\n".join(lines)
 
 
