@@ -27,7 +27,9 @@ def _machine(side: str) -> str:
     return (GPU_BENCH / side / "machine.txt").read_text().splitlines()[1].split(",")[0]
 
 
-def _row(measure: str, size: str, cells: list, value: Callable[[object], float], text) -> str:
+def _row(
+    measure: str, size: str, cells: list, value: Callable[[object], float], text: Callable
+) -> str:
     """One table line: each side's cell as ``text(cell)`` ("–" where it did not run) and the
     GPU / CPU ratio of ``value``."""
     g, c = cells
@@ -111,7 +113,7 @@ def _heldout_row() -> str:
     cells = [next(iter(_rows(s, "cost.csv")), None) for s in SIDES]
     size = next(f"{r['policies']} policies × {int(r['lane_changes']):,}" for r in cells if r)
     return _row(
-        "held-out evaluation: policy-lane-changes/s, compilation included (cases drawn in, s)",
+        "held-out evaluation: policy-lane-changes/s, compilation included (drawing the cases, s)",
         size,
         cells,
         rate,
