@@ -47,8 +47,11 @@ for m in $models; do
   step "update_$m" 90 python3 $S/update_throughput.py --models "$m" --repeats 5 $update \
     --out "$B/update_$m.csv"
 done
-[ -n "${VALIDATE_S:-}" ] && [ -d "$run" ] && step validate "$VALIDATE_S" python3 -m jaxlc.validate \
-  "$run" --model "$model" --method mc --lane-changes 100000000 --chunk $chunk --out "$B/validate"
+validate() {  # CAP_S: model $model of $run by crude Monte Carlo until SIGINT at CAP_S
+  step validate "$1" python3 -m jaxlc.validate "$run" --model "$model" --method mc \
+    --lane-changes 100000000 --chunk $chunk --out "$B/validate"
+}
+[ -n "${VALIDATE_S:-}" ] && [ -d "$run" ] && validate "$VALIDATE_S"
 for s in $seeds; do
   step "sweep_s$s" 120 python3 -m jaxlc.sweep $config --no-progress --seeds "$s" \
     train.episodes=$episodes \
@@ -58,7 +61,6 @@ done
 step heldout 90 python3 $S/heldout_cost.py "$run" $heldout --out "$B"
 step sim_hazards 120 python3 $S/sim_throughput.py --envs $hazard_envs --steps 200 --repeats 3 \
   --traffic hazards --csv "$B/sim_hazards.csv"
-[ -z "${VALIDATE_S:-}" ] && step validate 600 python3 -m jaxlc.validate "$run" --model "$model" \
-  --method mc --lane-changes 100000000 --chunk $chunk --out "$B/validate"
+[ -z "${VALIDATE_S:-}" ] && validate 600
 date -u >> "$B/timing.txt"
 tar czf "$OUT/bench.tgz" -C runs bench

@@ -11,21 +11,22 @@ from __future__ import annotations
 
 import json
 import sys
-import tomllib
 from pathlib import Path
+
+from jaxlc.study.rundir import RunDir
 
 
 def main(run: Path, out: Path) -> None:
-    summary = json.loads((run / "summary.json").read_text())
-    train = tomllib.loads((run / "config.toml").read_text())["train"]
+    rd = RunDir(run)
+    summary, train = RunDir.read_json(rd.summary_json), rd.load_config().train
     light = {k: v for k, v in summary.items() if k != "models"}
     light |= {
         "models": len(summary["models"]),
-        "episodes_per_model": train["episodes"],
-        "chunk_steps": train["chunk_steps"],
-        "envs_per_model": train["envs_per_model"],
+        "episodes_per_model": train.episodes,
+        "chunk_steps": train.chunk_steps,
+        "envs_per_model": train.envs_per_model,
     }
-    out.write_text(json.dumps(light, indent=1) + "\n")
+    RunDir.write_text(out, json.dumps(light, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -140,19 +140,21 @@ def validated_table() -> str:
         interval = f"{e['estimate']:.2g} [{e['lo']:.2g}, {e['hi']:.2g}]"
         return f"{e['failures']} ({', '.join(ends)}): {interval}"
 
-    def row(meta: dict, trained: str, traffic: str, est: dict, wall: str) -> str:
+    def row(meta: dict, trained: str, traffic: str, est: dict, walls: list[str]) -> str:
         ends = [k.replace("_", " ") + "s" for k in validation.ENDS if est[k]["failures"]]
         return (
             f"| {meta['label']}, seed {meta['seed']}{trained} | {traffic} | "
             f"{est['failure']['lane_changes']:,} | {rate(est['collision'], [])} | "
-            f"{rate(est['failure'], ends)} | {wall} |"
+            f"{rate(est['failure'], ends)} | {' + '.join(walls)} |"
         )
+
+    def wall(m: dict, doc: dict) -> str:  # one call's time and its machine's matmul peak
+        return f"{m['wall_s']:,.1f} ({doc['matmul_peak_gflops']:,} GFLOP/s)"
 
     for folder, trained in VALIDATED.items():
         doc = json.loads((folder / "validate.json").read_text())
         for m in doc["models"]:
-            wall = f"{m['wall_s']:,.1f} ({doc['matmul_peak_gflops']} GFLOP/s)"
-            lines.append(row(m["meta"], trained, doc["traffic"], m["estimates"], wall))
+            lines.append(row(m["meta"], trained, doc["traffic"], m["estimates"], [wall(m, doc)]))
     for trained, folders in POOLED.items():
         docs = [json.loads((f / "validate.json").read_text()) for f in folders]
         ms = [d["models"][0] for d in docs]  # one policy per call
@@ -162,11 +164,8 @@ def validated_table() -> str:
             )
             for k in ("failure", *validation.ENDS)
         }
-        wall = " + ".join(
-            f"{m['wall_s']:,.1f} ({d['matmul_peak_gflops']:,} GFLOP/s)"
-            for m, d in zip(ms, docs, strict=True)
-        )
-        lines.append(row(ms[0]["meta"], trained, docs[0]["traffic"], est, wall))
+        walls = [wall(m, d) for m, d in zip(ms, docs, strict=True)]
+        lines.append(row(ms[0]["meta"], trained, docs[0]["traffic"], est, walls))
     return "\n".join(lines)
 
 
