@@ -57,9 +57,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--kind", choices=validation.KINDS, default="collision")
     ap.add_argument(
         "--tilt-from",
-        choices=("acceptance", "command"),
+        choices=proposal.TILT_FROM,
         default="acceptance",
-        help="is: tilt braking from the gap's acceptance (unbiased) or from the command on",
+        help="is: tilt braking from the gap's acceptance (unbiased), from the command on or "
+        "from the ego's entry (ratio estimates)",
     )
     ap.add_argument("--traffic", nargs="+", default=[], metavar="env.KEY=VALUE")
     ap.add_argument("--chunk", type=int, default=2048, help="lane-change cases per program")
@@ -110,12 +111,12 @@ def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
     prop, history = proposal.nominal(base), []
     if tilted:
         start = validation.start_proposal(base).replace(
-            from_command=float(args.tilt_from == "command")
+            tilt_from=float(proposal.TILT_FROM.index(args.tilt_from))
         )
         prop, history = validation.fit_proposal(
             run, pol, base, start, args.chunk, kind=args.kind, seed=args.seed, log=tqdm.write
         )
-    ratio = tilted and args.tilt_from == "command"
+    ratio = tilted and args.tilt_from != "acceptance"
     tally, lo, interrupted = validation.Tally(ratio=ratio), 0, False
     bar = tqdm(total=args.lane_changes, unit="lc", desc=str(row["meta"]["label"]), leave=False)
     t1 = time.perf_counter()

@@ -118,11 +118,19 @@ def test_nominal_proposal_weights_are_one(smoke_run):
     # the validated fixture's program (``validate``'s default step cap): loaded, not compiled
     run = validation.program(cfg, config.EvalConfig().max_steps, True)
     keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, CHUNK)
-    out = columns(
-        jax.device_get(run(proposal.nominal(base), validation.policies(cfg, None, 1), keys)[0])
-    )
-    assert out["performed"].any() and np.all(out["log_w"] == 0.0)
-    assert out["tilt"][..., :4].sum() > 0  # braking trials around the ego were drawn
+    trials = []
+    for start in range(len(proposal.TILT_FROM)):
+        nom = proposal.nominal(base).replace(tilt_from=jnp.float32(start))
+        out = columns(jax.device_get(run(nom, validation.policies(cfg, None, 1), keys)[0]))
+        assert out["performed"].any() and np.all(out["log_w"] == 0.0)
+        trials.append(
+            out["tilt"][0][:, : len(proposal.ROLES)].sum(axis=1)
+        )  # (cases,) braking trials counted
+    assert trials[0].sum() > 0  # braking trials around the ego were drawn
+    # the same cases (nominal draws): a tilt that starts earlier counts every trial a later
+    # one does, and more where the ego cruised or searched before its lane change
+    assert np.all(trials[0] <= trials[1]) and np.all(trials[1] <= trials[2])
+    assert trials[0].sum() < trials[1].sum() < trials[2].sum()
 
 
 def test_bad_run_directory_is_one_line(tmp_path, capsys):

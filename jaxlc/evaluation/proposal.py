@@ -3,7 +3,7 @@ by its likelihood ratio (importance sampling: ``jaxlc.evaluation.rare``).
 
 A ``Proposal`` tilts, from the step the ego accepts its gap on (so the number of lane changes,
 decided before, keeps the traffic's own distribution, and an estimate per lane change needs
-no ratio of two estimates):
+no ratio of two estimates; ``tilt_from`` may start the braking's tilt earlier, ``TILT_FROM``):
 
 - whether the target lane's lag yields (``p_yield``): drawn with probability ``yields``;
 - braking events (``env.braking``) of the vehicles around the ego in the RL phase (the
@@ -30,9 +30,15 @@ from jaxlc.evaluation import rare
 from jaxlc.sim.braking import start_probability
 from jaxlc.sim.env import GAP, RL, Draws, EnvParams, EnvState, LaneChangeEnv, TrafficDraws
 from jaxlc.sim.leaders import ego_neighbour_roles
-from jaxlc.sim.state import between
+from jaxlc.sim.state import CRUISE, between
 
 ROLES = ("lead", "lag", "own_leader", "ahead")
+# Where the braking's tilt starts (``Proposal.tilt_from`` indexes it): the gap's acceptance,
+# the command (the gap search too), or the ego's first step (its cruise too). From the command
+# or the entry the proposal also changes which cases become lane changes
+# (``rare.is_ratio_estimate``); a braking event that slows the ego before its command is
+# tilted only from the entry.
+TILT_FROM = ("acceptance", "command", "entry")
 AHEAD = 100.0  # m: the "ahead" role, every other vehicle up to this far ahead of the ego
 # The statistics a step adds up for the CE (``info["tilt"]``), in this order.
 STATS = (
@@ -53,9 +59,7 @@ class Proposal:
     brake_acc: Array  # () theta of the deceleration's uniform (> 0: harder)
     brake_time: Array  # () theta of the duration's uniform (> 0: longer)
     yields: Array  # () probability the lag yields
-    # () 1: braking is tilted from the command on (the gap search too), not from acceptance;
-    # the number of lane changes then changes with the proposal (``rare.is_ratio_estimate``).
-    from_command: Array | float = 0.0
+    tilt_from: Array | float = 0.0  # () index into TILT_FROM
 
     def to_dict(self) -> dict[str, object]:
         return {k: jnp.asarray(v).tolist() for k, v in vars(self).items()}
@@ -68,11 +72,14 @@ def nominal(p: EnvParams) -> Proposal:
         brake_acc=jnp.float32(0.0),
         brake_time=jnp.float32(0.0),
         yields=jnp.float32(p.p_yield),
-        from_command=jnp.float32(0.0),
+        tilt_from=jnp.float32(0.0),
     )
 
 
 def from_dict(d: dict) -> Proposal:
+    """A proposal as ``to_dict`` wrote it (``from_command``, 0 or 1, is ``tilt_from``'s older
+    name)."""
+    d = {("tilt_from" if k == "from_command" else k): v for k, v in d.items()}
     return Proposal(**{k: jnp.asarray(v, jnp.float32) for k, v in d.items()})
 
 
@@ -106,7 +113,11 @@ class TiltedEnv(LaneChangeEnv):
         ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane) if p.mobil or p.braking else None
         if p.braking:
             phase = state.ego.phase
-            tilted = jnp.where(q.from_command > 0.5, phase >= GAP, phase == RL)
+            tilted = jnp.where(
+                q.tilt_from > 1.5,
+                phase >= CRUISE,
+                jnp.where(q.tilt_from > 0.5, phase >= GAP, phase == RL),
+            )
             role = roles(state, p) & tilted  # (roles, rows, slots)
             near = jnp.any(role, axis=0)
             p_fire = start_probability(p)

@@ -217,7 +217,7 @@ def fit_proposal(
         else:
             log_w, st = pool[-1][0], pool[-1][2]
             w, level = rare.elite(log_w, failed, score(out, kind)[perf])
-        fit = _fit(w, st, p_fire).replace(from_command=start.from_command)
+        fit = _fit(w, st, p_fire).replace(tilt_from=start.tilt_from)
         prop = jax.tree.map(lambda a, b: SMOOTH * a + (1 - SMOOTH) * b, fit, prop)
         history.append(
             {
