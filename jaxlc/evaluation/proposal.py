@@ -36,8 +36,8 @@ ROLES = ("lead", "lag", "own_leader", "ahead")
 # Where the braking's tilt starts (``Proposal.tilt_from`` indexes it): the gap's acceptance,
 # the command (the gap search too), or the ego's first step (its cruise too). From the command
 # or the entry the proposal also changes which cases become lane changes
-# (``rare.is_ratio_estimate``); a braking event that slows the ego before its command is
-# tilted only from the entry.
+# (``rare.is_ratio_estimate``); a braking event around the ego before its command is tilted
+# only from the entry.
 TILT_FROM = ("acceptance", "command", "entry")
 AHEAD = 100.0  # m: the "ahead" role, every other vehicle up to this far ahead of the ego
 # The statistics a step adds up for the CE (``info["tilt"]``), in this order.
