@@ -123,9 +123,8 @@ def test_nominal_proposal_weights_are_one(smoke_run):
         nom = proposal.nominal(base).replace(tilt_from=jnp.float32(start))
         out = columns(jax.device_get(run(nom, validation.policies(cfg, None, 1), keys)[0]))
         assert out["performed"].any() and np.all(out["log_w"] == 0.0)
-        trials.append(
-            out["tilt"][0][:, : len(proposal.ROLES)].sum(axis=1)
-        )  # (cases,) braking trials counted
+        # (cases,) braking trials counted, every role
+        trials.append(out["tilt"][0][:, : len(proposal.ROLES)].sum(axis=1))
     assert trials[0].sum() > 0  # braking trials around the ego were drawn
     # the same cases (nominal draws): a tilt that starts earlier counts every trial a later
     # one does, and more where the ego cruised or searched before its lane change

@@ -39,6 +39,7 @@ ROLES = ("lead", "lag", "own_leader", "ahead")
 # (``rare.is_ratio_estimate``); a braking event around the ego before its command is tilted
 # only from the entry.
 TILT_FROM = ("acceptance", "command", "entry")
+_FIRST_PHASE = (RL, GAP, CRUISE)  # by TILT_FROM: the first phase whose braking is tilted
 AHEAD = 100.0  # m: the "ahead" role, every other vehicle up to this far ahead of the ego
 # The statistics a step adds up for the CE (``info["tilt"]``), in this order.
 STATS = (
@@ -113,11 +114,8 @@ class TiltedEnv(LaneChangeEnv):
         ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane) if p.mobil or p.braking else None
         if p.braking:
             phase = state.ego.phase
-            tilted = jnp.where(
-                q.tilt_from > 1.5,
-                phase >= CRUISE,
-                jnp.where(q.tilt_from > 0.5, phase >= GAP, phase == RL),
-            )
+            first = jnp.asarray(_FIRST_PHASE)[jnp.round(q.tilt_from).astype(jnp.int32)]
+            tilted = phase >= first  # RL is the last phase: from acceptance, the RL phase
             role = roles(state, p) & tilted  # (roles, rows, slots)
             near = jnp.any(role, axis=0)
             p_fire = start_probability(p)
