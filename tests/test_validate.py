@@ -132,6 +132,25 @@ def test_nominal_proposal_weights_are_one(smoke_run):
     assert trials[0].sum() < trials[1].sum() < trials[2].sum()
 
 
+def test_tilt_windows_lists_the_failures_with_nested_braking_counts(smoke_run, tmp_path):
+    """benchmarks/scripts/tilt_windows.py on the nominal test's cases (its program, loaded):
+    the lane changes under the headway norm (about one in ten) are listed, and each met at
+    least as many braking events counted from the entry as from the command, and from the
+    command as from the acceptance."""
+    from jaxlc.evaluation import proposal
+
+    from .conftest import load_benchmark
+
+    out = tmp_path / "windows.csv"
+    args = [str(smoke_run[0]), "--model", "scripted", "--kind", "norm_min_thw_s"]
+    args += ["--chunk", str(CHUNK)]
+    rows = load_benchmark("tilt_windows").main([*args, "--out", str(out), "--traffic", *TRAFFIC])
+    assert rows and len(out.read_text().splitlines()) == 1 + len(rows)
+    for r in rows:
+        counts = [sum(r[f"{w}_events_{x}"] for x in proposal.ROLES) for w in proposal.TILT_FROM]
+        assert counts == sorted(counts), r
+
+
 def test_bad_run_directory_is_one_line(tmp_path, capsys):
     from jaxlc import validate
 
