@@ -33,9 +33,6 @@ from jaxlc.evaluation.safety import HAZARDS, PARTNERS
 from jaxlc.sim.env import EnvParams
 from jaxlc.validate import model_rows
 
-EVENTS = slice(len(proposal.ROLES), 2 * len(proposal.ROLES))  # of info["tilt"]: proposal.STATS
-SUMS = slice(2 * len(proposal.ROLES), 2 * len(proposal.ROLES) + 2)
-
 
 def main(argv: list[str] | None = None) -> list[dict]:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -80,10 +77,11 @@ def main(argv: list[str] | None = None) -> list[dict]:
                 "manoeuvre_steps": int(out["steps"][0][i]),
             }
             for name, o in zip(proposal.TILT_FROM, by_window, strict=True):
-                tilt = o["tilt"][0][i]
-                for role, n in zip(proposal.ROLES, tilt[EVENTS], strict=True):
-                    row[f"{name}_events_{role}"] = int(n)
-                row[f"{name}_decel_u_sum"], row[f"{name}_time_u_sum"] = np.round(tilt[SUMS], 3)
+                tilt = dict(zip(proposal.STATS, o["tilt"][0][i], strict=True))  # by name
+                for role in proposal.ROLES:
+                    row[f"{name}_events_{role}"] = int(tilt[f"brake_events_{role}"])
+                row[f"{name}_decel_u_sum"] = np.round(tilt["brake_acc_sum"], 3)
+                row[f"{name}_time_u_sum"] = np.round(tilt["brake_time_sum"], 3)
             found.append(row)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("w", newline="") as f:
