@@ -17,7 +17,6 @@ Writes ``OUT/curved_scripted.csv`` and prints it.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import sys
 import time
@@ -28,6 +27,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
     sys.path.insert(0, str(ROOT))
+
+from csvfile import write_csv  # noqa: E402
 
 from jaxlc import config  # noqa: E402
 from jaxlc.evaluation import heldout  # noqa: E402
@@ -107,12 +108,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
             flush=True,
         )
     if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
         path = args.out / "curved_scripted.csv"
-        with open(path, "w", newline="") as f:
-            w = csv.DictWriter(f, FIELDS, extrasaction="ignore", lineterminator="\n")
-            w.writeheader()
-            w.writerows({k: _short(v) for k, v in r.items()} for r in rows)
+        write_csv(path, ({k: _short(v) for k, v in r.items()} for r in rows), FIELDS)
         print(path.read_text())
     return rows
 

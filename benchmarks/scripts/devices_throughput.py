@@ -52,7 +52,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
     root = Path(__file__).resolve().parents[2]
     if str(root) not in sys.path:
         sys.path.insert(0, str(root))
-    from sim_throughput import write_csv  # this script's folder is on sys.path
+    from csvfile import write_csv  # this script's folder is on sys.path
 
     from jaxlc import config
     from jaxlc.learn import train

@@ -21,6 +21,8 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
     sys.path.insert(0, str(ROOT))
 
+from csvfile import write_csv  # noqa: E402
+
 from jaxlc.sim.reward import REASONS  # noqa: E402
 
 FAILED = ("out_of_bounds", "collision", "timeout")
@@ -59,10 +61,7 @@ def failed_cases(eval_dir: Path) -> list[dict]:
 def main(argv: list[str] | None = None) -> list[dict]:
     eval_dir = Path((sys.argv[1:] if argv is None else argv)[0])
     rows = failed_cases(eval_dir)
-    with open(eval_dir / "failed_cases.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(eval_dir / "failed_cases.csv", rows, FIELDS)
     print(f"{len(rows)} failed lane changes -> {eval_dir / 'failed_cases.csv'}")
     return rows
 

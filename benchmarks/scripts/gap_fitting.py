@@ -18,7 +18,6 @@ Usage: ``python benchmarks/scripts/gap_fitting.py [--configs configs/joint.toml 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import time
@@ -28,6 +27,8 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
     sys.path.insert(0, str(ROOT))
 
+
+from csvfile import write_csv  # noqa: E402
 
 from jaxlc import config  # noqa: E402
 from jaxlc.evaluation import cases, heldout  # noqa: E402
@@ -94,11 +95,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         for seed in args.seeds
         for row in rows_for(path, observed, seed, args.lane_changes, args.max_steps)
     ]
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "results.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(args.out / "results.csv", rows, FIELDS)
     (args.out / "results.json").write_text(json.dumps(rows, indent=1) + "\n")
     return rows
 

@@ -14,13 +14,13 @@ compilation; writes ``OUT/cost.csv`` with the machine's float32 matmul peak and 
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime
 import platform
 import time
 from pathlib import Path
 
 import jax
+from csvfile import write_csv
 
 from jaxlc.evaluation.cases import evaluate_policies, keys_for_lane_changes
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
@@ -70,14 +70,7 @@ def main() -> None:
         "matmul_peak_gflops": round(peak),
         "jax": jax.__version__,
     }
-    args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / "cost.csv"
-    new = not path.exists()
-    with open(path, "a", newline="") as f:
-        w = csv.DictWriter(f, list(row), lineterminator="\n")
-        if new:
-            w.writeheader()
-        w.writerow(row)
+    write_csv(args.out / "cost.csv", [row], append=True)
     print(row)
 
 

@@ -15,13 +15,13 @@ the share of (env, lane, step) samples at each count from the slot count minus 2
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from csvfile import write_csv
 
 import jaxlc
 from jaxlc import config
@@ -73,12 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     print(", ".join(f"{k} {v}" for k, v in row.items()))
     if args.out is not None:
-        new = not args.out.exists()
-        with args.out.open("a", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(row))
-            if new:
-                w.writeheader()
-            w.writerow(row)
+        write_csv(args.out, [row], append=True)
     return 0
 
 

@@ -15,10 +15,11 @@ prints it.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import time
 from pathlib import Path
+
+from csvfile import write_csv
 
 from jaxlc import config
 from jaxlc.evaluation import heldout
@@ -75,11 +76,7 @@ def main() -> None:
                 }
             )
         print(f"{args.key} = {text}: {time.time() - t0:.0f} s", flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "probe.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, (name, *FIELDS), extrasaction="ignore", lineterminator="\n")
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(args.out / "probe.csv", rows, (name, *FIELDS))
     print((args.out / "probe.csv").read_text())
     print(f"matmul peak {machine.matmul_peak_gflops():.0f} GFLOP/s")
 

@@ -25,7 +25,8 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
     sys.path.insert(0, str(ROOT))
 
-from sim_throughput import RESULTS, write_csv  # noqa: E402 (this folder is on sys.path)
+from csvfile import write_csv  # noqa: E402 (this folder is on sys.path)
+from sim_throughput import RESULTS  # noqa: E402
 
 from jaxlc import config  # noqa: E402
 from jaxlc.learn.ddpg import explore  # noqa: E402

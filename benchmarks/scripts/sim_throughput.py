@@ -16,7 +16,6 @@ of the two alone: which one costs what).
 from __future__ import annotations
 
 import argparse
-import csv
 import platform
 import statistics
 import time
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+from csvfile import write_csv  # this script's folder is on sys.path
 
 import jaxlc
 from jaxlc import config
@@ -37,15 +37,6 @@ TRAFFIC = {
     "mobil": ("env.mobil=true",),
     "hazards": ("env.mobil=true", "env.braking=true"),
 }
-
-
-def write_csv(path: Path, rows: list[dict]) -> None:
-    """Result rows (dicts with the same keys, in column order) as a CSV table at ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
 
 
 def make_runner(env, params, n_envs: int, steps: int):

@@ -18,12 +18,12 @@ braking events started by role and the sums of their deceleration and duration d
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from csvfile import write_csv
 
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
@@ -83,11 +83,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
                 row[f"{name}_decel_u_sum"] = np.round(tilt["brake_acc_sum"], 3)
                 row[f"{name}_time_u_sum"] = np.round(tilt["brake_time_sum"], 3)
             found.append(row)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with args.out.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(found[0]) if found else ["case"])
-        w.writeheader()
-        w.writerows(found)
+    write_csv(args.out, found, list(found[0]) if found else ["case"])
     print(f"{len(found)} {args.kind} in {lane_changes} lane changes of {len(starts)} chunks")
     for name in proposal.TILT_FROM:
         none = sum(all(r[f"{name}_events_{x}"] == 0 for x in proposal.ROLES) for r in found)

@@ -41,7 +41,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
 
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "benchmarks" / "scripts"))
-    from sim_throughput import write_csv
+    from csvfile import write_csv
 
     from jaxlc import config
     from jaxlc.learn import train

@@ -12,12 +12,12 @@ without the run's losses).
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
+from csvfile import write_csv
 
 PHASES = (("first_10pct", 0.0, 0.1), ("next_40pct", 0.1, 0.5), ("second_half", 0.5, 1.0))
 
@@ -65,10 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         np.savez_compressed(
             args.keep / "metrics" / "step_counts.npz", transitions=transitions, updates=updates
         )
-        with (args.keep / "update_ratio.csv").open("w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        write_csv(args.keep / "update_ratio.csv", rows)
     return 0
 
 

@@ -37,7 +37,6 @@ a default sweep's env-steps/s, each beside the matmul peak. Writes
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import os
@@ -57,6 +56,8 @@ from jax.sharding import PartitionSpec as P
 ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:  # run as a script from anywhere, without installing jaxlc
     sys.path.insert(0, str(ROOT))
+
+from csvfile import write_csv  # noqa: E402
 
 from jaxlc import config  # noqa: E402
 from jaxlc.config import DDPGConfig  # noqa: E402
@@ -333,11 +334,7 @@ def actors(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
                 }
             )
             print(rows[-1], flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with args.out.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(args.out, rows)
     print(f"wrote {args.out}")
     return rows
 
@@ -438,11 +435,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
         "rest_ms": round(update_ms - kernels_ms - optimizer_ms, 3),
         "loadavg_1min": round(os.getloadavg()[0], 2),
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with args.out.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(row))
-        writer.writeheader()
-        writer.writerow(row)
+    write_csv(args.out, [row])
     width = max(map(len, row))
     for k, v in row.items():
         print(f"{k:<{width}}  {v}")

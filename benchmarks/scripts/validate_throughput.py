@@ -15,7 +15,6 @@ Writes ``OUT/throughput.csv`` with the matmul peak before and after.
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime
 import importlib.util
 import statistics
@@ -24,6 +23,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from csvfile import write_csv
 
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
@@ -93,11 +93,7 @@ def main() -> None:
     for r in rows:
         r |= {"matmul_peak_before": round(peak0), "matmul_peak_after": round(peak1)}
         r["date"] = datetime.date.today().isoformat()
-    args.out.mkdir(parents=True, exist_ok=True)
-    with (args.out / "throughput.csv").open("w", newline="") as f:
-        w = csv.DictWriter(f, list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(args.out / "throughput.csv", rows)
     print("median share of the simulator:", statistics.median([r["share_of_sim"] for r in rows]))
 
 

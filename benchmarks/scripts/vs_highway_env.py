@@ -42,6 +42,7 @@ for path in (ROOT, ROOT / "benchmarks" / "scripts"):  # run as a script from any
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))
 
+import csvfile  # noqa: E402
 import jax  # noqa: E402
 import sim_throughput  # noqa: E402
 
@@ -229,7 +230,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"best:    jaxlc N={jx_best['envs']} {jx_best['env_steps_per_s']:,.0f} / highway-env "
         f"{hw_best['setting']} {hw_best['env_steps_per_s']:,.0f} = {ratio_best:,.0f}x"
     )
-    sim_throughput.write_csv(args.csv, rows)
+    csvfile.write_csv(args.csv, rows)
     print(f"wrote {args.csv}")
     return {
         "rows": rows,

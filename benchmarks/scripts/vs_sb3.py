@@ -42,7 +42,6 @@ Writes ``benchmarks/results/vs_sb3.csv``.
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import os
 import platform
@@ -60,6 +59,7 @@ if str(ROOT) not in sys.path:  # run as a script from anywhere
     sys.path.insert(0, str(ROOT))
 
 import jax  # noqa: E402
+from csvfile import write_csv  # noqa: E402
 
 from jaxlc import config  # noqa: E402
 from jaxlc.learn import train  # noqa: E402
@@ -433,11 +433,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         {k: v for k, v in r.items() if k not in ("episode_times", "lrs")}
         for r in (sb3, jx, grid, sb3_nine)
     ]
-    args.csv.parent.mkdir(parents=True, exist_ok=True)
-    with args.csv.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(args.csv, rows)
     print(f"wrote {args.csv}")
     return {"sb3": rows[0], "jaxlc": rows[1], "jaxlc_grid": rows[2], "sb3_nine": rows[3]}
 
