@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
@@ -62,6 +63,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="is: tilt braking from the gap's acceptance (unbiased), from the command on or "
         "from the ego's entry (ratio estimates)",
     )
+    ap.add_argument(
+        "--defensive",
+        type=float,
+        default=validation.DEFENSIVE_SHARE,
+        help="is: the share of the estimate's chunks drawn from the traffic's own distribution "
+        "(a defensive mixture: every weight at most 1 / share; 0: none)",
+    )
     ap.add_argument("--traffic", nargs="+", default=[], metavar="env.KEY=VALUE")
     ap.add_argument("--chunk", type=int, default=2048, help="lane-change cases per program")
     ap.add_argument("--seed", type=int, default=0)
@@ -74,6 +82,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             ap.error(f"--{name.replace('_', '-')} must be >= 1")
     if not 0.0 <= args.rel_halfwidth < 1.0:
         ap.error("--rel-halfwidth must be in [0, 1)")
+    if not 0.0 <= args.defensive < 1.0:
+        ap.error("--defensive must be in [0, 1)")
     return args
 
 
@@ -118,14 +128,18 @@ def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
         )
     ratio = tilted and args.tilt_from != "acceptance"
     tally, lo, interrupted = validation.Tally(ratio=ratio), 0, False
+    # the mixture's two components, the flag a float32 array in both: one program for the two
+    prop = prop.replace(drawn_nominal=jnp.float32(0.0))
+    own = prop.replace(drawn_nominal=jnp.float32(1.0))
     bar = tqdm(total=args.lane_changes, unit="lc", desc=str(row["meta"]["label"]), leave=False)
     t1 = time.perf_counter()
     try:
         while tally.lane_changes < args.lane_changes:
             keys = validation.validate_keys(args.seed, validation.VALIDATE_TAG, lo, args.chunk)
-            out, _ = jax.device_get(run(prop, pol, keys))
+            nominal = tilted and validation.nominal_chunk(lo // args.chunk, args.defensive)
+            out, _ = jax.device_get(run(own if nominal else prop, pol, keys))
             before = tally.lane_changes
-            tally.add(columns(out), lo, np.asarray(keys), base.dt, tilted)
+            tally.add(columns(out), lo, np.asarray(keys), base.dt, tilted, nominal)
             lo += args.chunk
             bar.update(tally.lane_changes - before)
             est = tally.estimates(args.method)[args.kind]
@@ -140,6 +154,7 @@ def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
         "meta": row["meta"],
         "method": args.method,
         "proposal": prop.to_dict(),
+        "defensive": tally.defensive,
         "ce": history,
         "estimates": tally.estimates(args.method),
         "lane_changes": tally.lane_changes,

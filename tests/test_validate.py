@@ -58,6 +58,7 @@ def test_mc_estimate_is_clopper_pearson():
 # The command on a smoke run, in the traffic that brakes (the tilt's own draws included).
 TRAFFIC = ["env.braking=true", "env.braking_rate=200", "env.gap_min_ttc=0"]
 CHUNK = 64  # cases per program: the fixture's and the nominal test's, so one program serves both
+SHARE = 0.5  # the fixture's defensive mixture: its second chunk drawn from the nominal
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +69,8 @@ def validated(smoke_run, tmp_path_factory):
     run_dir, _ = smoke_run
     out = tmp_path_factory.mktemp("validate")
     args = ["--model", "scripted", "--method", "is", "--kind", "failure", "--chunk", str(CHUNK)]
-    args += ["--lane-changes", "60", "--out", str(out), "--traffic", *TRAFFIC]
+    args += ["--lane-changes", "60", "--defensive", str(SHARE), "--out", str(out)]
+    args += ["--traffic", *TRAFFIC]
     assert validate.main([str(run_dir), *args]) == 0
     return run_dir, out
 
@@ -76,13 +78,17 @@ def validated(smoke_run, tmp_path_factory):
 def test_validate_writes_its_outputs(validated):
     import json
 
+    from jaxlc.evaluation import validation
+
     _, out = validated
     doc = json.loads((out / "validate.json").read_text())
     (model,) = doc["models"]
     assert model["lane_changes"] >= 60 and model["ce"]
-    from jaxlc.evaluation.validation import KINDS
-
-    assert set(model["estimates"]) == set(KINDS)
+    # the defensive mixture's nominal chunks, in the share asked
+    chunks = model["cases_started"] // CHUNK
+    nominal = sum(validation.nominal_chunk(i, SHARE) for i in range(chunks))
+    assert chunks > 1 and model["defensive"] == nominal / chunks > 0
+    assert set(model["estimates"]) == set(validation.KINDS)
     e = model["estimates"]["failure"]
     assert e["lo"] <= e["estimate"] <= e["hi"]
     assert "braking events" in doc["traffic"] and doc["matmul_peak_gflops"] > 0
@@ -103,6 +109,8 @@ def test_replay_reproduces_a_case_bit_for_bit(validated):
     assert cases, "the smoke validation's traffic fails the scripted controller"
     path, same = replay_case(run_dir, 0, out)
     assert same and path.stat().st_size > 0
+    # each case names its mixture component in the proposal that replays it
+    assert all(c["proposal"]["drawn_nominal"] == float(c["drawn_nominal"]) for c in cases)
 
 
 def test_nominal_proposal_weights_are_one(smoke_run):
@@ -130,6 +138,55 @@ def test_nominal_proposal_weights_are_one(smoke_run):
     # one does, and more where the ego cruised or searched before its lane change
     assert np.all(trials[0] <= trials[1]) and np.all(trials[1] <= trials[2])
     assert trials[0].sum() < trials[1].sum() < trials[2].sum()
+
+
+def test_a_nominal_chunk_drives_the_traffics_own_draws_weighed_against_the_proposal(smoke_run):
+    """The defensive mixture's nominal share (``drawn_nominal``): the same lane changes as the
+    traffic's own draws, each weighed by the ratio of its braking draws against the proposal
+    (which tilts the target lane's lead alone): ``events log(p/q) + (trials - events)
+    log((1-p)/(1-q))`` of the lead's, as in a chunk the proposal draws."""
+    from jaxlc.evaluation import proposal, validation
+    from jaxlc.evaluation.cases import columns
+    from jaxlc.evaluation.heldout import in_traffic
+    from jaxlc.sim.braking import start_probability
+    from jaxlc.sim.env import EnvParams
+    from jaxlc.study.rundir import RunDir
+
+    cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
+    base = EnvParams.from_config(cfg.env)
+    run = validation.program(cfg, config.EvalConfig().max_steps, True)  # the fixture's
+    keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, CHUNK)
+    nom, p, q = proposal.nominal(base), float(start_probability(base)), 0.02
+    tilt = nom.replace(brake=nom.brake.at[proposal.ROLES.index("lead")].set(q))
+    props = {"nominal": nom, "own": tilt.replace(drawn_nominal=jnp.float32(1.0)), "tilt": tilt}
+    pol = validation.policies(cfg, None, 1)
+    out = {n: columns(jax.device_get(run(pr, pol, keys)[0])) for n, pr in props.items()}
+    for col in ("performed", "reason", "steps"):
+        assert np.array_equal(out["own"][col], out["nominal"][col])
+    col = {s: proposal.STATS.index(f"brake_{s}_lead") for s in ("trials", "events")}
+    for name in ("own", "tilt"):
+        perf, st = out[name]["performed"][0], out[name]["tilt"][0].astype(np.float64)
+        trials, events = st[:, col["trials"]], st[:, col["events"]]
+        expect = events * math.log(p / q) + (trials - events) * math.log((1 - p) / (1 - q))
+        assert trials[perf].sum() > 0
+        np.testing.assert_allclose(out[name]["log_w"][0][perf], expect[perf], rtol=1e-4, atol=1e-4)
+    events = {n: out[n]["tilt"][0][:, col["events"]].sum() for n in ("own", "tilt")}
+    assert events["tilt"] > events["own"]  # the proposal's lead brakes more often
+
+
+def test_the_mixtures_nominal_chunks_keep_their_share_and_cap_the_weights():
+    from jaxlc.evaluation import validation
+
+    for alpha in (0.0, 0.2, 0.5, 0.7):
+        flags = [validation.nominal_chunk(i, alpha) for i in range(100)]
+        assert not flags[0] and sum(flags) == round(100 * alpha)
+        assert all(abs(sum(flags[:n]) - n * alpha) < 1 for n in range(1, 101))
+    log_r = np.array([-50.0, -1.0, 0.0, 3.0, 50.0])
+    w = np.exp(rare.defensive(log_r, 0.5))
+    assert w.dtype == np.float64 and np.all(w <= 2.0) and w[2] == pytest.approx(1.0)
+    assert np.all(np.diff(w) > 0)  # the order of the ratios kept
+    jw = np.exp(np.asarray(rare.defensive(jnp.asarray(log_r, jnp.float32), jnp.float32(0.5))))
+    np.testing.assert_allclose(jw, w, rtol=1e-5)
 
 
 def test_tilt_windows_lists_the_failures_with_nested_braking_counts(smoke_run, tmp_path):

@@ -13,10 +13,13 @@ no ratio of two estimates; ``tilt_from`` may start the braking's tilt earlier, `
   its deceleration and duration from truncated exponentials of ``brake_acc`` and
   ``brake_time``.
 
-Every other draw is the traffic's own. ``TiltedEnv.step`` hands the tilted draws to the
-simulator (``LaneChangeEnv.step(..., draws=)``) and returns in ``info`` the log ratio of the
-draws the step used (``log_w``: a braking draw counts for a vehicle that could start an event,
-the yielding draw on the step of acceptance) and the CE's statistics (``tilt``, ``STATS``).
+Every other draw is the traffic's own. With ``drawn_nominal`` set, the draws are all the
+traffic's own and their log ratio is still taken against the proposal: the nominal share of a
+defensive mixture (``jaxlc.evaluation.validation``). ``TiltedEnv.step`` hands the tilted
+draws to the simulator (``LaneChangeEnv.step(..., draws=)``) and returns in ``info`` the log
+ratio of the draws the step used (``log_w``: a braking draw counts for a vehicle that could
+start an event, the yielding draw on the step of acceptance) and the CE's statistics
+(``tilt``, ``STATS``).
 ``nominal(params)`` draws exactly what the simulator draws, with weights of exactly 1.
 """
 
@@ -61,6 +64,7 @@ class Proposal:
     brake_time: Array  # () theta of the duration's uniform (> 0: longer)
     yields: Array  # () probability the lag yields
     tilt_from: Array | float = 0.0  # () index into TILT_FROM
+    drawn_nominal: Array | float = 0.0  # () 1: draw the traffic's own, weigh against this
 
     def to_dict(self) -> dict[str, object]:
         return {k: jnp.asarray(v).tolist() for k, v in vars(self).items()}
@@ -74,6 +78,7 @@ def nominal(p: EnvParams) -> Proposal:
         brake_time=jnp.float32(0.0),
         yields=jnp.float32(p.p_yield),
         tilt_from=jnp.float32(0.0),
+        drawn_nominal=jnp.float32(0.0),
     )
 
 
@@ -104,12 +109,13 @@ class TiltedEnv(LaneChangeEnv):
 
     def step(self, key, state, action, params, draws=()):
         p, q = params, self.proposal
+        own = q.drawn_nominal > 0.5  # the draws are the traffic's; the ratios still against q
         u = Draws.draw(key, p.lanes)
         gap = state.ego.phase == GAP
+        p_yield = jnp.float32(p.p_yield)
+        q_yield = jnp.where(own, p_yield, q.yields)
         u = u._replace(
-            yields=jnp.where(
-                gap, rare.tilt_bernoulli(u.yields, jnp.float32(p.p_yield), q.yields), u.yields
-            )
+            yields=jnp.where(gap, rare.tilt_bernoulli(u.yields, p_yield, q_yield), u.yields)
         )
         ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane) if p.mobil or p.braking else None
         if p.braking:
@@ -124,20 +130,19 @@ class TiltedEnv(LaneChangeEnv):
             q_role = jnp.where(jnp.abs(q.brake - p_fire) <= 1e-6 * p_fire, p_fire, q.brake)
             q_fire = jnp.max(jnp.where(role, q_role[:, None, None], 0.0), axis=0)
             q_fire = jnp.where(near, jnp.maximum(q_fire, 1e-12), p_fire)
+            acc, time = (jnp.where(own, 0.0, th) for th in (q.brake_acc, q.brake_time))
             ut = ut._replace(
-                brake_fire=rare.tilt_bernoulli(ut.brake_fire, p_fire, q_fire),
-                brake_acc=jnp.where(
-                    near, rare.tilt_exponential(ut.brake_acc, q.brake_acc), ut.brake_acc
+                brake_fire=rare.tilt_bernoulli(
+                    ut.brake_fire, p_fire, jnp.where(own, p_fire, q_fire)
                 ),
+                brake_acc=jnp.where(near, rare.tilt_exponential(ut.brake_acc, acc), ut.brake_acc),
                 brake_time=jnp.where(
-                    near, rare.tilt_exponential(ut.brake_time, q.brake_time), ut.brake_time
+                    near, rare.tilt_exponential(ut.brake_time, time), ut.brake_time
                 ),
             )
         obs, new, r, term, trunc, info = super().step(key, state, action, params, (u, ut))
         accept = gap & info["lane_change"]
-        log_w = jnp.where(
-            accept, rare.bernoulli_log_ratio(u.yields, jnp.float32(p.p_yield), q.yields), 0.0
-        )
+        log_w = jnp.where(accept, rare.bernoulli_log_ratio(u.yields, p_yield, q.yields), 0.0)
         zeros = jnp.zeros(len(ROLES))
         stats = [zeros, zeros, jnp.zeros(2)]
         if p.braking:

@@ -13,12 +13,12 @@ it to the traffic):
   ``1 / density``; ``theta = 0`` is the uniform itself.
 
 A lane change's ratio is the product of the ratios of the draws it used, accumulated as a sum
-of logs; ``q = p`` and ``theta = 0`` give log ratios of exactly 0. The simulator's IS
-(``jaxlc.evaluation.proposal``, ``jaxlc.evaluation.validation``) draws every lane change from
-the tilt alone; only the toy check (``toy_sample``, ``toy_estimate``) draws a sample from the
-nominal with probability ``DEFENSIVE`` and from the tilt otherwise (a defensive mixture: its
-weight ``defensive`` is at most ``1 / DEFENSIVE``; docs/decisions.md, "the defensive
-mixture"). The IS estimate
+of logs; ``q = p`` and ``theta = 0`` give log ratios of exactly 0. A defensive mixture draws a
+share ``alpha`` of the sample from the nominal and the rest from the tilt, each weighted by
+``defensive`` (at most ``1 / alpha``; docs/decisions.md, "the defensive mixture"): the toy
+check (``toy_sample``, ``toy_estimate``) picks each sample's component at random, the
+simulator's IS (``jaxlc.evaluation.validation``) whole chunks in the share ``alpha``. The IS
+estimate
 ``mean(w * failed)`` is unbiased for any proposal that can draw every failure (no
 self-normalisation), its interval the normal one of the weighted sample, and the mean weight
 ``mean(w)``, whose expectation is 1, is its check. Crude MC counts failures, with the
@@ -77,8 +77,10 @@ def exponential_log_ratio(u: Array, theta: Array) -> Array:
 def defensive(log_r: Array, alpha: Array) -> Array:
     """Log weight of a draw from the defensive mixture ``alpha nominal + (1 - alpha) tilted``
     (Hesterberg 1995), given ``log_r``, its log ratio nominal / tilted: ``1 / (alpha + (1 -
-    alpha) e^-log_r)``, at most ``1 / alpha``; ``alpha = 0`` gives ``log_r`` itself."""
-    return -jnp.logaddexp(jnp.log(alpha), jnp.log1p(-alpha) - log_r)
+    alpha) e^-log_r)``, at most ``1 / alpha``; ``alpha = 0`` gives ``log_r`` itself. Numpy in
+    (float64), numpy out."""
+    xp = np if isinstance(log_r, np.ndarray) else jnp
+    return -xp.logaddexp(xp.log(alpha), xp.log1p(-alpha) - log_r)
 
 
 def exponential_mean(theta: float) -> float:

@@ -12,7 +12,11 @@ failed end (collision, out of bounds, timeout, unfinished) and each norm of
 kinds (a few bytes each) and the failures with their keys, so the estimate
 (``jaxlc.evaluation.rare``) and the worst cases can be read at any chunk, Ctrl-C included.
 The IS proposal is fitted by ``fit_proposal``: multilevel cross-entropy on pilot chunks from a
-key stream apart from the estimate's.
+key stream apart from the estimate's. A defensive mixture draws the share ``alpha`` of the
+estimate's chunks (``nominal_chunk``) from the traffic's own distribution, their ratios still
+taken against the proposal, and weighs every lane change by the balance heuristic
+(``rare.defensive``): a failure the proposal makes rarer than the traffic does weighs at most
+``1 / alpha``.
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ KINDS = ("failure", *ENDS, *(f"norm_{name}" for name, *_ in NORMS))
 VALIDATE_TAG = 0x56414C44  # "VALD": the estimate's key stream
 PILOT_TAG = 0x50494C54  # "PILT": the CE's pilot chunks
 CASE_CAP = 1000  # failures kept per model and kind, highest weight first
+DEFENSIVE_SHARE = 0.2  # the estimate's share of chunks drawn from the nominal (docs/decisions.md)
 POOL_STOP = 40  # the CE stops once this many failures of its kind are pooled
 SMOOTH = 0.7  # the CE's step: new = SMOOTH * fitted + (1 - SMOOTH) * old
 BRAKE_MAX = 0.05  # per-step probability of a braking event at most (one in 2 s)
@@ -117,8 +122,13 @@ class Tally:
     started: int = 0  # cases started (performed or not)
     ratio: bool = False  # the proposal tilts before acceptance: keep every case, ratio estimate
     perf: list[np.ndarray] = field(default_factory=list)
+    nominal_started: int = 0  # cases of chunks drawn from the nominal (``drawn_nominal``)
 
-    def add(self, out: dict, lo: int, keys: np.ndarray, dt: float, tilted: bool) -> None:
+    def add(
+        self, out: dict, lo: int, keys: np.ndarray, dt: float, tilted: bool, nominal: bool = False
+    ) -> None:
+        """A chunk's cases (``nominal``: drawn from the traffic's own distribution, their log
+        ratios taken against the proposal: the defensive mixture's share)."""
         perf = out["performed"][0]
         k = kinds(out, dt)
         log_w = out["log_w"][0].astype(np.float64) if tilted else np.zeros(perf.shape)
@@ -134,11 +144,18 @@ class Tally:
                     "log_w": float(log_w[c]),
                     "kinds": [n for n, hit in zip(KINDS, k[c], strict=True) if hit],
                     "reason": OUTCOMES[int(out["reason"][0][c])],
+                    "drawn_nominal": nominal,
                 }
             )
         self.cases.sort(key=lambda r: -r["log_w"])
         del self.cases[CASE_CAP:]
         self.started += perf.size
+        self.nominal_started += perf.size if nominal else 0
+
+    @property
+    def defensive(self) -> float:
+        """The share of the cases drawn from the nominal (0: the proposal's alone)."""
+        return self.nominal_started / self.started if self.started else 0.0
 
     @property
     def lane_changes(self) -> int:
@@ -149,6 +166,8 @@ class Tally:
         if not self.log_w:
             return {}
         log_w, k = np.concatenate(self.log_w), np.concatenate(self.kinds)
+        if self.nominal_started:  # the balance heuristic over the chunks' two components
+            log_w = rare.defensive(log_w, self.defensive)
         if method == "mc":
             return {
                 n: rare.mc_estimate(int(k[:, i].sum()), k.shape[0]) for i, n in enumerate(KINDS)
@@ -157,6 +176,12 @@ class Tally:
             perf = np.concatenate(self.perf)
             return {n: rare.is_ratio_estimate(log_w, perf, k[:, i]) for i, n in enumerate(KINDS)}
         return {n: rare.is_estimate(log_w, k[:, i]) for i, n in enumerate(KINDS)}
+
+
+def nominal_chunk(index: int, alpha: float) -> bool:
+    """Whether the estimate's chunk ``index`` is drawn from the nominal: the share ``alpha``
+    of the chunks, spread evenly (chunk 0 is the proposal's)."""
+    return math.floor((index + 1) * alpha) > math.floor(index * alpha)
 
 
 START_BRAKE = 0.005  # the CE's first proposal: a braking event per role one in 20 s

@@ -76,7 +76,7 @@ def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: floa
             "checkpoint": r["meta"].get("checkpoint"),
             "k": r["meta"].get("k") or 1,
             "method": r["method"],
-            "proposal": r["proposal"],
+            "proposal": {**r["proposal"], "drawn_nominal": float(c["drawn_nominal"])},
         }
         for i, r in enumerate(results)
         for c in r["cases"]
