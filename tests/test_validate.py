@@ -161,8 +161,8 @@ def test_a_nominal_chunk_drives_the_traffics_own_draws_weighed_against_the_propo
     props = {"nominal": nom, "own": tilt.replace(drawn_nominal=jnp.float32(1.0)), "tilt": tilt}
     pol = validation.policies(cfg, None, 1)
     out = {n: columns(jax.device_get(run(pr, pol, keys)[0])) for n, pr in props.items()}
-    for col in ("performed", "reason", "steps"):
-        assert np.array_equal(out["own"][col], out["nominal"][col])
+    for field in ("performed", "reason", "steps"):
+        assert np.array_equal(out["own"][field], out["nominal"][field])
     col = {s: proposal.STATS.index(f"brake_{s}_lead") for s in ("trials", "events")}
     for name in ("own", "tilt"):
         perf, st = out[name]["performed"][0], out[name]["tilt"][0].astype(np.float64)
