@@ -19,7 +19,6 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxlc.sim import gap, kinematics, sortnet
-from jaxlc.sim.idm import NO_LEADER_GAP
 from jaxlc.sim.road import current_lane, ego_lanes
 from jaxlc.sim.state import Ego, EnvParams, Traffic
 
@@ -136,14 +135,6 @@ def _order(x: Array, road_length: Array, bits: int) -> Array:
     q = jnp.clip(q, 0, levels - 1).astype(jnp.int32)
     keys = q * (1 << bits) + jnp.arange(x.shape[0], dtype=jnp.int32)
     return sortnet.sort(keys) & ((1 << bits) - 1)
-
-
-def net_gap(a: Around, back: Array, front: Array, present: Array) -> Array:
-    """``(lanes, V)`` net gap, m along each lane, from vehicle ``back`` to ``front`` (index
-    arrays of that shape); ``NO_LEADER_GAP`` where not ``present``."""
-    c = a.scale[:, None]
-    g = a.x[front] * c - a.length[front] - a.x[back] * c
-    return jnp.where(present, g, NO_LEADER_GAP)
 
 
 def ego_neighbours(tr: Traffic, eg: Ego, p: EnvParams) -> Array:
