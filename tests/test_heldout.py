@@ -130,10 +130,16 @@ def smoke_cfg() -> config.Config:
 
 
 def test_keys_for_lane_changes_hold_exactly_that_many(smoke_cfg: config.Config) -> None:
-    keys = cases.keys_for_lane_changes(smoke_cfg, 25, seed=3, batch=16)
+    keys, started = cases.cases_for_lane_changes(smoke_cfg, 25, seed=3, batch=16)
     start, _ = cases.programs(smoke_cfg, 1500)
-    performed = np.asarray(start(keys).performed)
+    alone = start(keys)
+    performed = np.asarray(alone.performed)
     assert performed.sum() == 25 and performed[-1]  # the last case is the 25th lane change
+    # the cases handed on are those of the keys started afresh, bit for bit, whatever the batch
+    for a, b in zip(jax.tree.leaves(started), jax.tree.leaves(alone), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    other = cases.keys_for_lane_changes(smoke_cfg, 25, seed=3, batch=8)
+    np.testing.assert_array_equal(np.asarray(other), np.asarray(keys))
 
 
 def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -> None:

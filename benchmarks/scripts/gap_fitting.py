@@ -3,7 +3,7 @@
 ``jaxlc.sim.controller.fitting_action`` holds the origin lane, and adjusts its speed, until the
 accepted gap fits the 0.9 s headway norm with a margin; ``scripted_action`` (the held-out
 evaluation's baseline row) changes lane as soon as the gap is accepted. Both run on the same
-held-out cases (``keys_for_lane_changes``, the evaluation's own key stream) under each config
+held-out cases (``cases_for_lane_changes``, the evaluation's own key stream) under each config
 given, with the manoeuvre time unobserved (the config as it is) and observed
 (``env.terminal_timeout = true``, which the controller's fallback after ``FIT_GO_AFTER`` s
 reads), and their held-out rows (``jaxlc.evaluation.heldout.model_row``) are written.
@@ -62,14 +62,13 @@ def rows_for(
     overrides = ["env.terminal_timeout=true"] if time_observed else []
     cfg = config.load(path, overrides)
     p = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    keys = cases.keys_for_lane_changes(cfg, lane_changes, seed, max_steps)
-    start, _ = cases.programs(cfg, max_steps)
-    info = cases.case_info(start(keys), cfg)
+    _, started = cases.cases_for_lane_changes(cfg, lane_changes, seed, max_steps)
+    info = cases.case_info(started, cfg)
     rows = []
     for name, controller in CONTROLLERS.items():
         t0 = time.perf_counter()
         out = cases.evaluate_act(
-            cfg, lambda o, c=controller: c(o, p), keys=keys, max_steps=max_steps
+            cfg, lambda o, c=controller: c(o, p), started=started, max_steps=max_steps
         )
         row = heldout.model_row(out, info, 0, float(p.dt))  # out: (1, cases) arrays
         rows.append(

@@ -7,7 +7,7 @@ rollout: the same params on the same cases cost the same as different ones), plu
 scripted controller, exactly as ``python -m jaxlc.evaluate`` runs them
 (``evaluate_policies`` over the held-out keys, in chunks of ``--chunk``, on the host
 devices the command would take). Times the drawing
-of the cases (``keys_for_lane_changes``) and the rollouts apart, the first call including
+of the cases (``cases_for_lane_changes``) and the rollouts apart, the first call including
 compilation; writes ``OUT/cost.csv`` with the machine's float32 matmul peak and the date.
 """
 
@@ -22,7 +22,7 @@ from pathlib import Path
 import jax
 from csvfile import write_csv
 
-from jaxlc.evaluation.cases import evaluate_policies, keys_for_lane_changes
+from jaxlc.evaluation.cases import cases_for_lane_changes, evaluate_policies
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.sim.env import action_dim
 from jaxlc.sim.observation import OBS_DIM
@@ -50,11 +50,11 @@ def main() -> None:
     ks = [1] + [ks[i % len(ks)] for i in range(args.policies)]
     devices = len(jax.devices())
     t0 = time.perf_counter()
-    keys = keys_for_lane_changes(cfg, args.lane_changes, seed=0)
+    keys, started = cases_for_lane_changes(cfg, args.lane_changes, seed=0)
     t_cases = time.perf_counter() - t0
     t0 = time.perf_counter()
     out, _, info = evaluate_policies(
-        cfg, [None, *actors], ks, keys=keys, chunk=args.chunk, traced=0, devices=devices
+        cfg, [None, *actors], ks, started=started, chunk=args.chunk, traced=0, devices=devices
     )
     t_roll = time.perf_counter() - t0
     peak = machine.matmul_peak_gflops()

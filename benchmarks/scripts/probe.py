@@ -23,7 +23,7 @@ from csvfile import write_csv
 
 from jaxlc import config
 from jaxlc.evaluation import heldout
-from jaxlc.evaluation.cases import evaluate_policies, keys_for_lane_changes
+from jaxlc.evaluation.cases import cases_for_lane_changes, evaluate_policies
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.study import machine
 
@@ -59,9 +59,9 @@ def main() -> None:
         data = dataclasses.asdict(base)
         data.setdefault(table, {})[name] = value
         cfg = config.from_dict(data)  # validated: a bad key or value names itself
-        keys = keys_for_lane_changes(cfg, args.lane_changes, seed=0)
+        keys, started = cases_for_lane_changes(cfg, args.lane_changes, seed=0)
         out, _, info = evaluate_policies(
-            cfg, [None, *actors], [1] + [m["k"] for m in metas[1:]], keys=keys, traced=0
+            cfg, [None, *actors], [1] + [m["k"] for m in metas[1:]], started=started, traced=0
         )
         for p, meta in enumerate(metas):
             r = heldout.model_row(out, info, p, cfg.env.dt)

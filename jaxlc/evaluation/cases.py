@@ -48,6 +48,7 @@ PROTOCOL = config.EvalConfig()  # the defaults of the [eval] table: cases, step 
 SPILL = 16  # make_start_cases: once at most 1/SPILL of a batch still approaches, it finishes apart
 # A smaller batch's slowest cases cost it little: it runs as one vmapped loop (one compiled step).
 SPILL_MIN_BATCH = 4 * SPILL
+PROBE_BATCH = 512  # cases_for_lane_changes: the most cases started at once
 
 
 @flax.struct.dataclass
@@ -165,26 +166,44 @@ def keys_for_lane_changes(
     lane_changes: int,
     seed: int,
     max_steps: int = PROTOCOL.max_steps,
-    batch: int = 512,
+    batch: int | None = None,
 ) -> Array:
     """The fewest held-out keys (``heldout_keys(seed, n)``) whose cases hold ``lane_changes``
-    lane changes: cases are started ``batch`` at a time until enough reach the RL phase."""
+    lane changes (``cases_for_lane_changes``' keys)."""
+    return cases_for_lane_changes(cfg, lane_changes, seed, max_steps, batch)[0]
+
+
+def cases_for_lane_changes(
+    cfg: config.Config,
+    lane_changes: int,
+    seed: int,
+    max_steps: int = PROTOCOL.max_steps,
+    batch: int | None = None,
+) -> tuple[Array, Cases]:
+    """``(keys (n, 2), Cases (n,))``: the fewest held-out keys (``heldout_keys(seed, n)``)
+    whose cases hold ``lane_changes`` lane changes, and those cases started. Cases are started
+    ``batch`` at a time until enough reach the RL phase (default: the power of two above
+    ``lane_changes`` and a quarter more, at most ``PROBE_BATCH``); a case starts bit for bit
+    as alone, so the batch changes the cost, never the cases."""
+    if batch is None:
+        batch = min(PROBE_BATCH, 1 << (lane_changes + lane_changes // 4).bit_length())
     start, _ = programs(cfg, max_steps)
-    performed: list[np.ndarray] = []
+    started: list[Cases] = []
     total = 0  # lane changes among the cases started so far
     while total < lane_changes:
-        lo = batch * len(performed)
-        keys = heldout_keys(seed, lo + batch)[lo:]
-        performed.append(np.asarray(start(keys).performed))
-        total += int(performed[-1].sum())
-        if len(performed) * batch > 100 * lane_changes:
+        lo = batch * len(started)
+        started.append(start(heldout_keys(seed, lo + batch)[lo:]))
+        total += int(np.asarray(started[-1].performed).sum())
+        if len(started) * batch > 100 * lane_changes:
             raise EvalError(
                 f"fewer than 1 in 100 held-out cases performs a lane change "
-                f"({total} of {len(performed) * batch}); "
+                f"({total} of {len(started) * batch}); "
                 "check the config's traffic and gap settings"
             )
-    n = int(np.searchsorted(np.cumsum(np.concatenate(performed)), lane_changes)) + 1
-    return heldout_keys(seed, n)
+    performed = np.concatenate([np.asarray(c.performed) for c in started])
+    n = int(np.searchsorted(np.cumsum(performed), lane_changes)) + 1
+    cs = jax.tree.map(lambda *xs: jnp.concatenate(xs)[:n], *started)
+    return heldout_keys(seed, n), cs
 
 
 @functools.lru_cache(maxsize=8)
@@ -588,9 +607,11 @@ def evaluate_policies(
     chunk: int = PROTOCOL.chunk,
     traced: int = PROTOCOL.traced,
     devices: int = 1,
+    started: Cases | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Evaluate actors (``None``: the scripted controller) with action-update steps ``ks`` on
-    the protocol cases ``case_keys(seed, cases)``, or on the cases of ``keys`` if given.
+    the protocol cases ``case_keys(seed, cases)``, or on the cases of ``keys`` if given, or on
+    ``started`` (the cases of ``cases_for_lane_changes``, not started again).
 
     Returns numpy dicts ``(outcome (policies, cases), trace (policies, traced, ...),
     case info (cases,))``. Policies run in chunks of ``chunk`` (the last padded to full size,
@@ -599,7 +620,7 @@ def evaluate_policies(
     """
     check_devices(devices, EvalError)
     start, rollout = programs(cfg, max_steps, devices)
-    cs = start(case_keys(seed, cases) if keys is None else keys)
+    cs = _the_cases(start, seed, cases, keys, started)
     idx = pick_traced(cs, traced)
     template = jax.tree.map(np.zeros_like, init_actor(cfg))
     rows = [
@@ -624,6 +645,19 @@ def evaluate_policies(
         traces.append(jax.tree.map(lambda a, n=n: a[:n], trace))
     info = {"case": np.arange(cs.reason.shape[0]), "traced": idx, **case_info(cs, cfg)}
     return _concat(outs), _concat(traces), info
+
+
+def _the_cases(
+    start: Callable[[Array], Cases],
+    seed: int,
+    cases: int,
+    keys: Array | None,
+    started: Cases | None,
+) -> Cases:
+    """``started`` if given, else the cases of ``keys``, else the protocol's ``cases``."""
+    if started is not None:
+        return started
+    return start(case_keys(seed, cases) if keys is None else keys)
 
 
 def case_info(cs: Cases, cfg: config.Config) -> dict[str, np.ndarray]:
@@ -672,15 +706,17 @@ def evaluate_act(
     seed: int = 0,
     keys: Array | None = None,
     max_steps: int = PROTOCOL.max_steps,
+    started: Cases | None = None,
 ) -> dict[str, np.ndarray]:
     """Any learner's policy, given as a jittable ``act(obs (cases, OBS_DIM)) -> action (cases,
-    1)``, on the same fixed cases as every checkpoint (or those of ``keys``): the outcome dict
+    1)``, on the same fixed cases as every checkpoint (or those of ``keys``, or ``started``, as
+    ``evaluate_policies``): the outcome dict
     of ``evaluate_policies`` with one row (``jaxlc.evaluation.results.summarise`` turns it into
     a row)."""
     start, _ = programs(cfg, max_steps)  # the checkpoints' own (cached) case program
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     rollout = jax.jit(make_rollout(base, lambda _, obs: act(obs), max_steps))
-    cs = start(case_keys(seed, cases) if keys is None else keys)
+    cs = _the_cases(start, seed, cases, keys, started)
     one = Policies(actor=jnp.zeros(1), k=jnp.asarray([k], jnp.int32), scripted=jnp.zeros(1, bool))
     out, _ = jax.device_get(rollout(one, cs, jnp.zeros(1, jnp.int32)))
     return {name: np.asarray(v) for name, v in columns(out).items()}

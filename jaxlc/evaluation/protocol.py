@@ -26,9 +26,9 @@ from jaxlc import config
 from jaxlc.evaluation import convergence, heldout, stats
 from jaxlc.evaluation.cases import (
     PROTOCOL,
+    cases_for_lane_changes,
     evaluate_policies,
     init_actor,
-    keys_for_lane_changes,
 )
 from jaxlc.evaluation.numbers import defined
 from jaxlc.evaluation.results import (
@@ -180,12 +180,12 @@ def evaluate_heldout(
     if traffic:
         cfg = heldout.in_traffic(cfg, traffic)
         out_dir = rd.eval / f"heldout_{tag or 'traffic'}"
-    keys = keys_for_lane_changes(cfg, lane_changes, seed, max_steps)
+    keys, started = cases_for_lane_changes(cfg, lane_changes, seed, max_steps)
     out, _, info = evaluate_policies(
         cfg,
         [None, *actors],
         [1] + [m["k"] for m in metas[1:]],
-        keys=keys,
+        started=started,
         max_steps=max_steps,
         chunk=chunk,
         traced=0,
@@ -212,9 +212,9 @@ def evaluate_heldout(
         "collisions": heldout.collisions(out, info, metas, dt),
     }
     _write_json(out_dir / rd.heldout_json.name, result)
-    _write_table(out_dir / "heldout.csv", rows, heldout.HELDOUT_FIELDS)
-    _write_table(out_dir / "heldout_cells.csv", cells)
-    _write_table(out_dir / "collisions.csv", result["collisions"], heldout.COLLISION_FIELDS)
+    write_table(out_dir / "heldout.csv", rows, heldout.HELDOUT_FIELDS)
+    write_table(out_dir / "heldout_cells.csv", cells)
+    write_table(out_dir / "collisions.csv", result["collisions"], heldout.COLLISION_FIELDS)
     ids = _policy_ids(metas)
     rd.save_npz(out_dir / rd.heldout_cases.name, {**out, **ids, **info})
     return result
@@ -230,7 +230,7 @@ def write_convergence(run_dir: Path) -> dict[str, Any] | None:
         return None
     doc = convergence.study(episodes, rd.read_json(rd.summary_json)["models"])
     _write_json(rd.convergence, doc)
-    _write_table(rd.eval / "convergence.csv", doc["models"])
+    write_table(rd.eval / "convergence.csv", doc["models"])
     return doc
 
 
@@ -311,7 +311,7 @@ def _write_json(path: Path, doc: dict[str, Any]) -> None:
     checkpoint.write_text_atomic(path, json.dumps(_json_safe(doc), indent=1) + "\n")
 
 
-def _write_table(path: Path, table: list[dict[str, Any]], fields: Sequence[str] = ()) -> None:
+def write_table(path: Path, table: list[dict[str, Any]], fields: Sequence[str] = ()) -> None:
     """A CSV of ``table``'s rows; its columns ``fields``, else the first row's keys."""
     fields = fields or (list(table[0]) if table else [])
     checkpoint.write_text_atomic(path, _csv(table, fields))
@@ -360,7 +360,7 @@ def write_seed_stats(out_dir: Path, rows: list[dict[str, Any]]) -> dict[str, Any
     }
     _write_json(out_dir / "cells.json", doc)
     for name in ("cells", "improvement"):
-        _write_table(out_dir / f"{name}.csv", doc[name])
+        write_table(out_dir / f"{name}.csv", doc[name])
     return doc
 
 
@@ -379,7 +379,7 @@ def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
     table = stats.compare(stats.cells_of(_eval_rows(run_a)), stats.cells_of(_eval_rows(run_b)))
     out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
     out.mkdir(parents=True, exist_ok=True)
-    _write_table(out / "compare.csv", table)
+    write_table(out / "compare.csv", table)
     from jaxlc.evaluation import plots, report
 
     plots.fig_compare(table, run_a.name, run_b.name, out / "compare.png")

@@ -4,7 +4,6 @@ saved case replayed as a GIF (``replay_case``)."""
 
 from __future__ import annotations
 
-import csv
 import datetime
 import json
 import math
@@ -18,6 +17,7 @@ import numpy as np
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
 from jaxlc.evaluation.cases import columns
+from jaxlc.evaluation.protocol import write_table
 from jaxlc.evaluation.results import OUTCOMES, EvalError
 from jaxlc.sim.env import EnvParams
 from jaxlc.study import checkpoint
@@ -64,10 +64,7 @@ def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: floa
         for r in results
         for kind, e in r["estimates"].items()
     ]
-    with (out / "validate.csv").open("w", newline="") as f:
-        w = csv.DictWriter(f, FIELDS, extrasaction="ignore")
-        w.writeheader()
-        w.writerows(rows)
+    write_table(out / "validate.csv", rows, FIELDS)
     cases = [
         {
             **c,
