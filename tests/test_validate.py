@@ -253,3 +253,51 @@ def test_ratio_estimate_with_unit_weights_is_the_plain_rate():
     r = rare.is_ratio_estimate(np.zeros(10_000), perf, failed)
     assert r["estimate"] == pytest.approx(failed.sum() / perf.sum())
     assert r["lane_changes"] == perf.sum() and r["lo"] < r["estimate"] < r["hi"]
+
+
+@pytest.mark.parametrize("first", [6, 2])
+def test_the_ce_holds_its_proposal_for_a_round_that_as_many_failures_again_complete(
+    first, monkeypatch
+):
+    """A pilot round with failures short of ``rare.MIN_ELITE`` (10): with 6, another round
+    under the same proposal (new keys) pools 11 and the fit is to those failures; with 2,
+    as many again would not do, and the round's closest by ``score`` are the elite."""
+    from types import SimpleNamespace
+
+    from jaxlc.evaluation import validation
+    from jaxlc.evaluation.proposal import STATS
+    from jaxlc.sim.env import EnvParams
+
+    p = EnvParams.from_config(config.load().env)
+    n, seen = 40, []  # 40: 2 failures are under the tenth that would make them the elite
+    fails = iter([first, 5, 5])
+
+    def run(prop, pol, keys):
+        seen.append(np.asarray(keys))
+        k = next(fails)
+        out = SimpleNamespace(
+            names=(),
+            performed=np.ones((1, n), bool),
+            log_w=np.zeros((1, n), np.float32),
+            tilt=np.ones((1, n, len(STATS)), np.float32),
+            steps=np.arange(n)[None],
+            reason=np.where(np.arange(n) < k, 1, 0)[None],
+        )
+        return (out,)
+
+    def kinds(out, dt):  # failure kind 0: the cases the fake run marked
+        return np.stack([out["reason"][0] == 1] * len(validation.KINDS), axis=1)
+
+    monkeypatch.setattr(validation, "kinds", kinds)
+    start = validation.start_proposal(p)
+    _, history = validation.fit_proposal(
+        run, None, p, start, n, kind="failure", rounds=3, log=lambda *_: None
+    )
+    assert not np.array_equal(seen[0], seen[1])  # each round on keys of its own
+    moved = [h["proposal"] != start.to_dict() for h in history]
+    if first == 6:
+        assert history[0]["level"] is None and not moved[0]
+        assert history[1]["pooled_failures"] == 11 and history[1]["level"] == math.inf
+        assert moved[1]
+    else:
+        assert math.isfinite(history[0]["level"]) and moved[0]

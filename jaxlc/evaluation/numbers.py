@@ -1,9 +1,13 @@
 """The evaluation's numbers as they are read and printed: which are defined, and how an
-estimate, a share or an interval is written in the report's tables and the terminal's."""
+estimate, a share or an interval is written in the report's tables, the terminal's and the
+CSV files."""
 
 from __future__ import annotations
 
+import csv
+import io
 import math
+from collections.abc import Sequence
 from typing import Any
 
 DASH = "–"  # an undefined number in a markdown table (report.md, convergence verdicts)
@@ -13,6 +17,16 @@ TERMINAL_DASH = "-"  # the same in a plain-text table for the terminal (ASCII)
 def defined(v: Any) -> bool:
     """``v`` is a number: neither None (JSON's null) nor NaN."""
     return v is not None and v == v
+
+
+def csv_text(rows: list[dict[str, Any]], fields: Sequence[str]) -> str:
+    """``rows`` as CSV: columns ``fields``, an undefined number empty, lines ending in LF."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fields, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: r[k] if defined(r.get(k)) else "" for k in fields})
+    return buf.getvalue()
 
 
 def number(v: Any) -> float:

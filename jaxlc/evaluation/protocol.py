@@ -12,8 +12,6 @@ the step cap), so every case lands in exactly one bucket.
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import math
 from collections.abc import Sequence
@@ -30,7 +28,7 @@ from jaxlc.evaluation.cases import (
     evaluate_policies,
     init_actor,
 )
-from jaxlc.evaluation.numbers import defined
+from jaxlc.evaluation.numbers import csv_text
 from jaxlc.evaluation.results import (
     META_KEYS,
     OUTCOMES,
@@ -212,9 +210,9 @@ def evaluate_heldout(
         "collisions": heldout.collisions(out, info, metas, dt),
     }
     _write_json(out_dir / rd.heldout_json.name, result)
-    write_table(out_dir / "heldout.csv", rows, heldout.HELDOUT_FIELDS)
-    write_table(out_dir / "heldout_cells.csv", cells)
-    write_table(out_dir / "collisions.csv", result["collisions"], heldout.COLLISION_FIELDS)
+    _write_table(out_dir / "heldout.csv", rows, heldout.HELDOUT_FIELDS)
+    _write_table(out_dir / "heldout_cells.csv", cells)
+    _write_table(out_dir / "collisions.csv", result["collisions"], heldout.COLLISION_FIELDS)
     ids = _policy_ids(metas)
     rd.save_npz(out_dir / rd.heldout_cases.name, {**out, **ids, **info})
     return result
@@ -230,7 +228,7 @@ def write_convergence(run_dir: Path) -> dict[str, Any] | None:
         return None
     doc = convergence.study(episodes, rd.read_json(rd.summary_json)["models"])
     _write_json(rd.convergence, doc)
-    write_table(rd.eval / "convergence.csv", doc["models"])
+    _write_table(rd.eval / "convergence.csv", doc["models"])
     return doc
 
 
@@ -303,7 +301,7 @@ def _result(
 def _write(out_dir: Path, name: str, result: dict[str, Any], cfg: config.Config) -> None:
     _write_json(out_dir / f"{name}.json", result)
     fields = eval_fields(cfg.env.reward_terms)
-    checkpoint.write_text_atomic(out_dir / f"{name}.csv", _csv(result["rows"], fields))
+    checkpoint.write_text_atomic(out_dir / f"{name}.csv", csv_text(result["rows"], fields))
 
 
 def _write_json(path: Path, doc: dict[str, Any]) -> None:
@@ -311,10 +309,10 @@ def _write_json(path: Path, doc: dict[str, Any]) -> None:
     checkpoint.write_text_atomic(path, json.dumps(_json_safe(doc), indent=1) + "\n")
 
 
-def write_table(path: Path, table: list[dict[str, Any]], fields: Sequence[str] = ()) -> None:
+def _write_table(path: Path, table: list[dict[str, Any]], fields: Sequence[str] = ()) -> None:
     """A CSV of ``table``'s rows; its columns ``fields``, else the first row's keys."""
     fields = fields or (list(table[0]) if table else [])
-    checkpoint.write_text_atomic(path, _csv(table, fields))
+    checkpoint.write_text_atomic(path, csv_text(table, fields))
 
 
 def _policy_ids(metas: list[dict[str, Any]]) -> dict[str, np.ndarray]:
@@ -336,15 +334,6 @@ def _json_safe(obj: Any) -> Any:
     return obj
 
 
-def _csv(rows: list[dict[str, Any]], fields: Sequence[str]) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fields, extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: r[k] if defined(r.get(k)) else "" for k in fields})
-    return buf.getvalue()
-
-
 def write_seed_stats(out_dir: Path, rows: list[dict[str, Any]]) -> dict[str, Any]:
     """``cells.json`` (everything), ``cells.csv`` (per cell and checkpoint) and
     ``improvement.csv`` (P(X > Y) of the final success rate) from eval rows; returns the
@@ -360,7 +349,7 @@ def write_seed_stats(out_dir: Path, rows: list[dict[str, Any]]) -> dict[str, Any
     }
     _write_json(out_dir / "cells.json", doc)
     for name in ("cells", "improvement"):
-        write_table(out_dir / f"{name}.csv", doc[name])
+        _write_table(out_dir / f"{name}.csv", doc[name])
     return doc
 
 
@@ -379,7 +368,7 @@ def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
     table = stats.compare(stats.cells_of(_eval_rows(run_a)), stats.cells_of(_eval_rows(run_b)))
     out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
     out.mkdir(parents=True, exist_ok=True)
-    write_table(out / "compare.csv", table)
+    _write_table(out / "compare.csv", table)
     from jaxlc.evaluation import plots, report
 
     plots.fig_compare(table, run_a.name, run_b.name, out / "compare.png")

@@ -224,8 +224,10 @@ def fit_proposal(
     """Multilevel cross-entropy from ``start``: each round runs a pilot chunk and moves the
     proposal ``SMOOTH`` of the way to its elite's weighted fit. The elite: every lane change
     of ``kind`` of the rounds so far (each weighted by its ratio to the traffic's own
-    distribution, so rounds under different proposals pool) once ``rare.MIN_ELITE`` are seen,
-    else the round's tenth closest to failing so (``score``). Stops once ``POOL_STOP``
+    distribution, so rounds under different proposals pool) once ``rare.MIN_ELITE`` are seen;
+    short of them, the proposal is held for another round where as many failures again would
+    make them, else the elite is the round's tenth closest to failing so (``score``), whose
+    ``level`` the record gives (``None`` for a held round). Stops once ``POOL_STOP``
     failures are pooled. Returns the proposal and each round's record."""
     prop, history, col = start, [], KINDS.index(kind)
     p_fire = float(start_probability(p))
@@ -237,13 +239,19 @@ def fit_proposal(
         failed = kinds(out, p.dt)[perf, col]
         pool.append((out["log_w"][0][perf], failed, out["tilt"][0][perf].astype(np.float64)))
         log_w, hits, st = (np.concatenate(a) for a in zip(*pool, strict=True))
+        # Failures short of an elite, but as many again would make one: another round under
+        # the same proposal, not a step toward the tenth closest by ``score``, whose lane
+        # changes need not share the failures' causes.
+        held = hits.sum() < rare.MIN_ELITE <= hits.sum() + failed.sum() and r + 1 < rounds
+        level = None
         if hits.sum() >= rare.MIN_ELITE:
             w, level = rare.elite(log_w, hits, np.zeros(hits.shape), rho=0.0)
-        else:
+        elif not held:
             log_w, st = pool[-1][0], pool[-1][2]
             w, level = rare.elite(log_w, failed, score(out, kind)[perf])
-        fit = _fit(w, st, p_fire).replace(tilt_from=start.tilt_from)
-        prop = jax.tree.map(lambda a, b: SMOOTH * a + (1 - SMOOTH) * b, fit, prop)
+        if not held:
+            fit = _fit(w, st, p_fire).replace(tilt_from=start.tilt_from)
+            prop = jax.tree.map(lambda a, b: SMOOTH * a + (1 - SMOOTH) * b, fit, prop)
         history.append(
             {
                 "round": r,
@@ -257,7 +265,13 @@ def fit_proposal(
         log(
             f"CE round {r}: {int(failed.sum())} {kind} in {int(perf.sum())} lane changes "
             f"({int(hits.sum())} pooled), elite "
-            f"{'the failures' if not math.isfinite(level) else f'score >= {level:g}'}"
+            + (
+                "held (as many failures again make an elite)"
+                if held
+                else "the failures"
+                if not math.isfinite(level)
+                else f"score >= {level:g}"
+            )
         )
         if hits.sum() >= POOL_STOP:
             break

@@ -17,7 +17,7 @@ import numpy as np
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
 from jaxlc.evaluation.cases import columns
-from jaxlc.evaluation.protocol import write_table
+from jaxlc.evaluation.numbers import csv_text
 from jaxlc.evaluation.results import OUTCOMES, EvalError
 from jaxlc.sim.env import EnvParams
 from jaxlc.study import checkpoint
@@ -64,7 +64,7 @@ def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: floa
         for r in results
         for kind, e in r["estimates"].items()
     ]
-    write_table(out / "validate.csv", rows, FIELDS)
+    checkpoint.write_text_atomic(out / "validate.csv", csv_text(rows, FIELDS))
     cases = [
         {
             **c,
