@@ -231,17 +231,8 @@ def test_benchmark_scripts_tiny(tmp_path, monkeypatch):
     run("validate_toy.py", "--repeats", "2", "--samples", "2000")
     assert json.loads((tmp_path / "toy.json").read_text())["repeats"] == 2
     # one traffic of the script's loop (the braking one: the paper's path is the simpler)
-    run(
-        "validate_throughput.py",
-        "--chunk",
-        "8",
-        "--repeats",
-        "1",
-        "--steps",
-        "10",
-        "--traffic",
-        "braking",
-    )
+    args = ["--chunk", "8", "--repeats", "1", "--steps", "10", "--traffic", "braking"]
+    run("validate_throughput.py", *args)
     rows = (tmp_path / "throughput.csv").read_text().splitlines()
     assert len(rows) == 2 and "share_of_sim" in rows[0] and rows[1].startswith("braking")
 
