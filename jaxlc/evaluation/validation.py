@@ -262,16 +262,13 @@ def fit_proposal(
                 "proposal": prop.to_dict(),
             }
         )
+        if held:
+            elite = "held (as many failures again make one)"
+        else:
+            elite = "the failures" if level == math.inf else f"score >= {level:g}"
         log(
             f"CE round {r}: {int(failed.sum())} {kind} in {int(perf.sum())} lane changes "
-            f"({int(hits.sum())} pooled), elite "
-            + (
-                "held (as many failures again make an elite)"
-                if held
-                else "the failures"
-                if not math.isfinite(level)
-                else f"score >= {level:g}"
-            )
+            f"({int(hits.sum())} pooled), elite {elite}"
         )
         if hits.sum() >= POOL_STOP:
             break
