@@ -208,6 +208,56 @@ def test_tilt_windows_lists_the_failures_with_nested_braking_counts(smoke_run, t
         assert counts == sorted(counts), r
 
 
+def test_is_gain_weighs_crude_mcs_failures_by_the_proposal(smoke_run, tmp_path):
+    """benchmarks/scripts/is_gain.py on the headway norm's failures among the nominal test's
+    cases (its program, loaded): under the traffic's own distribution as the proposal every
+    failure weighs exactly 1 and the gain is 1; under braking drawn at 0.05 per step around
+    the ego the weights differ and none exceeds the mixture's 1 / share."""
+    import json
+
+    from jaxlc.evaluation import proposal, validation
+    from jaxlc.evaluation.cases import columns
+    from jaxlc.evaluation.heldout import in_traffic
+    from jaxlc.sim.env import EnvParams
+    from jaxlc.study.rundir import RunDir
+
+    from .conftest import load_benchmark
+
+    cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
+    base = proposal.nominal(EnvParams.from_config(cfg.env))
+    run = validation.program(cfg, config.EvalConfig().max_steps, True)
+    keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, CHUNK)
+    out = columns(jax.device_get(run(base, validation.policies(cfg, None, 1), keys)[0]))
+    col = validation.KINDS.index("norm_min_thw_s")
+    failed = out["performed"][0] & validation.kinds(out, cfg.env.dt)[:, col]
+    assert failed.any()
+    mc, nominal, heavy = (tmp_path / n for n in ("mc", "nominal", "heavy"))
+    est = {"norm_min_thw_s": {"estimate": 0.1}}
+    docs = {
+        mc / "validate.json": {
+            **{"traffic_overrides": TRAFFIC, "seed": 0, "chunk": CHUNK},
+            **{"max_steps": config.EvalConfig().max_steps, "models": [{"estimates": est}]},
+        },
+        mc / "failures.json": {"kind": "norm_min_thw_s", "cases": np.nonzero(failed)[0].tolist()},
+        nominal / "validate.json": {"models": [{"proposal": base.to_dict(), "defensive": 0.2}]},
+        heavy / "validate.json": {
+            "models": [
+                {"proposal": base.replace(brake=jnp.full(4, 0.05)).to_dict(), "defensive": 0.2}
+            ]
+        },
+    }
+    for path, doc in docs.items():
+        path.parent.mkdir(exist_ok=True)
+        path.write_text(json.dumps(doc))
+    gain = tmp_path / "gain.json"
+    argv = [str(smoke_run[0]), "--mc", str(mc), "--is", str(nominal), str(heavy)]
+    same, tilted = load_benchmark("is_gain").main([*argv, "--out", str(gain)])["proposals"]
+    assert same["mean_weight_given_failure"] == 1.0 and same["largest_weight"] == 1.0
+    assert same["gain"] == 1.0 and same["failures_weighing_over_1"] == 0
+    assert tilted["mean_weight_given_failure"] != 1.0 and tilted["largest_weight"] <= 5.0
+    assert json.loads(gain.read_text())["failures"] == int(failed.sum())
+
+
 def test_bad_run_directory_is_one_line(tmp_path, capsys):
     from jaxlc import validate
 
