@@ -7,7 +7,8 @@ every failure path at the traffic's own frequencies, so each one's weight under 
 gives the IS estimator's variance per lane change without that blind spot:
 ``Var_q(w 1_F) = P E_p[w | F] - P^2`` against crude MC's ``P (1 - P)``, a gain of
 ``(1 - P) / (E_p[w | F] - P)``, with ``w = p / (a p + (1 - a) q)`` (the defensive mixture at
-the IS run's share ``a``). Each failure is replayed from its case key on the traffic's own
+the IS run's share ``a``, or ``--defensive``'s: the same replays weighed as a mixture of
+another share would weigh them). Each failure is replayed from its case key on the traffic's own
 draws through the tilted program (a nominal chunk: the draws untilted, the ratio taken against
 the proposal); the interval is a 95% bootstrap over the failures.
 
@@ -44,6 +45,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--mc", type=Path, required=True)
     ap.add_argument("--is", dest="is_dirs", type=Path, nargs="+", required=True)
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument(
+        "--defensive", type=float, default=None, help="mixture share (default: each IS run's)"
+    )
     args = ap.parse_args(argv)
     mc = json.loads((args.mc / "validate.json").read_text())
     fail = json.loads((args.mc / "failures.json").read_text())
@@ -73,7 +77,7 @@ def main(argv: list[str] | None = None) -> dict:
         failed = np.concatenate([validation.kinds(o, base.dt)[:, col] for o in outs])[:n]
         assert failed.all(), "a replay differs from crude MC's"
         log_w = np.concatenate([o["log_w"][0] for o in outs])[:n].astype(np.float64)  # log p/q
-        a = model["defensive"]
+        a = model["defensive"] if args.defensive is None else args.defensive
         w = 1.0 / (a + (1 - a) * np.exp(-log_w))  # p / (a p + (1 - a) q)
         boot = rng.choice(w, (BOOTSTRAP, w.size)).mean(axis=1)
         lo, hi = np.quantile(boot, [0.025, 0.975])
