@@ -189,19 +189,20 @@ def cases_for_lane_changes(
         batch = min(PROBE_BATCH, 1 << (lane_changes + lane_changes // 4).bit_length())
     start, _ = programs(cfg, max_steps)
     started: list[Cases] = []
+    performed: list[np.ndarray] = []
     total = 0  # lane changes among the cases started so far
     while total < lane_changes:
-        lo = batch * len(started)
+        lo = batch * len(performed)
         started.append(start(heldout_keys(seed, lo + batch)[lo:]))
-        total += int(np.asarray(started[-1].performed).sum())
-        if len(started) * batch > 100 * lane_changes:
+        performed.append(np.asarray(started[-1].performed))
+        total += int(performed[-1].sum())
+        if len(performed) * batch > 100 * lane_changes:
             raise EvalError(
                 f"fewer than 1 in 100 held-out cases performs a lane change "
-                f"({total} of {len(started) * batch}); "
+                f"({total} of {len(performed) * batch}); "
                 "check the config's traffic and gap settings"
             )
-    performed = np.concatenate([np.asarray(c.performed) for c in started])
-    n = int(np.searchsorted(np.cumsum(performed), lane_changes)) + 1
+    n = int(np.searchsorted(np.cumsum(np.concatenate(performed)), lane_changes)) + 1
     cs = jax.tree.map(lambda *xs: jnp.concatenate(xs)[:n], *started)
     return heldout_keys(seed, n), cs
 
