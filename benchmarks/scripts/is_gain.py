@@ -58,9 +58,7 @@ def main(argv: list[str] | None = None) -> dict:
     run = validation.program(cfg, mc["max_steps"], True)
     pol = validation.policies(cfg, rows[0]["actor"], rows[0]["k"])
     col = validation.KINDS.index(fail["kind"])
-    keys = jnp.concatenate(
-        [validation.validate_keys(mc["seed"], validation.VALIDATE_TAG, i, 1) for i in fail["cases"]]
-    )
+    keys = validation.keys_at(mc["seed"], validation.VALIDATE_TAG, fail["cases"])
     n, chunk = keys.shape[0], mc["chunk"]  # crude MC's chunk: its program, its shapes
     keys = jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (-n % chunk, 2))])
     rng = np.random.default_rng(0)
@@ -69,9 +67,10 @@ def main(argv: list[str] | None = None) -> dict:
     result |= {"mc_estimate": p_hat, "proposals": []}
     for d in args.is_dirs:
         model = json.loads((d / "validate.json").read_text())["models"][0]
-        nominal = proposal.from_dict({**model["proposal"], "drawn_nominal": 1.0})
+        # the traffic's own draws, their ratio taken against the proposal
+        replay = proposal.from_dict({**model["proposal"], "drawn_nominal": 1.0})
         outs = [
-            columns(jax.device_get(run(nominal, pol, keys[lo : lo + chunk])[0]))
+            columns(jax.device_get(run(replay, pol, keys[lo : lo + chunk])[0]))
             for lo in range(0, keys.shape[0], chunk)
         ]
         failed = np.concatenate([validation.kinds(o, base.dt)[:, col] for o in outs])[:n]

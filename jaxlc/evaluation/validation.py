@@ -61,8 +61,14 @@ BRAKE_MAX = 0.05  # per-step probability of a braking event at most (one in 2 s)
 
 def validate_keys(seed: int, tag: int, lo: int, n: int) -> jax.Array:
     """``(n,)`` case keys ``lo .. lo + n - 1`` of the stream ``tag``."""
+    return keys_at(seed, tag, jnp.arange(lo, lo + n))
+
+
+def keys_at(seed: int, tag: int, indices: Any) -> jax.Array:
+    """``(len(indices),)`` case keys of the stream ``tag`` at ``indices`` (a saved case's
+    ``index``)."""
     root = jax.random.fold_in(jax.random.PRNGKey(seed), tag)
-    return jax.vmap(lambda i: jax.random.fold_in(root, i))(jnp.arange(lo, lo + n))
+    return jax.vmap(lambda i: jax.random.fold_in(root, i))(jnp.asarray(indices))
 
 
 @functools.lru_cache(maxsize=4)
