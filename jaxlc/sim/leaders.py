@@ -57,89 +57,97 @@ def vehicle_y(tr: Traffic, p: EnvParams) -> Array:
 
 class Around(NamedTuple):
     """Every vehicle of one env (flat, the ego last: ``V = lanes * slots + 1``) and, per lane,
-    its nearest vehicle ahead (lead) and behind (lag) that counts in that lane."""
+    its nearest vehicle ahead (lead) that counts in that lane; ``lags`` finds the nearest
+    behind for the few vehicles that need it."""
 
     x: Array  # (V,) front bumper, s along the road's centre line, m
     v: Array  # (V,) speed, m/s
     v0: Array  # (V,) desired speed, m/s
     length: Array  # (V,) body length along the road, m (the ego's heading-aligned box)
     occ: Array  # (lanes, V) bool, the lanes each body counts in
+    key: Array  # (V,) int32 position key (``_keys``): the bodies' order along the road
     lead: Array  # (lanes, V) int32 index of the lead in that lane (any value where none)
     has_lead: Array  # (lanes, V) bool
-    lag: Array  # (lanes, V) int32 index of the lag in that lane
-    has_lag: Array  # (lanes, V) bool
     scale: Array  # (lanes,) m along each lane per m of s
 
 
 def around(tr: Traffic, eg: Ego, p: EnvParams, scale: Array) -> Around:
-    """Leaders and followers of every vehicle in every lane, the ego counted where its body
-    is (``road.ego_lanes``) while it is on the road. ``scale`` ``(lanes,)``: ``lane_scales``.
+    """Leaders of every vehicle in every lane, the ego counted where its body is
+    (``road.ego_lanes``) while it is on the road. ``scale`` ``(lanes,)``: ``lane_scales``.
 
     Each body gets one int32 key, its position level and its index (``_keys``); the lead of
     ``i`` in lane ``l`` is the body counting in ``l`` with the least key above ``i``'s, and
     the key's low bits are that body's index (``_nearest``)."""
     hx, _ = kinematics.half_extents(eg.psi, p.vehicle_length, p.vehicle_width)
     x = jnp.append(tr.x.reshape(-1), eg.x)
-    v = jnp.append(tr.v.reshape(-1), eg.v)
-    v0 = jnp.append(tr.v0.reshape(-1), eg.v0)
-    length = jnp.append(jnp.full(tr.x.size, p.vehicle_length, x.dtype), 2.0 * hx)
     occ = jnp.concatenate(
         [occupancy(tr, p).reshape(p.lanes, -1), ego_lanes(eg, p)[:, None]], axis=1
     )
-    n = x.shape[0]
-    bits = max(1, (n - 1).bit_length())
-    lead, lag = _nearest(_keys(x, p.road_length, bits), occ)
-    mask = (1 << bits) - 1
-    has_lead, has_lag = lead < _NONE_ABOVE, lag > _NONE_BELOW
+    key = _keys(x, p.road_length)
+    lead, has_lead = _index(_nearest(key, occ, key, ahead=True), x.shape[0])
     return Around(
         x=x,
-        v=v,
-        v0=v0,
-        length=length,
+        v=jnp.append(tr.v.reshape(-1), eg.v),
+        v0=jnp.append(tr.v0.reshape(-1), eg.v0),
+        length=jnp.append(jnp.full(tr.x.size, p.vehicle_length, x.dtype), 2.0 * hx),
         occ=occ,
-        lead=jnp.where(has_lead, lead & mask, n - 1),
+        key=key,
+        lead=lead,
         has_lead=has_lead,
-        lag=jnp.where(has_lag, lag & mask, n - 1),
-        has_lag=has_lag,
         scale=scale,
     )
+
+
+def lags(a: Around, cols: Array) -> tuple[Array, Array]:
+    """``(lag, has_lag)``, ``(lanes, K)`` each: per lane, the index of the nearest vehicle
+    behind each of ``cols`` ``(K,)`` that counts in the lane (any value where none)."""
+    return _index(_nearest(a.key, a.occ, a.key[cols], ahead=False), a.x.shape[0])
 
 
 _NONE_ABOVE = jnp.iinfo(jnp.int32).max  # no key is this high: no lead
 _NONE_BELOW = -1  # every key is >= 0: no lag
 
 
-def _keys(x: Array, road_length: Array, bits: int) -> Array:
+def _bits(n: int) -> int:
+    """Low bits of a key that hold the index of one of ``n`` bodies."""
+    return max(1, (n - 1).bit_length())
+
+
+def _keys(x: Array, road_length: Array) -> Array:
     """``(V,)`` int32, unique, ordered as the bodies' positions, ties by index: the position's
     level of ``2 * road_length / 2**(31 - bits)`` m (1.4e-4 m on 600 m with 49 bodies, within
     float32's rounding of it) times ``2**bits``, plus the index."""
+    bits = _bits(x.shape[0])
     levels = 2 ** (31 - bits)
     q = jnp.floor((x + 0.5 * road_length) * (levels / (2.0 * road_length)))
     q = jnp.clip(q, 0, levels - 1).astype(jnp.int32)
     return q * (1 << bits) + jnp.arange(x.shape[0], dtype=jnp.int32)
 
 
-def _nearest(key: Array, occ: Array) -> tuple[Array, Array]:
-    """``(lanes, V)`` int32 each: per lane and body, the least key above the body's among the
-    bodies counting in the lane (``_NONE_ABOVE`` where none) and the greatest below it
-    (``_NONE_BELOW``). ``key`` ``(V,)``, ``occ`` ``(lanes, V)``.
+def _index(found: Array, n: int) -> tuple[Array, Array]:
+    """``(index, present)`` of the bodies whose keys ``_nearest`` found (``n - 1`` where
+    none)."""
+    present = (found != _NONE_ABOVE) & (found != _NONE_BELOW)
+    return jnp.where(present, found & ((1 << _bits(n)) - 1), n - 1), present
 
-    Every pair compared, as a loop over the other body of min/max passes over ``(lanes, V)``:
-    under ``vmap`` each pass is elementwise over the batch, which XLA's CPU runs several times
-    faster than a sort of the bodies, or a reduction over a pair axis (the loop unrolled by 7,
-    which divides 49 bodies: 3.5x faster than ``leaders.around``'s sort at 4,096 envs)."""
 
-    def body(j: Array, acc: tuple[Array, Array]) -> tuple[Array, Array]:
-        lead, lag = acc
+def _nearest(key: Array, occ: Array, subject: Array, ahead: bool) -> Array:
+    """``(lanes, S)`` int32: per lane, among the bodies counting in it, the least key above
+    each of ``subject`` ``(S,)`` (``ahead``; ``_NONE_ABOVE`` where none) or the greatest below
+    it (``_NONE_BELOW``). ``key`` ``(V,)``, ``occ`` ``(lanes, V)``.
+
+    Every body compared with every subject, as a loop over the body of elementwise min or max
+    passes over ``(lanes, S)``: under ``vmap`` each pass is elementwise over the batch, which
+    XLA's CPU runs several times faster than a sort of the bodies or a reduction over a pair
+    axis (unrolled by 7, which divides 49 bodies)."""
+    none = _NONE_ABOVE if ahead else _NONE_BELOW
+    nearer, beyond = (jnp.minimum, jnp.greater) if ahead else (jnp.maximum, jnp.less)
+
+    def body(j: Array, found: Array) -> Array:
         kj, in_lane = key[j], occ[:, j][:, None]  # (), (lanes, 1)
-        lead = jnp.minimum(lead, jnp.where(in_lane & (kj > key), kj, _NONE_ABOVE))
-        lag = jnp.maximum(lag, jnp.where(in_lane & (kj < key), kj, _NONE_BELOW))
-        return lead, lag
+        return nearer(found, jnp.where(in_lane & beyond(kj, subject), kj, none))
 
-    init = (
-        jnp.full(occ.shape, _NONE_ABOVE, jnp.int32),
-        jnp.full(occ.shape, _NONE_BELOW, jnp.int32),
-    )
+    init = jnp.full((occ.shape[0], subject.shape[0]), none, jnp.int32)
     return jax.lax.fori_loop(0, key.shape[0], body, init, unroll=7)
 
 

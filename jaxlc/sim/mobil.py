@@ -29,6 +29,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jax import Array
 
+from jaxlc.sim import leaders
 from jaxlc.sim.gap import FAR
 from jaxlc.sim.idm import NO_LEADER_GAP, idm_with_params
 from jaxlc.sim.leaders import Around, changing
@@ -56,19 +57,20 @@ def _idm(a: Around, f: Array, lead: Array, present: Array, lane: Array, p: EnvPa
     return idm_with_params(a.v[f], a.v0[f], g, v_lead, p), g
 
 
-def _in_lane(table: Array, lane: Array, cols: Array) -> Array:
-    """``table[lane[j], cols[j]]`` (``table``: ``(lanes, V)``), by a one-hot over the few
-    lanes: a gather's two index arrays cost XLA's CPU more than the pick."""
-    t = table[:, cols]  # (lanes, K)
-    pick = lane[None, :] == jnp.arange(table.shape[0])[:, None]  # (lanes, K)
+def _in_lane(t: Array, lane: Array) -> Array:
+    """``t[lane[j], j]`` (``t``: ``(lanes, K)``), by a one-hot over the few lanes: a gather's
+    two index arrays cost XLA's CPU more than the pick."""
+    pick = lane[None, :] == jnp.arange(t.shape[0])[:, None]  # (lanes, K)
     if t.dtype == jnp.bool_:
         return jnp.any(pick & t, axis=0)
     return jnp.sum(jnp.where(pick, t, 0), axis=0, dtype=t.dtype)
 
 
-def _lead_lag(a: Around, lane: Array, cols: Array) -> tuple[Array, Array, Array, Array]:
-    """``(lead, has_lead, lag, has_lag)`` of vehicles ``cols`` ``(K,)`` in lanes ``lane``."""
-    return tuple(_in_lane(t, lane, cols) for t in (a.lead, a.has_lead, a.lag, a.has_lag))
+def _lead_lag(a: Around, lags: tuple[Array, Array], lane: Array, cols: Array):
+    """``(lead, has_lead, lag, has_lag)`` of vehicles ``cols`` ``(K,)`` in lanes ``lane``
+    (``lags``: ``leaders.lags`` of ``cols``)."""
+    ahead = (a.lead[:, cols], a.has_lead[:, cols])
+    return tuple(_in_lane(t, lane) for t in (*ahead, *lags))
 
 
 def _written(a: Array) -> Array:
@@ -93,7 +95,8 @@ def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
     valid = c < n
     c = jnp.minimum(c, n - 1)
     lane = tr.lane.reshape(-1)[c]
-    cur_lead, has_cur, old, has_old = _lead_lag(a, lane, c)
+    behind = leaders.lags(a, c)  # (lanes, K) each
+    cur_lead, has_cur, old, has_old = _lead_lag(a, behind, lane, c)
     a_c, _ = _idm(a, c, cur_lead, has_cur, lane, p)
     a_o, _ = _idm(a, old, c, True, lane, p)
     at_o, _ = _idm(a, old, cur_lead, has_cur, lane, p)
@@ -103,7 +106,7 @@ def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
         to = lane + d
         ok = (to >= 0) & (to < p.lanes)
         to = jnp.clip(to, 0, p.lanes - 1)
-        lead, has_lead, new, has_new = _lead_lag(a, to, c)
+        lead, has_lead, new, has_new = _lead_lag(a, behind, to, c)
         at_c, front = _idm(a, c, lead, has_lead, to, p)
         a_n, _ = _idm(a, new, lead, has_lead, to, p)
         at_n, back = _idm(a, new, c, True, to, p)
@@ -167,7 +170,8 @@ def counts(d: Decision, a: Around, eg: Ego, p: EnvParams) -> dict[str, Array]:
         return (d.to == lane) & (x > lo) & (x < hi)
 
     t = eg.target
-    lag = jnp.where(a.has_lag[t, ego], a.x[a.lag[t, ego]], -FAR)
+    lag, has_lag = (b[t, 0] for b in leaders.lags(a, jnp.array([ego])))
+    lag = jnp.where(has_lag, a.x[lag], -FAR)
     into = between_of(t, lag) | between_of(current_lane(eg, p), eg.x)
     return {
         "lc_eligible": jnp.sum(d.eligible, dtype=jnp.int32),
