@@ -3,6 +3,7 @@ long run at the highest configured rates, MOBIL on hand-built cases, the rates a
 values, the config's checks, and the held-out evaluation in another traffic."""
 
 import dataclasses
+import functools
 import json
 
 import jax
@@ -47,11 +48,16 @@ def test_event_rates_match_their_configured_values(long_run, name):
     assert lo <= long_run[f"{name}_expected"] <= hi
 
 
+@functools.cache
+def _hazard_reset():
+    """The hazard traffic's ``reset``, compiled once for the file's hand-built states."""
+    return jax.jit(jaxlc.make(config.load(overrides=HAZARDS))[0].reset)
+
+
 def _traffic(p: EnvParams, vehicles: list[tuple[int, float, float]]):
     """A state whose traffic holds ``vehicles`` (lane, x, v), one per row slot in order,
     every v0 33 m/s, and no ego on the road."""
-    env = jaxlc.make(config.load(overrides=HAZARDS))[0]
-    _, s = env.reset(jax.random.PRNGKey(0), p.replace(warmup_steps=0))
+    _, s = _hazard_reset()(jax.random.PRNGKey(0), p.replace(warmup_steps=0))
     tr = s.traffic
     x, v, act, lane = (np.zeros(tr.x.shape, t) for t in (np.float32, np.float32, bool, np.int32))
     lane[:] = np.arange(p.lanes)[:, None]
