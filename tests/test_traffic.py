@@ -157,6 +157,14 @@ def _pairwise_around(x, occ):
     return front.argmin(-1), np.isfinite(front.min(-1)), back.argmax(-1), np.isfinite(back.max(-1))
 
 
+def test_no_position_key_reads_as_none_even_past_the_road_with_a_power_of_two_bodies():
+    # 64 bodies: the index fills the key's low bits, so the top position level would make the
+    # last body's key int32's maximum, the value that means "no lead"
+    x = jnp.full(64, 1e6, jnp.float32)  # every body far past the road's end
+    keys = np.asarray(leaders._keys(x, jnp.float32(600.0)))
+    assert keys.max() < np.iinfo(np.int32).max and len(set(keys.tolist())) == 64
+
+
 def test_leaders_by_keys_equal_every_pair_compared_in_float():
     p = jaxlc.make(config.load(overrides=HAZARDS))[1]
     rng = np.random.default_rng(5)
