@@ -157,12 +157,14 @@ def _pairwise_around(x, occ):
     return front.argmin(-1), np.isfinite(front.min(-1)), back.argmax(-1), np.isfinite(back.max(-1))
 
 
-def test_no_position_key_reads_as_none_even_past_the_road_with_a_power_of_two_bodies():
-    # 64 bodies: the index fills the key's low bits, so the top position level would make the
-    # last body's key int32's maximum, the value that means "no lead"
-    x = jnp.full(64, 1e6, jnp.float32)  # every body far past the road's end
-    keys = np.asarray(leaders._keys(x, jnp.float32(600.0)))
-    assert keys.max() < np.iinfo(np.int32).max and len(set(keys.tolist())) == 64
+def test_position_keys_keep_the_order_and_never_read_as_none_even_past_the_road():
+    # 64 bodies: the index fills the key's low bits; the last two far past the road's end,
+    # where the position's level is clipped (in float32, whose rounding of the top level
+    # would overflow int32) and the key must still sort last and stay below "no lead"
+    x = jnp.concatenate([jnp.linspace(-300.0, 900.0, 62), jnp.array([5e3, 1e6])])
+    keys = np.asarray(leaders._keys(x.astype(jnp.float32), jnp.float32(600.0)))
+    assert (keys >= 0).all() and keys.max() < np.iinfo(np.int32).max
+    assert (np.argsort(keys, kind="stable") == np.arange(64)).all()
 
 
 def test_leaders_by_keys_equal_every_pair_compared_in_float():

@@ -116,8 +116,9 @@ def _bits(n: int) -> int:
 def _keys(x: Array, road_length: Array) -> Array:
     """``(V,)`` int32, unique, ordered as the bodies' positions, ties by index: the position's
     level of ``2 * road_length / 2**(31 - bits)`` m (1.4e-4 m on 600 m with 49 bodies, within
-    float32's rounding of it) times ``2**bits``, plus the index; the top level is left out, so
-    no key is ``_NONE_ABOVE``."""
+    float32's rounding of it) times ``2**bits``, plus the index. Levels are clipped below the
+    top one, which float32 rounds up to ``2**(31 - bits)`` (an int32 overflow for a body past
+    ``1.5 * road_length``), so every key is >= 0 and below ``_NONE_ABOVE``."""
     bits = _bits(x.shape[0])
     levels = 2 ** (31 - bits)
     q = jnp.floor((x + 0.5 * road_length) * (levels / (2.0 * road_length)))
