@@ -39,7 +39,8 @@ A = jax.jit(jax.vmap(around))(st)
 
 
 def by_reduction(s):
-    """Leads and lags as a masked min/max over a (lanes, V, V) pair axis, the same keys."""
+    """Leads and lags as a masked min/max over a (lanes, V, V) pair axis, the same keys
+    (written out, not ``leaders._keys``, so that the script also runs on fc89e22)."""
     tr, eg = s.traffic, s.ego
     x = jnp.append(tr.x.reshape(-1), eg.x)
     occ = jnp.concatenate(

@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxlc.evaluation import heldout, proposal, validation
+from jaxlc.evaluation import heldout, proposal, rare, validation
 from jaxlc.evaluation.cases import columns
 from jaxlc.sim.env import EnvParams
 from jaxlc.validate import model_rows
@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> dict:
         assert failed.all(), "a replay differs from crude MC's"
         log_w = np.concatenate([o["log_w"][0] for o in outs])[:n].astype(np.float64)  # log p/q
         a = model["defensive"] if args.defensive is None else args.defensive
-        w = 1.0 / (a + (1 - a) * np.exp(-log_w))  # p / (a p + (1 - a) q)
+        w = np.exp(rare.defensive(log_w, a))  # p / (a p + (1 - a) q)
         boot = rng.choice(w, (BOOTSTRAP, w.size)).mean(axis=1)
         lo, hi = np.quantile(boot, [0.025, 0.975])
         row = {
