@@ -68,6 +68,116 @@ def mixture_weight(z: np.ndarray, st: dict, idx: np.ndarray, p: float, a: float)
     return 1.0 / (a + (1.0 - a) * inv)
 
 
+class Failures:
+    """Crude MC's failures of one kind, replayed from their keys on the traffic's own draws."""
+
+    def __init__(self, run_dir: Path, mc_dir: Path):
+        mc = json.loads((mc_dir / "validate.json").read_text())
+        fail = json.loads((mc_dir / "failures.json").read_text())
+        self.kind, self.estimate = (
+            fail["kind"],
+            mc["models"][0]["estimates"][fail["kind"]]["estimate"],
+        )
+        cfg, _ = model_rows(run_dir, "scripted")
+        cfg = heldout.in_traffic(cfg, mc["traffic_overrides"])
+        self.base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+        self.p = float(start_probability(self.base))
+        self.run = validation.program(cfg, mc["max_steps"], True)
+        self.pol = validation.policies(cfg, None, 1)
+        keys = validation.keys_at(mc["seed"], validation.VALIDATE_TAG, fail["cases"])
+        self.n, self.chunk = keys.shape[0], mc["chunk"]  # crude MC's chunk: its program
+        self.keys = jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (-self.n % self.chunk, 2))])
+
+    def replay(self, q: proposal.Proposal) -> tuple[np.ndarray, np.ndarray]:
+        """``(log_w, stats)`` of the failures, ``(n,)`` and ``(n, STATS)``, against ``q``."""
+        q = q.replace(drawn_nominal=jnp.float32(1.0))
+        outs = [
+            columns(jax.device_get(self.run(q, self.pol, self.keys[lo : lo + self.chunk])[0]))
+            for lo in range(0, self.keys.shape[0], self.chunk)
+        ]
+        col = validation.KINDS.index(self.kind)
+        failed = np.concatenate([validation.kinds(o, self.base.dt)[:, col] for o in outs])
+        assert failed[: self.n].all(), "a replay differs from crude MC's"
+        log_w = np.concatenate([o["log_w"][0] for o in outs])[: self.n].astype(np.float64)
+        return log_w, np.concatenate([o["tilt"][0] for o in outs])[: self.n].astype(np.float64)
+
+    def window(self, name: str) -> proposal.Proposal:
+        """The traffic's own distribution, braking counted from window ``name``."""
+        return proposal.nominal(self.base).replace(
+            tilt_from=jnp.float32(proposal.TILT_FROM.index(name))
+        )
+
+    def gain(self, w: np.ndarray) -> float:
+        """Gain over crude MC of a proposal whose failures weigh ``w``."""
+        return round(float((1 - self.estimate) / (w.mean() - self.estimate)), 2)
+
+
+def untilted_from_acceptance(st: dict[str, np.ndarray]) -> dict:
+    """The failures with no braking event around the ego after the gap's acceptance, and the
+    roles of the events they met from the entry."""
+    events = {
+        w: np.stack([st[w][:, STAT[f"brake_events_{r}"]] for r in proposal.ROLES], 1) > 0
+        for w in st
+    }  # (failures, roles) each: met a braking event of the role in the window
+    late = ~events["acceptance"].any(axis=1)
+    return {
+        "failures": int(late.sum()),
+        "with_braking_from_entry": int(events["entry"][late].any(axis=1).sum()),
+        "by_role_from_entry": dict(
+            zip(proposal.ROLES, events["entry"][late].sum(axis=0).tolist(), strict=True)
+        ),
+    }
+
+
+def single(fs: Failures, st: dict[str, np.ndarray], halves: tuple, a: float) -> list[dict]:
+    """Per window, one proposal fitted on each half as the CE's limit, weighed on the other."""
+    rows = []
+    for w in proposal.TILT_FROM:
+        row = {"window": w, "folds": []}
+        for fit_on, score_on in (halves, halves[::-1]):
+            q = validation._fit(np.ones(fit_on.size), st[w][fit_on], fs.p)
+            q = q.replace(tilt_from=fs.window(w).tilt_from)
+            log_w, _ = fs.replay(q)
+            w_out = np.exp(rare.defensive(log_w[score_on], a))
+            row["folds"].append({"proposal": q.to_dict(), "gain": fs.gain(w_out)})
+        print(row["window"], [f["gain"] for f in row["folds"]], flush=True)
+        rows.append(row)
+    return rows
+
+
+def mixture(fs: Failures, st: dict[str, np.ndarray], halves: tuple, a: float) -> dict:
+    """The mixture of one-role tilts fitted on each half, weighed on the other; each
+    component's ratio from the statistics checked against the program's."""
+    comps = [(r, w) for w in MIXED_WINDOWS for r in MIXED_ROLES]
+    z0 = np.concatenate([np.full(len(comps), np.log(0.005)), np.zeros(len(comps))])
+    folds, worst = [], 0.0
+    for fit_on, score_on in (halves, halves[::-1]):
+        z = scipy.optimize.minimize(
+            lambda z, idx=fit_on: mixture_weight(z, st, idx, fs.p, a).mean(),
+            z0,
+            method="Nelder-Mead",
+            options={"maxiter": 20_000, "maxfev": 20_000},
+        ).x
+        for k, (r, w) in enumerate(comps):
+            q = _rate(z[k], fs.p)
+            one = fs.window(w)
+            exact, _ = fs.replay(one.replace(brake=one.brake.at[proposal.ROLES.index(r)].set(q)))
+            worst = max(worst, float(np.abs(exact - one_role_log_w(st[w], r, q, fs.p)).max()))
+        share = np.exp(z[len(comps) :] - np.logaddexp.reduce(z[len(comps) :]))
+        names = [f"{r}@{w}" for r, w in comps]
+        folds.append(
+            {
+                "rates": {c: _rate(z[k], fs.p) for k, c in enumerate(names)},
+                "shares": {c: round(float(s), 3) for c, s in zip(names, share, strict=True)},
+                "gain": fs.gain(mixture_weight(z, st, score_on, fs.p, a)),
+                "gain_on_its_own_half": fs.gain(mixture_weight(z, st, fit_on, fs.p, a)),
+            }
+        )
+        print("mixture", folds[-1]["gain"], folds[-1]["gain_on_its_own_half"], flush=True)
+    assert worst < 1e-3, worst
+    return {"folds": folds, "largest_log_w_difference": worst}
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("run_dir", type=Path)
@@ -75,102 +185,12 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--defensive", type=float, default=validation.DEFENSIVE_SHARE)
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    mc = json.loads((args.mc / "validate.json").read_text())
-    fail = json.loads((args.mc / "failures.json").read_text())
-    big_p = mc["models"][0]["estimates"][fail["kind"]]["estimate"]
-    cfg, rows = model_rows(args.run_dir, "scripted")
-    cfg = heldout.in_traffic(cfg, mc["traffic_overrides"])
-    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    run = validation.program(cfg, mc["max_steps"], True)
-    pol = validation.policies(cfg, None, 1)
-    col = validation.KINDS.index(fail["kind"])
-    keys = validation.keys_at(mc["seed"], validation.VALIDATE_TAG, fail["cases"])
-    n, chunk = keys.shape[0], mc["chunk"]
-    keys = jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (-n % chunk, 2))])
-    p, a = float(start_probability(base)), args.defensive
-
-    def replay(q: proposal.Proposal) -> tuple[np.ndarray, np.ndarray]:
-        """``(log_w, stats)`` of the failures on the traffic's own draws, against ``q``."""
-        q = q.replace(drawn_nominal=jnp.float32(1.0))
-        outs = [
-            columns(jax.device_get(run(q, pol, keys[lo : lo + chunk])[0]))
-            for lo in range(0, keys.shape[0], chunk)
-        ]
-        failed = np.concatenate([validation.kinds(o, base.dt)[:, col] for o in outs])[:n]
-        assert failed.all(), "a replay differs from crude MC's"
-        log_w = np.concatenate([o["log_w"][0] for o in outs])[:n].astype(np.float64)
-        return log_w, np.concatenate([o["tilt"][0] for o in outs])[:n].astype(np.float64)
-
-    def gain(w: np.ndarray) -> float:
-        return round(float((1 - big_p) / (w.mean() - big_p)), 2)
-
-    def mixed(log_w: np.ndarray) -> np.ndarray:
-        return np.exp(rare.defensive(log_w, a))
-
-    halves = (np.arange(n)[0::2], np.arange(n)[1::2])
-    windows = {w: float(proposal.TILT_FROM.index(w)) for w in proposal.TILT_FROM}
-    st = {w: replay(proposal.nominal(base).replace(tilt_from=jnp.float32(t)))[1]
-          for w, t in windows.items()}  # fmt: skip
-    result = {"mc": str(args.mc), "kind": fail["kind"], "failures": n, "mc_estimate": big_p}
-    result |= {"defensive": a, "single": [], "mixture": {}}
-    events = {
-        w: np.stack([st[w][:, STAT[f"brake_events_{r}"]] for r in proposal.ROLES], 1) > 0
-        for w in windows
-    }  # (failures, roles) each: met a braking event of the role in the window
-    late = ~events["acceptance"].any(axis=1)  # none after the gap's acceptance
-    result["no_braking_after_acceptance"] = {
-        "failures": int(late.sum()),
-        "with_braking_from_entry": int(events["entry"][late].any(axis=1).sum()),
-        "by_role_from_entry": dict(
-            zip(proposal.ROLES, events["entry"][late].sum(axis=0).tolist(), strict=True)
-        ),
-    }
-    for w, t in windows.items():
-        row = {"window": w, "folds": []}
-        for fit_on, score_on in (halves, halves[::-1]):
-            q = validation._fit(np.ones(fit_on.size), st[w][fit_on], p).replace(
-                tilt_from=jnp.float32(t)
-            )
-            log_w, _ = replay(q)
-            row["folds"].append({"proposal": q.to_dict(), "gain": gain(mixed(log_w[score_on]))})
-        print(row["window"], [f["gain"] for f in row["folds"]], flush=True)
-        result["single"].append(row)
-    comps = [(r, w) for w in MIXED_WINDOWS for r in MIXED_ROLES]
-    z0 = np.concatenate([np.full(len(comps), np.log(0.005)), np.zeros(len(comps))])
-
-    def fit(idx: np.ndarray) -> np.ndarray:
-        res = scipy.optimize.minimize(
-            lambda z: mixture_weight(z, st, idx, p, a).mean(),
-            z0,
-            method="Nelder-Mead",
-            options={"maxiter": 20_000, "maxfev": 20_000},
-        )
-        return res.x
-
-    folds, worst = [], 0.0
-    for fit_on, score_on in (halves, halves[::-1]):
-        z = fit(fit_on)
-        for k, (r, w) in enumerate(comps):  # the statistics' ratio against the program's
-            one = proposal.nominal(base).replace(tilt_from=jnp.float32(windows[w]))
-            one = one.replace(brake=one.brake.at[proposal.ROLES.index(r)].set(_rate(z[k], p)))
-            exact, _ = replay(one)
-            worst = max(
-                worst, float(np.abs(exact - one_role_log_w(st[w], r, _rate(z[k], p), p)).max())
-            )
-        share = np.exp(z[len(comps) :] - np.logaddexp.reduce(z[len(comps) :]))
-        folds.append(
-            {
-                "rates": {f"{r}@{w}": _rate(z[k], p) for k, (r, w) in enumerate(comps)},
-                "shares": {
-                    f"{r}@{w}": round(float(s), 3) for (r, w), s in zip(comps, share, strict=True)
-                },
-                "gain": gain(mixture_weight(z, st, score_on, p, a)),
-                "gain_on_its_own_half": gain(mixture_weight(z, st, fit_on, p, a)),
-            }
-        )
-        print("mixture", folds[-1]["gain"], folds[-1]["gain_on_its_own_half"], flush=True)
-    result["mixture"] = {"folds": folds, "largest_log_w_difference": worst}
-    assert worst < 1e-3, worst
+    fs, a = Failures(args.run_dir, args.mc), args.defensive
+    halves = (np.arange(fs.n)[0::2], np.arange(fs.n)[1::2])
+    st = {w: fs.replay(fs.window(w))[1] for w in proposal.TILT_FROM}  # (n, STATS) each
+    result = {"mc": str(args.mc), "kind": fs.kind, "failures": fs.n, "mc_estimate": fs.estimate}
+    result |= {"defensive": a, "no_braking_after_acceptance": untilted_from_acceptance(st)}
+    result |= {"single": single(fs, st, halves, a), "mixture": mixture(fs, st, halves, a)}
     args.out.write_text(json.dumps(result, indent=1) + "\n")
     return result
 
