@@ -41,6 +41,7 @@ from jaxlc.validate import model_rows
 HERE = Path(__file__).resolve().parent
 MIXED_ROLES = ("lead", "own_leader", "ahead")
 MIXED_WINDOWS = ("acceptance", "entry")
+COMPONENTS = [(r, w) for w in MIXED_WINDOWS for r in MIXED_ROLES]  # the mixture's (role, window)
 STAT = {name: i for i, name in enumerate(proposal.STATS)}
 
 
@@ -55,15 +56,20 @@ def _rate(log_q: float, p: float) -> float:
         return float(np.clip(np.exp(log_q), p, 0.5))
 
 
+def _shares(z: np.ndarray) -> np.ndarray:
+    """The mixture's shares from ``z``'s unnormalised log shares (its second half)."""
+    logs = z[len(COMPONENTS) :]
+    return np.exp(logs - np.logaddexp.reduce(logs))
+
+
 def mixture_weight(z: np.ndarray, st: dict, idx: np.ndarray, p: float, a: float) -> np.ndarray:
     """Each path's weight under the defensive mixture of the one-role tilts: ``z`` holds the
     log rates (held to [p, 0.5]: a tilt raises a rate, as the CE's does), then the log shares
     (unnormalised), one per component."""
-    comps = [(r, w) for w in MIXED_WINDOWS for r in MIXED_ROLES]
-    share = np.exp(z[len(comps) :] - np.logaddexp.reduce(z[len(comps) :]))
+    share = _shares(z)
     inv = sum(
         share[k] * np.exp(-one_role_log_w(st[w][idx], r, _rate(z[k], p), p))
-        for k, (r, w) in enumerate(comps)
+        for k, (r, w) in enumerate(COMPONENTS)
     )
     return 1.0 / (a + (1.0 - a) * inv)
 
@@ -148,8 +154,8 @@ def single(fs: Failures, st: dict[str, np.ndarray], halves: tuple, a: float) -> 
 def mixture(fs: Failures, st: dict[str, np.ndarray], halves: tuple, a: float) -> dict:
     """The mixture of one-role tilts fitted on each half, weighed on the other; each
     component's ratio from the statistics checked against the program's."""
-    comps = [(r, w) for w in MIXED_WINDOWS for r in MIXED_ROLES]
-    z0 = np.concatenate([np.full(len(comps), np.log(0.005)), np.zeros(len(comps))])
+    n_comp = len(COMPONENTS)
+    z0 = np.concatenate([np.full(n_comp, np.log(0.005)), np.zeros(n_comp)])
     folds, worst = [], 0.0
     for fit_on, score_on in (halves, halves[::-1]):
         z = scipy.optimize.minimize(
@@ -158,13 +164,13 @@ def mixture(fs: Failures, st: dict[str, np.ndarray], halves: tuple, a: float) ->
             method="Nelder-Mead",
             options={"maxiter": 20_000, "maxfev": 20_000},
         ).x
-        for k, (r, w) in enumerate(comps):
+        for k, (r, w) in enumerate(COMPONENTS):
             q = _rate(z[k], fs.p)
             one = fs.window(w)
             exact, _ = fs.replay(one.replace(brake=one.brake.at[proposal.ROLES.index(r)].set(q)))
             worst = max(worst, float(np.abs(exact - one_role_log_w(st[w], r, q, fs.p)).max()))
-        share = np.exp(z[len(comps) :] - np.logaddexp.reduce(z[len(comps) :]))
-        names = [f"{r}@{w}" for r, w in comps]
+        share = _shares(z)
+        names = [f"{r}@{w}" for r, w in COMPONENTS]
         folds.append(
             {
                 "rates": {c: _rate(z[k], fs.p) for k, c in enumerate(names)},
