@@ -32,8 +32,9 @@ import numpy as np
 from tqdm import tqdm
 
 from jaxlc import config
-from jaxlc.evaluation import heldout, proposal, validation
+from jaxlc.evaluation import heldout, mixture, proposal, validation
 from jaxlc.evaluation.cases import columns
+from jaxlc.evaluation.mixture import Mixture
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.evaluation.results import SCRIPTED, EvalError
 from jaxlc.evaluation.validation_io import replay_case, write_outputs
@@ -62,6 +63,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default="acceptance",
         help="is: tilt braking from the gap's acceptance (unbiased), from the command on or "
         "from the ego's entry (ratio estimates)",
+    )
+    ap.add_argument(
+        "--family",
+        choices=("single", "mixture"),
+        default="single",
+        help="is: one proposal fitted by cross-entropy, or a mixture of one-role braking "
+        "tilts fitted by EM (jaxlc.evaluation.mixture)",
     )
     ap.add_argument(
         "--defensive",
@@ -110,36 +118,61 @@ def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[dict[str,
     ]
 
 
+def fit(
+    base: EnvParams, run: Any, pol: Any, args: argparse.Namespace
+) -> tuple[proposal.Proposal | Mixture, list[dict]]:
+    """The proposal the estimate draws from and the fit's record of each pilot round: the
+    nominal (``mc``), the CE's proposal or the EM's mixture (``is``)."""
+    window = float(proposal.TILT_FROM.index(args.tilt_from))
+    if args.method == "mc":
+        return proposal.nominal(base), []
+    if args.family == "mixture":
+        start = mixture.start(base, args.defensive, args.tilt_from)
+        return mixture.fit_mixture(
+            run, pol, base, start, args.chunk, kind=args.kind, seed=args.seed, log=tqdm.write
+        )
+    start = validation.start_proposal(base).replace(tilt_from=window)
+    return validation.fit_proposal(
+        run, pol, base, start, args.chunk, kind=args.kind, seed=args.seed, log=tqdm.write
+    )
+
+
+def chunk_proposal(
+    fitted: proposal.Proposal | Mixture, base: EnvParams, index: int, args: argparse.Namespace
+) -> tuple[proposal.Proposal, int, dict[str, Any]]:
+    """The estimate's chunk ``index``: the proposal it draws from, its component (-1: the
+    traffic's own distribution) and what its failures record to replay."""
+    if isinstance(fitted, Mixture):
+        k = fitted.chunk_component(index)
+        q = fitted.component(base, k)
+        return q, k, {"proposal": q.to_dict()}
+    nominal = args.method == "is" and validation.nominal_chunk(index, args.defensive)
+    # the defensive mixture's two components, the flag a float32 array in both: one program
+    return fitted.replace(drawn_nominal=jnp.float32(nominal)), -1 if nominal else 0, {}
+
+
 def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
-    """One policy's validation: the CE's proposal (``is``), then chunks until the lane changes
-    or the relative half-width are reached, or Ctrl-C."""
+    """One policy's validation: the proposal (``is``), then chunks until the lane changes or
+    the relative half-width are reached, or Ctrl-C."""
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     tilted = args.method == "is"
     run = validation.program(cfg, args.max_steps, tilted)
     pol = validation.policies(cfg, row["actor"], row["k"])
     t0 = time.perf_counter()
-    prop, history = proposal.nominal(base), []
-    if tilted:
-        start = validation.start_proposal(base).replace(
-            tilt_from=float(proposal.TILT_FROM.index(args.tilt_from))
-        )
-        prop, history = validation.fit_proposal(
-            run, pol, base, start, args.chunk, kind=args.kind, seed=args.seed, log=tqdm.write
-        )
+    fitted, history = fit(base, run, pol, args)
+    mixed = isinstance(fitted, Mixture)
     ratio = tilted and args.tilt_from != "acceptance"
-    tally, lo, interrupted = validation.Tally(ratio=ratio), 0, False
-    # the mixture's two components, the flag a float32 array in both: one program for the two
-    prop = prop.replace(drawn_nominal=jnp.float32(0.0))
-    own = prop.replace(drawn_nominal=jnp.float32(1.0))
+    tally = validation.Tally(ratio=ratio, mixture=fitted if mixed else None)
+    lo, interrupted = 0, False
     bar = tqdm(total=args.lane_changes, unit="lc", desc=str(row["meta"]["label"]), leave=False)
     t1 = time.perf_counter()
     try:
         while tally.lane_changes < args.lane_changes:
             keys = validation.validate_keys(args.seed, validation.VALIDATE_TAG, lo, args.chunk)
-            nominal = tilted and validation.nominal_chunk(lo // args.chunk, args.defensive)
-            out, _ = jax.device_get(run(own if nominal else prop, pol, keys))
+            q, k, drawn = chunk_proposal(fitted, base, lo // args.chunk, args)
+            out = columns(jax.device_get(run(q, pol, keys))[0])
             before = tally.lane_changes
-            tally.add(columns(out), lo, np.asarray(keys), base.dt, tilted, nominal)
+            tally.add(out, lo, np.asarray(keys), base.dt, tilted, k < 0, k, drawn)
             lo += args.chunk
             bar.update(tally.lane_changes - before)
             est = tally.estimates(args.method)[args.kind]
@@ -153,7 +186,7 @@ def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
     return {
         "meta": row["meta"],
         "method": args.method,
-        "proposal": prop.to_dict(),
+        "proposal": (tally.drawn_mixture if mixed else fitted).to_dict(),
         "defensive": tally.defensive,
         "ce": history,
         "estimates": tally.estimates(args.method),

@@ -1,6 +1,7 @@
 """``jaxlc.validate`` and its estimators (``jaxlc.evaluation.rare``): the toy check of the IS
 interval's coverage, weights of 1 under the nominal proposal, the command on a smoke run."""
 
+import dataclasses
 import math
 
 import jax
@@ -187,6 +188,86 @@ def test_the_mixtures_nominal_chunks_keep_their_share_and_cap_the_weights():
     assert np.all(np.diff(w) > 0)  # the order of the ratios kept
     jw = np.exp(np.asarray(rare.defensive(jnp.asarray(log_r, jnp.float32), jnp.float32(0.5))))
     np.testing.assert_allclose(jw, w, rtol=1e-5)
+
+
+def test_a_mixture_component_weighs_from_its_statistics_as_the_program_does(smoke_run):
+    """``--family mixture``: each one-role component's ``log p/q`` from the step statistics
+    equals the tilted program's own ``log_w`` of the chunk it draws; a mixture of rates
+    equal to the traffic's weighs every lane change 1, and no weight exceeds ``1 / alpha``."""
+    from jaxlc.evaluation import mixture, proposal, validation
+    from jaxlc.evaluation.cases import columns
+    from jaxlc.evaluation.heldout import in_traffic
+    from jaxlc.sim.env import EnvParams
+    from jaxlc.study.rundir import RunDir
+
+    cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
+    base = EnvParams.from_config(cfg.env)
+    run = validation.program(cfg, config.EvalConfig().max_steps, True)  # the fixture's
+    keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, CHUNK)
+    start = mixture.start(base, 0.2, "entry")
+    mix = dataclasses.replace(start, rates=(0.02, 0.01, 0.03, 0.004))
+    pol = validation.policies(cfg, None, 1)
+    for k in range(len(proposal.ROLES)):
+        out = columns(jax.device_get(run(mix.component(base, k), pol, keys)[0]))
+        log_r = mix.log_ratios(out["tilt"][0])
+        assert out["tilt"][0][:, k].sum() > 0  # the role's braking trials were drawn
+        np.testing.assert_allclose(log_r[:, k], out["log_w"][0], rtol=1e-4, atol=1e-3)
+        assert np.all(mix.log_weight(out["tilt"][0]) <= -math.log(0.2) + 1e-12)
+    flat = dataclasses.replace(mix, rates=(start.p_fire,) * len(proposal.ROLES))
+    assert np.all(np.abs(flat.log_weight(out["tilt"][0])) < 1e-12)
+
+
+def test_the_mixtures_chunks_keep_its_shares():
+    from jaxlc.evaluation import mixture
+
+    mix = mixture.Mixture(1e-4, (0.01,) * 4, (0.4, 0.1, 0.3, 0.2), 0.2, "entry")
+    comps = [mix.chunk_component(i) for i in range(60)]
+    for n in range(1, 61):
+        drawn = mix.drawn(comps[:n])
+        target = [mix.alpha, *(0.8 * s for s in mix.shares)]
+        got = [drawn.alpha, *((1 - drawn.alpha) * s for s in drawn.shares)]
+        assert all(abs(g * n - t * n) < 1 for g, t in zip(got, target, strict=True))
+    at_50 = mix.drawn(comps[:50])  # 10 nominal chunks, 16, 4, 12 and 8 of the components
+    assert at_50.alpha == 0.2 and at_50.shares == pytest.approx(mix.shares)
+
+
+@pytest.fixture(scope="module")
+def validated_mixture(validated, tmp_path_factory):
+    """The smoke run validated by IS with the mixture of one-role tilts from the entry (the
+    ``validated`` fixture's program, loaded)."""
+    from jaxlc import validate
+
+    run_dir, _ = validated
+    out = tmp_path_factory.mktemp("validate_mixture")
+    args = ["--model", "scripted", "--method", "is", "--family", "mixture", "--kind", "failure"]
+    args += ["--tilt-from", "entry", "--chunk", str(CHUNK), "--lane-changes", "400"]
+    args += ["--out", str(out), "--traffic", *TRAFFIC]
+    assert validate.main([str(run_dir), *args]) == 0
+    return run_dir, out
+
+
+def test_the_mixture_estimate_is_written_and_its_cases_replay(validated_mixture):
+    import json
+
+    from jaxlc.evaluation.validation_io import replay_case
+
+    run_dir, out = validated_mixture
+    (model,) = json.loads((out / "validate.json").read_text())["models"]
+    mix = model["proposal"]
+    assert mix["family"] == "mixture" and model["ce"] and model["lane_changes"] >= 400
+    assert sum(mix["shares"]) == pytest.approx(1.0) and mix["alpha"] == model["defensive"] > 0
+    e = model["estimates"]["failure"]
+    assert e["failures"] > 0 and e["lo"] <= e["estimate"] <= e["hi"]
+    cases = json.loads((out / "cases.json").read_text())
+    # each case records the component that drew it: one role's rate tilted at most, none
+    # for the traffic's own draws
+    for c in cases:
+        tilted = np.asarray(c["proposal"]["brake"]) != np.float32(mix["p_fire"])
+        assert tilted.sum() <= (0 if c["drawn_nominal"] else 1)
+        assert c["proposal"]["drawn_nominal"] == float(c["drawn_nominal"])
+    assert any(not c["drawn_nominal"] for c in cases)
+    path, same = replay_case(run_dir, 0, out)
+    assert same and path.stat().st_size > 0
 
 
 def test_tilt_windows_lists_the_failures_with_nested_braking_counts(smoke_run, tmp_path):

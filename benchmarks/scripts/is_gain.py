@@ -16,13 +16,15 @@ the proposal); the interval is a 95% bootstrap over the failures.
 
 ``--mc``: crude MC's ``validate`` folder (its ``validate.json``, and ``failures.json``: the
 case indices of its failures of one kind, from its ``cases.json``); ``--is``: IS folders of
-the same setting (their ``validate.json``: proposal, defensive share). ``RUN``: the run
-directory they validated (``--model`` as ``python -m jaxlc.validate``'s).
+the same setting (their ``validate.json``: proposal, defensive share; a mixture of one-role
+tilts, ``--family mixture``, weighs each failure from its step statistics as its run did).
+``RUN``: the run directory they validated (``--model`` as ``python -m jaxlc.validate``'s).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -32,6 +34,7 @@ import numpy as np
 
 from jaxlc.evaluation import heldout, proposal, rare, validation
 from jaxlc.evaluation.cases import columns
+from jaxlc.evaluation.mixture import Mixture
 from jaxlc.sim.env import EnvParams
 from jaxlc.validate import model_rows
 
@@ -67,17 +70,25 @@ def main(argv: list[str] | None = None) -> dict:
     result |= {"mc_estimate": p_hat, "proposals": []}
     for d in args.is_dirs:
         model = json.loads((d / "validate.json").read_text())["models"][0]
-        # the traffic's own draws, their ratio taken against the proposal
-        replay = proposal.from_dict({**model["proposal"], "drawn_nominal": 1.0})
+        a = model["defensive"] if args.defensive is None else args.defensive
+        mix = None
+        if model["proposal"].get("family") == "mixture":  # its weights from the statistics
+            mix = Mixture.from_dict(model["proposal"])  # the shares its chunks were drawn in
+            mix = dataclasses.replace(mix, alpha=mix.alpha if args.defensive is None else a)
+            replay = mix.component(base, -1)
+        else:  # the traffic's own draws, their ratio taken against the proposal
+            replay = proposal.from_dict({**model["proposal"], "drawn_nominal": 1.0})
         outs = [
             columns(jax.device_get(run(replay, pol, keys[lo : lo + chunk])[0]))
             for lo in range(0, keys.shape[0], chunk)
         ]
         failed = np.concatenate([validation.kinds(o, base.dt)[:, col] for o in outs])[:n]
         assert failed.all(), "a replay differs from crude MC's"
-        log_w = np.concatenate([o["log_w"][0] for o in outs])[:n].astype(np.float64)  # log p/q
-        a = model["defensive"] if args.defensive is None else args.defensive
-        w = np.exp(rare.defensive(log_w, a))  # p / (a p + (1 - a) q)
+        if mix is None:
+            log_w = np.concatenate([o["log_w"][0] for o in outs])[:n].astype(np.float64)  # p/q
+            w = np.exp(rare.defensive(log_w, a))  # p / (a p + (1 - a) q)
+        else:
+            w = np.exp(mix.log_weight(np.concatenate([o["tilt"][0] for o in outs])[:n]))
         boot = rng.choice(w, (BOOTSTRAP, w.size)).mean(axis=1)
         lo, hi = np.quantile(boot, [0.025, 0.975])
         row = {

@@ -129,17 +129,41 @@ class Tally:
     ratio: bool = False  # the proposal tilts before acceptance: keep every case, ratio estimate
     perf: list[np.ndarray] = field(default_factory=list)
     nominal_started: int = 0  # cases of chunks drawn from the nominal (``drawn_nominal``)
+    # ``--family mixture`` (``jaxlc.evaluation.mixture.Mixture``): each case's weight from its
+    # log ratios to the components (``log_r``) and the shares the chunks were drawn in
+    mixture: Any = None
+    log_r: list[np.ndarray] = field(default_factory=list)
+    components: list[int] = field(default_factory=list)  # each chunk's (-1: the nominal)
 
     def add(
-        self, out: dict, lo: int, keys: np.ndarray, dt: float, tilted: bool, nominal: bool = False
+        self,
+        out: dict,
+        lo: int,
+        keys: np.ndarray,
+        dt: float,
+        tilted: bool,
+        nominal: bool = False,
+        component: int = -1,
+        drawn: dict[str, Any] | None = None,
     ) -> None:
         """A chunk's cases (``nominal``: drawn from the traffic's own distribution, their log
-        ratios taken against the proposal: the defensive mixture's share)."""
+        ratios taken against the proposal: the defensive mixture's share). With a mixture:
+        the ``component`` that drew them; ``drawn``: what each failure records of its
+        proposal."""
         perf = out["performed"][0]
         k = kinds(out, dt)
-        log_w = out["log_w"][0].astype(np.float64) if tilted else np.zeros(perf.shape)
         keep = np.ones_like(perf) if self.ratio else perf
-        self.log_w.append(log_w[keep])
+        drawn = {"drawn_nominal": nominal, **(drawn or {})}
+        if self.mixture is not None:
+            self.components.append(component)
+            mix = self.drawn_mixture
+            log_r = self.mixture.log_ratios(out["tilt"][0])
+            log_w = mix.log_weight_of(log_r)  # the shares so far: the case's replay gives it
+            self.log_r.append(log_r[keep])
+            drawn["mixture"] = mix.to_dict()
+        else:
+            log_w = out["log_w"][0].astype(np.float64) if tilted else np.zeros(perf.shape)
+            self.log_w.append(log_w[keep])
         self.kinds.append(k[keep] & perf[keep, None])
         self.perf.append(perf[keep])
         for c in np.nonzero(perf & k[:, 0])[0]:
@@ -150,13 +174,19 @@ class Tally:
                     "log_w": float(log_w[c]),
                     "kinds": [n for n, hit in zip(KINDS, k[c], strict=True) if hit],
                     "reason": OUTCOMES[int(out["reason"][0][c])],
-                    "drawn_nominal": nominal,
+                    **drawn,
                 }
             )
         self.cases.sort(key=lambda r: -r["log_w"])
         del self.cases[CASE_CAP:]
         self.started += perf.size
         self.nominal_started += perf.size if nominal else 0
+
+    @property
+    def drawn_mixture(self) -> Any:
+        """The mixture with the shares its chunks so far were drawn in (the balance
+        heuristic's, for an estimate unbiased whatever they are)."""
+        return self.mixture.drawn(self.components)
 
     @property
     def defensive(self) -> float:
@@ -169,10 +199,14 @@ class Tally:
 
     def estimates(self, method: str) -> dict[str, dict[str, Any]]:
         """Per kind: ``rare.mc_estimate`` or ``rare.is_estimate`` of the lane changes so far."""
-        if not self.log_w:
+        if not self.kinds:
             return {}
-        log_w, k = np.concatenate(self.log_w), np.concatenate(self.kinds)
-        if self.nominal_started:  # the balance heuristic over the chunks' two components
+        k = np.concatenate(self.kinds)
+        if self.mixture is not None:
+            log_w = self.drawn_mixture.log_weight_of(np.concatenate(self.log_r))
+        else:
+            log_w = np.concatenate(self.log_w)
+        if self.nominal_started and self.mixture is None:  # the balance heuristic
             log_w = rare.defensive(log_w, self.defensive)
         if method == "mc":
             return {

@@ -17,6 +17,7 @@ import numpy as np
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
 from jaxlc.evaluation.cases import columns
+from jaxlc.evaluation.mixture import Mixture
 from jaxlc.evaluation.numbers import csv_text
 from jaxlc.evaluation.results import OUTCOMES, EvalError
 from jaxlc.sim.env import EnvParams
@@ -73,7 +74,10 @@ def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: floa
             "checkpoint": r["meta"].get("checkpoint"),
             "k": r["meta"].get("k") or 1,
             "method": r["method"],
-            "proposal": {**r["proposal"], "drawn_nominal": float(c["drawn_nominal"])},
+            # a mixture's case names its component's proposal itself
+            "proposal": c.get(
+                "proposal", {**r["proposal"], "drawn_nominal": float(c["drawn_nominal"])}
+            ),
         }
         for i, r in enumerate(results)
         for c in r["cases"]
@@ -156,6 +160,8 @@ def _rerun(run_dir: Path, cfg: config.Config, doc: dict, case: dict) -> tuple[di
     last = max(int(tr["frames"][0, 0]) - 1, 0)
     tr["side"] = np.asarray([1 if tr["y"][0, 0, 0] < tr["y"][0, 0, last] else -1])
     log_w = float(o["log_w"][0][0]) if case["method"] == "is" else 0.0
+    if "mixture" in case:  # the chunk's weights, as the estimate computed them
+        log_w = float(Mixture.from_dict(case["mixture"]).log_weight(o["tilt"][0])[0])
     same = OUTCOMES[int(o["reason"][0][0])] == case["reason"] and log_w == case["log_w"]
     return o, tr, same
 
