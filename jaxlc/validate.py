@@ -9,7 +9,8 @@ Drives each chosen policy (``--model``: an index, a label, a paper tag such as â
 ``scripted``; each seed's checkpoint of a tag) through up to ``--lane-changes`` held-out-style
 lane changes, by crude Monte Carlo (``mc``) or importance sampling (``is``: the traffic around
 the ego drawn from a proposal fitted by the cross-entropy method, each lane change weighted by
-its likelihood ratio), stopping early once the ``--kind``'s relative half-width reaches
+its likelihood ratio; ``--family mixture``: a mixture of one-role braking tilts,
+``jaxlc.evaluation.mixture``), stopping early once the ``--kind``'s relative half-width reaches
 ``--rel-halfwidth`` (``jaxlc.evaluation.validation``). Writes ``RUN_DIR/validate/``:
 ``validate.json`` and ``validate.csv`` (per model and failure kind: the probability per lane
 change, its 95% interval, relative half-width, effective sample size, lane changes, wall time,
@@ -74,9 +75,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument(
         "--defensive",
         type=float,
-        default=validation.DEFENSIVE_SHARE,
+        default=None,
         help="is: the share of the estimate's chunks drawn from the traffic's own distribution "
-        "(a defensive mixture: every weight at most 1 / share; 0: none)",
+        "(a defensive mixture: every weight at most 1 / share; 0: none); default "
+        f"{validation.DEFENSIVE_SHARE}, with --family mixture {mixture.DEFENSIVE_SHARE}",
     )
     ap.add_argument("--traffic", nargs="+", default=[], metavar="env.KEY=VALUE")
     ap.add_argument("--chunk", type=int, default=2048, help="lane-change cases per program")
@@ -90,6 +92,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             ap.error(f"--{name.replace('_', '-')} must be >= 1")
     if not 0.0 <= args.rel_halfwidth < 1.0:
         ap.error("--rel-halfwidth must be in [0, 1)")
+    if args.defensive is None:
+        mixed = args.family == "mixture"
+        args.defensive = mixture.DEFENSIVE_SHARE if mixed else validation.DEFENSIVE_SHARE
     if not 0.0 <= args.defensive < 1.0:
         ap.error("--defensive must be in [0, 1)")
     return args

@@ -241,7 +241,7 @@ def validated_mixture(validated, tmp_path_factory):
     out = tmp_path_factory.mktemp("validate_mixture")
     args = ["--model", "scripted", "--method", "is", "--family", "mixture", "--kind", "failure"]
     args += ["--tilt-from", "entry", "--chunk", str(CHUNK), "--lane-changes", "400"]
-    args += ["--out", str(out), "--traffic", *TRAFFIC]
+    args += ["--defensive", str(SHARE), "--out", str(out), "--traffic", *TRAFFIC]
     assert validate.main([str(run_dir), *args]) == 0
     return run_dir, out
 
@@ -255,6 +255,7 @@ def test_the_mixture_estimate_is_written_and_its_cases_replay(validated_mixture)
     (model,) = json.loads((out / "validate.json").read_text())["models"]
     mix = model["proposal"]
     assert mix["family"] == "mixture" and model["ce"] and model["lane_changes"] >= 400
+    assert "a mixture of one-role braking tilts" in (out / "validate.md").read_text()
     assert sum(mix["shares"]) == pytest.approx(1.0) and mix["alpha"] == model["defensive"] > 0
     e = model["estimates"]["failure"]
     assert e["failures"] > 0 and e["lo"] <= e["estimate"] <= e["hi"]

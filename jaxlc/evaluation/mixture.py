@@ -37,6 +37,10 @@ from jaxlc.sim.env import EnvParams
 
 RATE_FLOOR = 0.001  # per-step braking probability of a component at least (docs/decisions.md)
 POOL_STOP = 150  # the fit stops once this many failures are pooled
+# The nominal's share of the estimate's chunks (``--defensive``'s default with this family):
+# each component already bounds the weight of a path without its role's braking
+# (docs/decisions.md)
+DEFENSIVE_SHARE = 0.05
 _COL = {name: i for i, name in enumerate(STATS)}
 
 

@@ -43,6 +43,7 @@ def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: floa
         "traffic": heldout.traffic_of(cfg.env),
         "traffic_overrides": list(args.traffic),
         "method": args.method,
+        "family": args.family if args.method == "is" else None,
         "kind": args.kind,
         "chunk": args.chunk,
         "seed": args.seed,
@@ -88,6 +89,9 @@ def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: floa
     return out
 
 
+_FAMILY = {"mixture": " (a mixture of one-role braking tilts)"}
+
+
 def _sci(v: Any) -> str:
     return "-" if v is None or not math.isfinite(v) else f"{v:.3g}"
 
@@ -102,7 +106,8 @@ def report_section(run_dir: Path, out: Path | None = None) -> list[str]:
     lines = [
         "## How rarely it fails (`python -m jaxlc.validate`)",
         "",
-        f"{doc['method'].upper()} in {doc['traffic']}; {doc['date']}, matmul peak "
+        f"{doc['method'].upper()}{_FAMILY.get(doc.get('family'), '')} in {doc['traffic']}; "
+        f"{doc['date']}, matmul peak "
         f"{doc['matmul_peak_gflops']} GFLOP/s. Probability per lane change, 95% interval, "
         "relative half-width, effective sample size; `validate/validate.json`.",
         "",
