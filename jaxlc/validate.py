@@ -143,17 +143,12 @@ def fit(
 
 
 def chunk_proposal(
-    fitted: proposal.Proposal | Mixture,
-    base: EnvParams,
-    index: int,
-    args: argparse.Namespace,
-    components: list[int],
+    fitted: proposal.Proposal | Mixture, base: EnvParams, index: int, args: argparse.Namespace
 ) -> tuple[proposal.Proposal, int, dict[str, Any]]:
-    """The estimate's chunk ``index`` (``components``: the mixture's of the chunks before):
-    the proposal it draws from, its component (-1: the traffic's own distribution) and what
-    its failures record to replay."""
+    """The estimate's chunk ``index``: the proposal it draws from, its component (-1: the
+    traffic's own distribution) and what its failures record to replay."""
     if isinstance(fitted, Mixture):
-        k = fitted.next_component(components)
+        k = fitted.chunk_component(index)
         q = fitted.component(base, k)
         return q, k, {"proposal": q.to_dict()}
     nominal = args.method == "is" and validation.nominal_chunk(index, args.defensive)
@@ -179,12 +174,10 @@ def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
     try:
         while tally.lane_changes < args.lane_changes:
             keys = validation.validate_keys(args.seed, validation.VALIDATE_TAG, lo, args.chunk)
-            q, k, drawn = chunk_proposal(fitted, base, lo // args.chunk, args, tally.components)
+            q, k, drawn = chunk_proposal(fitted, base, lo // args.chunk, args)
             out = columns(jax.device_get(run(q, pol, keys))[0])
             before = tally.lane_changes
             tally.add(out, lo, np.asarray(keys), base.dt, tilted, k < 0, k, drawn)
-            if mixed:  # the shares from the estimate's own failures (``mixture.refit``)
-                fitted = mixture.refit(fitted, tally, args.kind)
             lo += args.chunk
             bar.update(tally.lane_changes - before)
             est = tally.estimates(args.method)[args.kind]
@@ -199,7 +192,6 @@ def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
         "meta": row["meta"],
         "method": args.method,
         "proposal": (tally.drawn_mixture if mixed else fitted).to_dict(),
-        "target_shares": list(fitted.shares) if mixed else None,
         "defensive": tally.defensive,
         "ce": history,
         "estimates": tally.estimates(args.method),

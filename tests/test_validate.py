@@ -221,9 +221,7 @@ def test_the_mixtures_chunks_keep_its_shares():
     from jaxlc.evaluation import mixture
 
     mix = mixture.Mixture(1e-4, (0.01,) * 4, (0.4, 0.1, 0.3, 0.2), 0.2, "entry")
-    comps: list[int] = []
-    for _ in range(60):
-        comps.append(mix.next_component(comps))
+    comps = [mix.chunk_component(i) for i in range(60)]
     for n in range(1, 61):
         drawn = mix.drawn(comps[:n])
         target = [mix.alpha, *(0.8 * s for s in mix.shares)]
@@ -231,23 +229,6 @@ def test_the_mixtures_chunks_keep_its_shares():
         assert all(abs(g * n - t * n) < 1 for g, t in zip(got, target, strict=True))
     at_50 = mix.drawn(comps[:50])  # 10 nominal chunks, 16, 4, 12 and 8 of the components
     assert at_50.alpha == 0.2 and at_50.shares == pytest.approx(mix.shares)
-
-
-def test_refitted_shares_favour_the_component_the_failures_need():
-    """Failures that the 'ahead' component draws 100 times as often as the traffic, and the
-    others at its own rate: the refit gives 'ahead' all it can, the others the floor, and the
-    failures weigh less than under equal shares."""
-    from jaxlc.evaluation import mixture
-
-    mix = mixture.Mixture(1e-4, (0.01,) * 4, (0.25,) * 4, 0.05, "entry")
-    log_r = np.zeros((40, 4))
-    log_r[:, 3] = -math.log(100.0)  # log p/q of the 'ahead' component
-    new = mixture.refit_shares(mix, mix, log_r)
-    floor = mixture.SHARE_FLOOR
-    assert new.shares[3] == pytest.approx(1 - 3 * floor, abs=1e-3)
-    assert new.shares[:3] == pytest.approx((floor,) * 3, abs=1e-3)
-    assert np.all(new.log_weight_of(log_r) < mix.log_weight_of(log_r))
-    assert new.rates == mix.rates and new.alpha == mix.alpha
 
 
 @pytest.fixture(scope="module")

@@ -12,13 +12,9 @@ component and no ratio is recomputed in JAX. A failure that needs one role's bra
 little under that role's component however many draws of the other roles it made, where one
 proposal tilting every role at once (``validation.fit_proposal``) multiplies their ratios.
 
-``fit_mixture`` fits each role's rate by cross-entropy on pilot rounds, the shares equal: the
-pilots hold too few failures of some roles to set them (docs/decisions.md, "the mixture of
-one-role tilts"). The estimate then sets them (``refit``) from its own failures, once it holds
-``REFIT_MIN``: the shares under which they would weigh least, each chunk drawn by the component
-furthest below its share (``Mixture.next_component``). The weights stay the balance heuristic's
-at the shares the chunks were drawn in, so the estimate is consistent (the shares follow its
-draws), not unbiased.
+``fit_mixture`` fits each role's rate by cross-entropy on pilot rounds and keeps the shares
+equal: fitted shares followed the pilots' few failures and starved roles crude MC's failures
+need (docs/decisions.md, "the mixture of one-role tilts").
 """
 
 from __future__ import annotations
@@ -32,7 +28,6 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.optimize
 
 from jaxlc.evaluation import rare, validation
 from jaxlc.evaluation.cases import Policies, columns
@@ -42,10 +37,6 @@ from jaxlc.sim.env import EnvParams
 
 RATE_FLOOR = 0.001  # per-step braking probability of a component at least (docs/decisions.md)
 POOL_STOP = 150  # the fit stops once this many failures are pooled
-# The estimate refits the shares after each chunk once it holds this many failures of its kind
-# (``refit_shares``): the CE's pilots hold too few of some roles' failures to set them.
-REFIT_MIN = 50
-SHARE_FLOOR = 0.05  # each component's share of the tilted chunks at least, once refitted
 # The nominal's share of the estimate's chunks (``--defensive``'s default with this family):
 # each component already bounds the weight of a path without its role's braking
 # (docs/decisions.md)
@@ -105,12 +96,15 @@ class Mixture:
         )
         return dataclasses.replace(self, alpha=float((c < 0).mean()), shares=tuple(shares))
 
-    def next_component(self, components: list[int]) -> int:
-        """The next chunk's component (-1: the nominal) after chunks drawn by ``components``:
-        whichever is furthest below its share, so the shares hold at every chunk."""
+    def chunk_component(self, index: int) -> int:
+        """The component of the estimate's chunk ``index`` (-1: the nominal): whichever is
+        furthest below its share of the chunks so far, so the shares hold at every chunk."""
         target = np.concatenate([[self.alpha], (1 - self.alpha) * np.asarray(self.shares)])
-        counts = np.bincount(np.asarray(components, int) + 1, minlength=target.size)
-        return int(np.argmax(target * (len(components) + 1) - counts)) - 1
+        counts = np.zeros(target.size)
+        for i in range(index + 1):
+            c = int(np.argmax(target * (i + 1) - counts))
+            counts[c] += 1
+        return c - 1
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -132,35 +126,6 @@ class Mixture:
             alpha=float(d["alpha"]),
             tilt_from=str(d["tilt_from"]),
         )
-
-
-def refit_shares(mix: Mixture, drawn: Mixture, log_r: np.ndarray) -> Mixture:
-    """``mix`` with the shares that least weigh the estimate's failures so far: ``log_r``
-    ``(n, K)`` their log ratios, each weighed as drawn (``drawn``: the shares the chunks were
-    drawn in), the shares' mean weight of them least, each share at least ``SHARE_FLOOR``
-    (Nelder-Mead, deterministic)."""
-    w = np.exp(drawn.log_weight_of(log_r))
-    n_comp = len(ROLES)
-
-    def shares(z: np.ndarray) -> tuple[float, ...]:
-        s = np.exp(z - np.logaddexp.reduce(z))
-        return tuple((SHARE_FLOOR + (1 - n_comp * SHARE_FLOOR) * s).tolist())
-
-    def mean_weight(z: np.ndarray) -> float:
-        new = dataclasses.replace(drawn, shares=shares(z))
-        return float(np.sum(w * np.exp(new.log_weight_of(log_r))))
-
-    z = scipy.optimize.minimize(mean_weight, np.zeros(n_comp), method="Nelder-Mead").x
-    return dataclasses.replace(mix, shares=shares(z))
-
-
-def refit(mix: Mixture, tally: validation.Tally, kind: str) -> Mixture:
-    """``mix`` with ``refit_shares``' shares once ``tally`` holds ``REFIT_MIN`` lane changes of
-    ``kind``, as it is before."""
-    failed = np.concatenate(tally.kinds)[:, validation.KINDS.index(kind)]
-    if failed.sum() < REFIT_MIN:
-        return mix
-    return refit_shares(mix, tally.drawn_mixture, np.concatenate(tally.log_r)[failed])
 
 
 def start(p: EnvParams, alpha: float, tilt_from: str) -> Mixture:
