@@ -70,7 +70,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         choices=("single", "mixture"),
         default="single",
         help="is: one proposal fitted by cross-entropy, or a mixture of one-role braking "
-        "tilts fitted by EM (jaxlc.evaluation.mixture)",
+        "tilts, each role's rate fitted by cross-entropy (jaxlc.evaluation.mixture)",
     )
     ap.add_argument(
         "--defensive",
@@ -127,8 +127,7 @@ def fit(
     base: EnvParams, run: Any, pol: Any, args: argparse.Namespace
 ) -> tuple[proposal.Proposal | Mixture, list[dict]]:
     """The proposal the estimate draws from and the fit's record of each pilot round: the
-    nominal (``mc``), the CE's proposal or the EM's mixture (``is``)."""
-    window = float(proposal.TILT_FROM.index(args.tilt_from))
+    nominal (``mc``), the CE's proposal or mixture (``is``)."""
     if args.method == "mc":
         return proposal.nominal(base), []
     if args.family == "mixture":
@@ -136,6 +135,7 @@ def fit(
         return mixture.fit_mixture(
             run, pol, base, start, args.chunk, kind=args.kind, seed=args.seed, log=tqdm.write
         )
+    window = float(proposal.TILT_FROM.index(args.tilt_from))
     start = validation.start_proposal(base).replace(tilt_from=window)
     return validation.fit_proposal(
         run, pol, base, start, args.chunk, kind=args.kind, seed=args.seed, log=tqdm.write
@@ -143,12 +143,17 @@ def fit(
 
 
 def chunk_proposal(
-    fitted: proposal.Proposal | Mixture, base: EnvParams, index: int, args: argparse.Namespace
+    fitted: proposal.Proposal | Mixture,
+    base: EnvParams,
+    index: int,
+    args: argparse.Namespace,
+    components: list[int],
 ) -> tuple[proposal.Proposal, int, dict[str, Any]]:
-    """The estimate's chunk ``index``: the proposal it draws from, its component (-1: the
-    traffic's own distribution) and what its failures record to replay."""
+    """The estimate's chunk ``index`` (``components``: the mixture's of the chunks before):
+    the proposal it draws from, its component (-1: the traffic's own distribution) and what
+    its failures record to replay."""
     if isinstance(fitted, Mixture):
-        k = fitted.chunk_component(index)
+        k = fitted.next_component(components)
         q = fitted.component(base, k)
         return q, k, {"proposal": q.to_dict()}
     nominal = args.method == "is" and validation.nominal_chunk(index, args.defensive)
@@ -174,7 +179,7 @@ def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
     try:
         while tally.lane_changes < args.lane_changes:
             keys = validation.validate_keys(args.seed, validation.VALIDATE_TAG, lo, args.chunk)
-            q, k, drawn = chunk_proposal(fitted, base, lo // args.chunk, args)
+            q, k, drawn = chunk_proposal(fitted, base, lo // args.chunk, args, tally.components)
             out = columns(jax.device_get(run(q, pol, keys))[0])
             before = tally.lane_changes
             tally.add(out, lo, np.asarray(keys), base.dt, tilted, k < 0, k, drawn)

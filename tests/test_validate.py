@@ -221,7 +221,9 @@ def test_the_mixtures_chunks_keep_its_shares():
     from jaxlc.evaluation import mixture
 
     mix = mixture.Mixture(1e-4, (0.01,) * 4, (0.4, 0.1, 0.3, 0.2), 0.2, "entry")
-    comps = [mix.chunk_component(i) for i in range(60)]
+    comps: list[int] = []
+    for _ in range(60):
+        comps.append(mix.next_component(comps))
     for n in range(1, 61):
         drawn = mix.drawn(comps[:n])
         target = [mix.alpha, *(0.8 * s for s in mix.shares)]

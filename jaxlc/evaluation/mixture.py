@@ -96,15 +96,12 @@ class Mixture:
         )
         return dataclasses.replace(self, alpha=float((c < 0).mean()), shares=tuple(shares))
 
-    def chunk_component(self, index: int) -> int:
-        """The component of the estimate's chunk ``index`` (-1: the nominal): whichever is
-        furthest below its share of the chunks so far, so the shares hold at every chunk."""
+    def next_component(self, components: list[int]) -> int:
+        """The next chunk's component (-1: the nominal) after chunks drawn by ``components``:
+        whichever is furthest below its share, so the shares hold at every chunk."""
         target = np.concatenate([[self.alpha], (1 - self.alpha) * np.asarray(self.shares)])
-        counts = np.zeros(target.size)
-        for i in range(index + 1):
-            c = int(np.argmax(target * (i + 1) - counts))
-            counts[c] += 1
-        return c - 1
+        counts = np.bincount(np.asarray(components, int) + 1, minlength=target.size)
+        return int(np.argmax(target * (len(components) + 1) - counts)) - 1
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -131,9 +128,9 @@ class Mixture:
 def start(p: EnvParams, alpha: float, tilt_from: str) -> Mixture:
     """The fit's start: every role's braking ``validation.START_BRAKE`` per step, equal
     shares."""
-    n = len(ROLES)
-    rates = (max(validation.START_BRAKE, float(start_probability(p))),) * n
-    return Mixture(float(start_probability(p)), rates, (1.0 / n,) * n, alpha, tilt_from)
+    n, p_fire = len(ROLES), float(start_probability(p))
+    rates = (max(validation.START_BRAKE, p_fire),) * n
+    return Mixture(p_fire, rates, (1.0 / n,) * n, alpha, tilt_from)
 
 
 def fit_mixture(
