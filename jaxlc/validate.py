@@ -70,7 +70,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         choices=("single", "mixture"),
         default="single",
         help="is: one proposal fitted by cross-entropy, or a mixture of one-role braking "
-        "tilts, each role's rate fitted by cross-entropy (jaxlc.evaluation.mixture)",
+        "tilts, each drawing its role's first braking event within a horizon, the horizons "
+        "and shares from pilot rounds (jaxlc.evaluation.mixture)",
     )
     ap.add_argument(
         "--defensive",
@@ -131,7 +132,7 @@ def fit(
     if args.method == "mc":
         return proposal.nominal(base), []
     if args.family == "mixture":
-        start = mixture.start(base, args.defensive, args.tilt_from)
+        start = mixture.start(base, args.defensive, args.tilt_from, args.max_steps)
         return mixture.fit_mixture(
             run, pol, base, start, args.chunk, kind=args.kind, seed=args.seed, log=tqdm.write
         )

@@ -192,8 +192,11 @@ def test_the_mixtures_nominal_chunks_keep_their_share_and_cap_the_weights():
 
 def test_a_mixture_component_weighs_from_its_statistics_as_the_program_does(smoke_run):
     """``--family mixture``: each one-role component's ``log p/q`` from the step statistics
-    equals the tilted program's own ``log_w`` of the chunk it draws; a mixture of rates
-    equal to the traffic's weighs every lane change 1, and no weight exceeds ``1 / alpha``."""
+    equals the tilted program's own ``log_w`` of the chunk it draws, for the conditional tilts
+    and the constant-rate ones; under a conditional tilt every lane change with an event of
+    the role weighs ``1 - (1 - p)^H`` to it whenever the event fell, one without
+    ``(1 - (1 - p)^H) / (1 - (1 - p)^(H - trials))``; horizons of 0 and rates equal to the
+    traffic's weigh every lane change 1, and no weight exceeds ``1 / alpha``."""
     from jaxlc.evaluation import mixture, proposal, validation
     from jaxlc.evaluation.cases import columns
     from jaxlc.evaluation.heldout import in_traffic
@@ -204,17 +207,79 @@ def test_a_mixture_component_weighs_from_its_statistics_as_the_program_does(smok
     base = EnvParams.from_config(cfg.env)
     run = validation.program(cfg, config.EvalConfig().max_steps, True)  # the fixture's
     keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, CHUNK)
-    start = mixture.start(base, 0.2, "entry")
-    mix = dataclasses.replace(start, rates=(0.02, 0.01, 0.03, 0.004))
     pol = validation.policies(cfg, None, 1)
-    for k in range(len(proposal.ROLES)):
-        out = columns(jax.device_get(run(mix.component(base, k), pol, keys)[0]))
-        log_r = mix.log_ratios(out["tilt"][0])
-        assert out["tilt"][0][:, k].sum() > 0  # the role's braking trials were drawn
-        np.testing.assert_allclose(log_r[:, k], out["log_w"][0], rtol=1e-4, atol=1e-3)
-        assert np.all(mix.log_weight(out["tilt"][0]) <= -math.log(0.2) + 1e-12)
-    flat = dataclasses.replace(mix, rates=(start.p_fire,) * len(proposal.ROLES))
+    start = mixture.start(base, 0.2, "entry", 60)
+    p = start.p_fire
+    col = {n: i for i, n in enumerate(proposal.STATS)}
+    rates = dataclasses.replace(start, horizons=(), rates=(0.02, 0.01, 0.03, 0.004))
+    for mix in (dataclasses.replace(start, horizons=(60.0, 40.0, 60.0, 200.0)), rates):
+        for k, role in enumerate(proposal.ROLES):
+            out = columns(jax.device_get(run(mix.component(base, k), pol, keys)[0]))
+            st = out["tilt"][0].astype(np.float64)
+            log_r = mix.log_ratios(st)
+            assert st[:, col[f"brake_trials_{role}"]].sum() > 0  # the role's trials were drawn
+            np.testing.assert_allclose(log_r[:, k], out["log_w"][0], rtol=1e-4, atol=1e-3)
+            assert np.all(mix.log_weight(st) <= -math.log(0.2) + 1e-12)
+            if not mix.horizons or role == "ahead":  # several trials a step: not one per event
+                continue
+            h = mix.horizons[k]
+            events, trials = st[:, col[f"brake_events_{role}"]], st[:, col[f"brake_trials_{role}"]]
+            first = st[:, col[f"brake_first_{role}"]]
+            assert events.any() and np.all(first[events > 0] <= h)  # the event within H
+            reach = -math.expm1(h * math.log1p(-p))
+            none = -np.expm1(np.maximum(h - trials, 0) * math.log1p(-p)) / reach
+            with np.errstate(divide="ignore"):  # past the horizon with no event: +inf
+                expect = np.where(events > 0, math.log(reach), -np.log(none))
+            np.testing.assert_allclose(log_r[:, k], expect, rtol=1e-3, atol=1e-3)
+    out = columns(jax.device_get(run(mix.component(base, -1), pol, keys)[0]))
+    flat = dataclasses.replace(rates, rates=(p,) * len(proposal.ROLES))
     assert np.all(np.abs(flat.log_weight(out["tilt"][0])) < 1e-12)
+    zero = dataclasses.replace(start, horizons=(0.0,) * len(proposal.ROLES))
+    out = columns(jax.device_get(run(zero.component(base, -1), pol, keys)[0]))
+    assert np.all(np.abs(zero.log_weight(out["tilt"][0])) < 1e-12)
+
+
+def test_the_conditional_hazard_puts_one_event_within_the_horizon():
+    """``proposal.first_event_hazard`` over one trial a step: the first event's time has the
+    traffic's distribution conditioned on falling within the horizon (so every path with one
+    weighs the same), and no path goes past the horizon without one."""
+    from jaxlc.evaluation import proposal
+
+    p, h = 0.003, 50
+    c = np.arange(h)
+    q = np.asarray(
+        proposal.first_event_hazard(
+            jnp.float32(p),
+            jnp.full(4, h, jnp.float32),
+            jnp.asarray(c[:, None] * np.ones(4), jnp.float32),
+            jnp.zeros((h, 4)),
+        )
+    )[:, 0].astype(np.float64)
+    survive = np.concatenate([[1.0], np.cumprod(1 - q)])  # no event in the first c trials
+    first = survive[:-1] * q  # (h,) the first event at trial c
+    reach = 1 - (1 - p) ** h
+    np.testing.assert_allclose(first, p * (1 - p) ** c / reach, rtol=1e-4)
+    assert survive[-1] == pytest.approx(0.0, abs=1e-6) and q[-1] == pytest.approx(1.0)
+    after = proposal.first_event_hazard(
+        jnp.float32(p), jnp.full(4, h), jnp.full(4, 3.0), jnp.ones(4)
+    )
+    assert np.all(np.asarray(after) == np.float32(p))  # once the role braked: the traffic's
+
+
+def test_fitted_shares_follow_the_failures_and_keep_every_role():
+    """``mixture.fitted_shares``: a role the failures brake in more gets more, a role with a
+    longer horizon more, and a role no failure braked in keeps a share."""
+    from jaxlc.evaluation import mixture, proposal
+
+    col = {n: i for i, n in enumerate(proposal.STATS)}
+    st = np.zeros((10, len(proposal.STATS)))
+    st[:8, col["brake_events_lead"]] = 1
+    st[8:, col["brake_events_ahead"]] = 1
+    shares = mixture.fitted_shares(np.ones(10), st, np.array([200.0] * 4), 1e-4)
+    assert sum(shares) == pytest.approx(1.0)
+    assert shares[0] > shares[3] > shares[1] > 0.05 and shares[1] == pytest.approx(shares[2])
+    longer = mixture.fitted_shares(np.ones(10), st, np.array([200.0, 200, 200, 2000]), 1e-4)
+    assert longer[3] > shares[3]
 
 
 def test_the_mixtures_chunks_keep_its_shares():
@@ -262,11 +327,12 @@ def test_the_mixture_estimate_is_written_and_its_cases_replay(validated_mixture)
     e = model["estimates"]["failure"]
     assert e["failures"] > 0 and e["lo"] <= e["estimate"] <= e["hi"]
     cases = json.loads((out / "cases.json").read_text())
-    # each case records the component that drew it: one role's rate tilted at most, none
-    # for the traffic's own draws
+    # each case records the component that drew it: one role's braking tilted, none for the
+    # traffic's own draws
     for c in cases:
-        tilted = np.asarray(c["proposal"]["brake"]) != np.float32(mix["p_fire"])
-        assert tilted.sum() <= (0 if c["drawn_nominal"] else 1)
+        tilted = np.asarray(c["proposal"]["conditional"]) > 0.5
+        assert tilted.sum() == (0 if c["drawn_nominal"] else 1)
+        assert np.all(np.asarray(c["proposal"]["brake"]) == np.float32(mix["p_fire"]))
         assert c["proposal"]["drawn_nominal"] == float(c["drawn_nominal"])
     assert any(not c["drawn_nominal"] for c in cases)
     path, same = replay_case(run_dir, 0, out)

@@ -239,7 +239,7 @@ def _start_parts(
     Cases``. The carry is ``(state, reason, log_w, tilt, k_run)``."""
     env = LaneChangeEnv() if env is None else env
     zero, origin = jnp.zeros(action_dim(base)), origin_lane(base)
-    stats = getattr(env, "stats", 0)
+    stats, env_step = getattr(env, "stats", 0), _step_of(env)
 
     def begin(key: Array) -> tuple:
         k_reset, k_run = jax.random.split(key)
@@ -252,7 +252,7 @@ def _start_parts(
 
     def step(c: tuple) -> tuple:
         s, _, log_w, tilt, k_run = c
-        *_, s, _, _, _, info = env.step(jax.random.fold_in(k_run, s.time), s, zero, base)
+        *_, s, _, _, _, info = env_step(jax.random.fold_in(k_run, s.time), s, zero, base, tilt)
         tilt = tilt + info.get("tilt", 0.0)
         return s, info["reason"], log_w + info.get("log_w", 0.0), tilt, k_run
 
@@ -264,6 +264,14 @@ def _start_parts(
         return Cases(state, obs, k_run, reason, performed, side, log_w, tilt)
 
     return begin, going, step, finish
+
+
+def _step_of(env: LaneChangeEnv) -> Callable:
+    """``(key, state, action, params, tilt) -> env.step(...)``: a proposal's env (``stats``)
+    also reads the statistics of its steps so far (``tilt``; its conditional tilts do)."""
+    if getattr(env, "stats", 0):
+        return lambda key, s, a, p, tilt: env.step(key, s, a, p, so_far=tilt)
+    return lambda key, s, a, p, tilt: env.step(key, s, a, p)
 
 
 def make_start_case(
@@ -473,8 +481,10 @@ def make_rollout(
         trace = _empty_trace(n_pol, traced.shape[0], limit + 2, base)
         trace = _record(trace, 0, state, traced, jnp.ones((n_pol, traced.shape[0]), bool), base)
 
-        def step_policy(k: Array, keys: Array, s: EnvState, a: Array) -> tuple:
-            return jax.vmap(env.step, (0, 0, 0, None))(keys, s, a, base.replace(k=k))
+        env_step = _step_of(env)
+
+        def step_policy(k: Array, keys: Array, s: EnvState, a: Array, tilt: Array) -> tuple:
+            return jax.vmap(env_step, (0, 0, 0, None, 0))(keys, s, a, base.replace(k=k), tilt)
 
         def body(rows: Array, c: tuple) -> tuple:
             """One step of the cases ``rows`` ``(r,)``; ``c``'s per-case leaves are theirs."""
@@ -482,7 +492,9 @@ def make_rollout(
             mu = jax.vmap(actor_apply)(pol.actor, obs)  # (policies, r, action_dim)
             action = jnp.where(pol.scripted[:, None, None], baseline_action(obs, base), mu)
             keys = jax.vmap(jax.vmap(jax.random.fold_in))(case_keys[:, rows], state.time)
-            new_obs, new, r, _, _, info = jax.vmap(step_policy)(pol.k, keys, state, action)
+            new_obs, new, r, _, _, info = jax.vmap(step_policy)(
+                pol.k, keys, state, action, out.tilt
+            )
             live = ~done  # (policies, r); only live cases are in the RL phase
             (j_y, h_y), (j_x, h_x) = (
                 safety.windowed_jerk(h, a, base.dt)

@@ -1,20 +1,24 @@
 """IS's second proposal family (``python -m jaxlc.validate --family mixture``): a defensive
 mixture of one-role braking tilts.
 
-Component ``k`` is the traffic's own distribution but for role ``ROLES[k]``'s braking events
-(``jaxlc.evaluation.proposal``), which start with probability ``rates[k]`` per step from the
-window ``tilt_from``; the nominal itself is drawn in the share ``alpha``, component ``k`` in
-``(1 - alpha) shares[k]``, whole chunks each. A lane change's weight is the balance heuristic
-over every component, ``1 / (alpha + (1 - alpha) sum_k shares[k] q_k / p)``, at most
-``1 / alpha``; each ``log p / q_k`` follows from the step statistics the program already
-returns (``info["tilt"]``: a role's braking trials and events), so one program draws every
-component and no ratio is recomputed in JAX. A failure that needs one role's braking weighs
-little under that role's component however many draws of the other roles it made, where one
-proposal tilting every role at once (``validation.fit_proposal``) multiplies their ratios.
+Component ``k`` is the traffic's own distribution but for role ``ROLES[k]``'s braking, drawn
+conditioned on the role's first event falling within its first ``horizons[k]`` braking trials
+from the window ``tilt_from`` (``proposal.first_event_hazard``: every such path's ratio
+``q_k / p`` is the same, ``1 / (1 - (1 - p)^H)``, wherever its event falls); the nominal
+itself is drawn in the share ``alpha``, component ``k`` in ``(1 - alpha) shares[k]``, whole
+chunks each. A lane change's weight is the balance heuristic over every component,
+``1 / (alpha + (1 - alpha) sum_k shares[k] q_k / p)``, at most ``1 / alpha``; each
+``log p / q_k`` is a statistic the program returns (``info["tilt"]``'s ``cond_`` column), so
+one program draws every component. A failure that needs one role's braking weighs little under
+that role's component however many draws of the other roles it made, where one proposal
+tilting every role at once (``validation.fit_proposal``) multiplies their ratios.
 
-``fit_mixture`` fits each role's rate by cross-entropy on pilot rounds and keeps the shares
-equal: fitted shares followed the pilots' few failures and starved roles crude MC's failures
-need (docs/decisions.md, "the mixture of one-role tilts").
+``fit_mixture`` sets each horizon to the most braking trials of the role any pilot lane change
+held, and the shares to ``sqrt(reach_k (m_k + SHARE_PRIOR))``: ``reach_k`` the traffic's
+probability of an event within the horizon, ``m_k`` the pilots' weighted share of failures with
+an event of role ``k`` (docs/decisions.md, "the conditional one-role tilts"). A mixture of
+constant-rate tilts (``rates``: each role's events ``rates[k]`` per step, no ``horizons``) is
+what ``--family mixture`` drew before; it is still read and weighed, for the runs it made.
 """
 
 from __future__ import annotations
@@ -29,14 +33,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxlc.evaluation import rare, validation
+from jaxlc.evaluation import validation
 from jaxlc.evaluation.cases import Policies, columns
 from jaxlc.evaluation.proposal import ROLES, STATS, TILT_FROM, Proposal, nominal
 from jaxlc.sim.braking import start_probability
 from jaxlc.sim.env import EnvParams
 
-RATE_FLOOR = 0.001  # per-step braking probability of a component at least (docs/decisions.md)
-POOL_STOP = 150  # the fit stops once this many failures are pooled
+PILOT_ROUNDS = 2  # each one pilot chunk per component
+# A role no pilot failure braked in keeps this share of the failures in its component's share
+SHARE_PRIOR = 1.0 / len(ROLES)
 # The nominal's share of the estimate's chunks (``--defensive``'s default with this family):
 # each component already bounds the weight of a path without its role's braking
 # (docs/decisions.md)
@@ -46,31 +51,38 @@ _COL = {name: i for i, name in enumerate(STATS)}
 
 @dataclass(frozen=True)
 class Mixture:
-    """Rates ``(K,)`` and shares ``(K,)`` of the one-role tilts of ``ROLES``, the nominal's
-    share ``alpha``, the braking window ``tilt_from`` (a ``TILT_FROM`` name)."""
+    """The one-role tilts of ``ROLES``: their horizons ``(K,)`` (braking trials; or, for a
+    mixture of constant-rate tilts, their ``rates`` ``(K,)`` per step) and shares ``(K,)``, the
+    nominal's share ``alpha``, the braking window ``tilt_from`` (a ``TILT_FROM`` name)."""
 
     p_fire: float  # the traffic's per-step probability of a braking event
-    rates: tuple[float, ...]
+    rates: tuple[float, ...]  # () with ``horizons``
     shares: tuple[float, ...]
     alpha: float
     tilt_from: str
+    horizons: tuple[float, ...] = ()
 
     def component(self, p: EnvParams, k: int) -> Proposal:
         """Component ``k``'s proposal; ``k = -1``: the traffic's own draws (weighed against
         the mixture by ``log_weight``, not by the program)."""
         q = nominal(p).replace(tilt_from=jnp.float32(TILT_FROM.index(self.tilt_from)))
+        if self.horizons:  # every component's ratio is a statistic of every chunk
+            q = q.replace(horizon=jnp.asarray(self.horizons, jnp.float32))
         if k < 0:
             return q.replace(drawn_nominal=jnp.float32(1.0))
+        if self.horizons:
+            return q.replace(conditional=q.conditional.at[k].set(1.0))
         return q.replace(brake=q.brake.at[k].set(self.rates[k]))
 
     def log_ratios(self, stats: np.ndarray) -> np.ndarray:
         """``(n, K)`` ``log p / q_k`` of lane changes with step statistics ``stats``
-        ``(n, len(STATS))``."""
-        p = self.p_fire
-        cols = []
+        ``(n, len(STATS))`` (+inf where component ``k`` cannot draw the lane change)."""
+        stats = np.asarray(stats, np.float64)
+        if self.horizons:
+            return stats[:, [_COL[f"cond_{role}"] for role in ROLES]]
+        p, cols = self.p_fire, []
         for role, q in zip(ROLES, self.rates, strict=True):
-            ev = stats[:, _COL[f"brake_events_{role}"]].astype(np.float64)
-            tr = stats[:, _COL[f"brake_trials_{role}"]].astype(np.float64)
+            ev, tr = stats[:, _COL[f"brake_events_{role}"]], stats[:, _COL[f"brake_trials_{role}"]]
             cols.append(ev * math.log(p / q) + (tr - ev) * (math.log1p(-p) - math.log1p(-q)))
         return np.stack(cols, axis=1)
 
@@ -107,6 +119,7 @@ class Mixture:
         return {
             "family": "mixture",
             "roles": list(ROLES),
+            "horizons": list(self.horizons),
             "rates": list(self.rates),
             "shares": list(self.shares),
             "alpha": self.alpha,
@@ -118,19 +131,41 @@ class Mixture:
     def from_dict(cls, d: dict[str, Any]) -> Mixture:
         return cls(
             p_fire=float(d["p_fire"]),
-            rates=tuple(map(float, d["rates"])),
+            rates=tuple(map(float, d["rates"] if not d.get("horizons") else ())),
             shares=tuple(map(float, d["shares"])),
             alpha=float(d["alpha"]),
             tilt_from=str(d["tilt_from"]),
+            horizons=tuple(map(float, d.get("horizons", ()))),
         )
 
 
-def start(p: EnvParams, alpha: float, tilt_from: str) -> Mixture:
-    """The fit's start: every role's braking ``validation.START_BRAKE`` per step, equal
-    shares."""
-    n, p_fire = len(ROLES), float(start_probability(p))
-    rates = (max(validation.START_BRAKE, p_fire),) * n
-    return Mixture(p_fire, rates, (1.0 / n,) * n, alpha, tilt_from)
+def start(p: EnvParams, alpha: float, tilt_from: str, horizon: int) -> Mixture:
+    """The fit's start: every role's horizon ``horizon`` trials (the case's step cap: a
+    near role's vehicle brakes at most once a step), equal shares."""
+    n = len(ROLES)
+    return Mixture(
+        float(start_probability(p)), (), (1.0 / n,) * n, alpha, tilt_from, (float(horizon),) * n
+    )
+
+
+def reach(horizons: np.ndarray, p_fire: float) -> np.ndarray:
+    """``(K,)`` the traffic's probability of a braking event within each role's horizon."""
+    return -np.expm1(np.asarray(horizons, np.float64) * math.log1p(-p_fire))
+
+
+def fitted_shares(
+    w: np.ndarray, stats: np.ndarray, horizons: np.ndarray, p_fire: float
+) -> tuple[float, ...]:
+    """``(K,)`` shares ``∝ sqrt(reach_k (m_k + SHARE_PRIOR))`` from failures with weights
+    ``w`` ``(n,)`` and statistics ``stats`` ``(n, len(STATS))``: ``m_k`` the weighted share
+    of them with an event of role ``k``. Were each failure to need one role's event, the
+    mixture's variance would be ``sum_k m_k reach_k / shares_k`` (each failure weighs
+    ``reach_k / shares_k``), least at these shares with ``SHARE_PRIOR = 0``; the prior keeps a
+    role the few pilot failures missed from starving."""
+    events = np.asarray(stats)[:, [_COL[f"brake_events_{r}"] for r in ROLES]] > 0
+    m = (w[:, None] * events).sum(axis=0) / w.sum() if w.size else np.zeros(len(ROLES))
+    s = np.sqrt(reach(horizons, p_fire) * (m + SHARE_PRIOR))
+    return tuple(float(x) for x in s / s.sum())
 
 
 def fit_mixture(
@@ -141,20 +176,20 @@ def fit_mixture(
     chunk: int,
     *,
     kind: str = "collision",
-    rounds: int = 6,
+    rounds: int = PILOT_ROUNDS,
     seed: int = 0,
     log: Callable = print,
 ) -> tuple[Mixture, list[dict[str, Any]]]:
-    """Cross-entropy from ``start``: each round draws one pilot chunk per component (the
-    CE's key stream, ``validation.PILOT_TAG``), pools its lane changes of ``kind``, each
-    weighed by ``p / q`` of the round's draw (every component equally likely), and sets
-    each role's rate to the pool's weighted events over its weighted trials, within
-    ``[max(p, RATE_FLOOR), validation.BRAKE_MAX]``; the shares stay equal. Stops once
-    ``POOL_STOP`` failures are pooled; with none, the start stands. Returns the mixture and
-    each round's record."""
+    """Pilot rounds from ``start``: each draws one chunk per component (the CE's key stream,
+    ``validation.PILOT_TAG``); after it, each role's horizon is the most braking trials of the
+    role a pilot lane change held so far (a path with more, no event of the role's, is one its
+    component cannot draw), and the shares are ``fitted_shares`` of the pooled lane changes of
+    ``kind``, each weighed by ``p / q`` of its round's draw (every component equally likely).
+    Returns the mixture and each round's record."""
     mix, history, pool_st, pool_w = start, [], [], []
     col, n_comp = validation.KINDS.index(kind), len(ROLES)
-    lo = max(start.p_fire, RATE_FLOOR)
+    trials = [_COL[f"brake_trials_{r}"] for r in ROLES]
+    most = np.zeros(n_comp)
     for r in range(rounds):
         failures = lane_changes = 0
         for k in range(n_comp):
@@ -163,25 +198,17 @@ def fit_mixture(
             )
             out = columns(jax.device_get(run(mix.component(p, k), pol, keys)[0]))
             perf = out["performed"][0]
+            st = out["tilt"][0].astype(np.float64)
+            most = np.maximum(most, st[perf][:, trials].max(axis=0, initial=0.0))
             failed = validation.kinds(out, p.dt)[:, col] & perf
-            st = out["tilt"][0][failed].astype(np.float64)
             # the round's draw: each component one chunk, so its q / p is their mean
-            pool_w.append(1.0 / np.mean(np.exp(-mix.log_ratios(st)), axis=1))
-            pool_st.append(st)
+            pool_w.append(1.0 / np.mean(np.exp(-mix.log_ratios(st[failed])), axis=1))
+            pool_st.append(st[failed])
             failures, lane_changes = failures + int(failed.sum()), lane_changes + int(perf.sum())
         w, st = np.concatenate(pool_w), np.concatenate(pool_st)
-        if w.size:
-            rates = [
-                rare.ce_rate(
-                    w,
-                    st[:, _COL[f"brake_events_{x}"]],
-                    st[:, _COL[f"brake_trials_{x}"]],
-                    lo,
-                    validation.BRAKE_MAX,
-                )
-                for x in ROLES
-            ]
-            mix = dataclasses.replace(mix, rates=tuple(rates))
+        horizons = np.maximum(most, 1.0)
+        shares = fitted_shares(w, st, horizons, mix.p_fire)
+        mix = dataclasses.replace(mix, horizons=tuple(horizons.tolist()), shares=shares)
         history.append(
             {
                 "round": r,
@@ -192,9 +219,8 @@ def fit_mixture(
             }
         )
         log(
-            f"CE round {r}: {failures} {kind} in {lane_changes} lane changes ({w.size} "
-            f"pooled), rates {np.round(mix.rates, 5).tolist()}"
+            f"pilot round {r}: {failures} {kind} in {lane_changes} lane changes ({w.size} "
+            f"pooled), horizons {horizons.astype(int).tolist()}, shares "
+            f"{np.round(shares, 3).tolist()}"
         )
-        if w.size >= POOL_STOP:
-            break
     return mix, history

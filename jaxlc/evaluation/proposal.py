@@ -11,7 +11,9 @@ no ratio of two estimates; ``tilt_from`` may start the braking's tilt earlier, `
   ahead of it in any lane, found on the state before the step):
   an event starts with probability ``brake[role]`` per step instead of ``1 - exp(-rate dt)``,
   its deceleration and duration from truncated exponentials of ``brake_acc`` and
-  ``brake_time``.
+  ``brake_time``; or, for a role whose ``conditional`` is set, from the traffic's own draws
+  conditioned on the role's first event falling within its first ``horizon`` braking trials
+  (``first_event_hazard``), every event after it the traffic's own.
 
 Every other draw is the traffic's own. With ``drawn_nominal`` set, the draws are all the
 traffic's own and their log ratio is still taken against the proposal: the nominal share of a
@@ -19,7 +21,11 @@ defensive mixture (``jaxlc.evaluation.validation``). ``TiltedEnv.step`` hands th
 draws to the simulator (``LaneChangeEnv.step(..., draws=)``) and returns in ``info`` the log
 ratio of the draws the step used (``log_w``: a braking draw counts for a vehicle that could
 start an event, the yielding draw on the step of acceptance) and the CE's statistics
-(``tilt``, ``STATS``).
+(``tilt``, ``STATS``). Its ``so_far`` is the statistics of the steps before (the rollout's
+sum of ``tilt``), which the conditional hazard reads: the role's trials so far and whether it
+braked yet. The statistics hold, for every role with a ``horizon``, the log ratio of the role's
+braking draws to its conditional tilt (``cond_``), so a mixture of one-role tilts
+(``jaxlc.evaluation.mixture``) weighs each lane change against every component.
 ``nominal(params)`` draws exactly what the simulator draws, with weights of exactly 1.
 """
 
@@ -52,6 +58,13 @@ STATS = (
     "brake_time_sum",
     "yield_trials",
     "yield_events",
+    # braking trials up to the role's first event (all of them without one)
+    *(f"brake_first_{r}" for r in ROLES),
+    # log p / q of the role's braking draws under its conditional tilt (0 without a horizon)
+    *(f"cond_{r}" for r in ROLES),
+)
+_TRIALS, _EVENTS = (
+    jnp.asarray([STATS.index(f"brake_{s}_{r}") for r in ROLES]) for s in ("trials", "events")
 )
 
 
@@ -65,6 +78,10 @@ class Proposal:
     yields: Array  # () probability the lag yields
     tilt_from: Array | float = 0.0  # () index into TILT_FROM
     drawn_nominal: Array | float = 0.0  # () 1: draw the traffic's own, weigh against this
+    # (4,) by ROLES: braking trials within which the role's conditional tilt puts its first
+    # event (0: none), and 1 where the role's braking is drawn from that tilt, not ``brake``
+    horizon: Array | float = 0.0
+    conditional: Array | float = 0.0
 
     def to_dict(self) -> dict[str, object]:
         return {k: jnp.asarray(v).tolist() for k, v in vars(self).items()}
@@ -79,7 +96,22 @@ def nominal(p: EnvParams) -> Proposal:
         yields=jnp.float32(p.p_yield),
         tilt_from=jnp.float32(0.0),
         drawn_nominal=jnp.float32(0.0),
+        horizon=jnp.zeros(len(ROLES), jnp.float32),
+        conditional=jnp.zeros(len(ROLES), jnp.float32),
     )
+
+
+def first_event_hazard(p_fire: Array, horizon: Array, trials: Array, events: Array) -> Array:
+    """``(4,)`` per-trial probability of a braking event under each role's conditional tilt,
+    given its ``trials`` and ``events`` so far ``(4,)``: the traffic's event conditioned on the
+    first falling within ``horizon`` trials, ``p / (1 - (1 - p)^(horizon - trials))`` before
+    it (1 on the last), ``p_fire`` once the role braked, past its horizon, or without one.
+    A path whose first event comes at trial ``c <= horizon`` has the ratio
+    ``q / p = 1 / (1 - (1 - p)^horizon)`` whatever ``c``."""
+    left = horizon - trials
+    before = (events < 0.5) & (left >= 1.0)
+    q = p_fire / -jnp.expm1(jnp.maximum(left, 1.0) * jnp.log1p(-p_fire))
+    return jnp.where(before, jnp.minimum(q, 1.0), p_fire)
 
 
 def from_dict(d: dict) -> Proposal:
@@ -107,8 +139,9 @@ class TiltedEnv(LaneChangeEnv):
     def __init__(self, proposal: Proposal):
         self.proposal = proposal
 
-    def step(self, key, state, action, params, draws=()):
+    def step(self, key, state, action, params, draws=(), so_far=None):
         p, q = params, self.proposal
+        so_far = jnp.zeros(len(STATS)) if so_far is None else so_far  # (STATS,) steps before
         own = q.drawn_nominal > 0.5  # the draws are the traffic's; the ratios still against q
         u = Draws.draw(key, p.lanes)
         gap = state.ego.phase == GAP
@@ -128,6 +161,9 @@ class TiltedEnv(LaneChangeEnv):
             # A rate within 1 ppm of the traffic's is the traffic's (eager and compiled
             # expm1 differ in the last bit): its weight is exactly 1.
             q_role = jnp.where(jnp.abs(q.brake - p_fire) <= 1e-6 * p_fire, p_fire, q.brake)
+            horizon = jnp.broadcast_to(q.horizon, (len(ROLES),))
+            q_cond = first_event_hazard(p_fire, horizon, so_far[_TRIALS], so_far[_EVENTS])
+            q_role = jnp.where(jnp.broadcast_to(q.conditional, q_cond.shape) > 0.5, q_cond, q_role)
             q_fire = jnp.max(jnp.where(role, q_role[:, None, None], 0.0), axis=0)
             q_fire = jnp.where(near, jnp.maximum(q_fire, 1e-12), p_fire)
             acc, time = (jnp.where(own, 0.0, th) for th in (q.brake_acc, q.brake_time))
@@ -145,6 +181,7 @@ class TiltedEnv(LaneChangeEnv):
         log_w = jnp.where(accept, rare.bernoulli_log_ratio(u.yields, p_yield, q.yields), 0.0)
         zeros = jnp.zeros(len(ROLES))
         stats = [zeros, zeros, jnp.zeros(2)]
+        first = cond = zeros
         if p.braking:
             fired = ut.brake_fire < p_fire
             length = between(ut.brake_time, p.braking_time_min, p.braking_time_max)
@@ -164,7 +201,12 @@ class TiltedEnv(LaneChangeEnv):
                 [jnp.sum(jnp.where(near & started, x, 0.0)) for x in (ut.brake_acc, ut.brake_time)]
             )
             stats = [trials, events, sums]
+            first = jnp.where(so_far[_EVENTS] < 0.5, trials, 0.0)
+            # each role's draws against its own conditional tilt: (4, rows, slots) -> (4,)
+            r_cond = rare.bernoulli_log_ratio(ut.brake_fire, p_fire, q_cond[:, None, None])
+            cond = jnp.sum(jnp.where(role & eligible, r_cond, 0.0), axis=(1, 2))
         yielded = (u.yields < p.p_yield).astype(jnp.float32)
         stats.append(jnp.stack([accept, accept * yielded]).astype(jnp.float32))
+        stats += [first, cond]
         tilt = jnp.concatenate([s.astype(jnp.float32) for s in stats])
         return obs, new, r, term, trunc, {**info, "log_w": log_w, "tilt": tilt}
