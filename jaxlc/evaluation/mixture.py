@@ -16,7 +16,7 @@ tilting every role at once (``validation.fit_proposal``) multiplies their ratios
 ``fit_mixture`` sets each horizon to the most braking trials of the role any pilot lane change
 held, and the shares to ``sqrt(reach_k (m_k + SHARE_PRIOR))``: ``reach_k`` the traffic's
 probability of an event within the horizon, ``m_k`` the pilots' weighted share of failures with
-an event of role ``k`` (docs/decisions.md, "the conditional one-role tilts"). A mixture of
+an event of role ``k`` (docs/decisions.md, "the mixture of one-role tilts"). A mixture of
 constant-rate tilts (``rates``: each role's events ``rates[k]`` per step, no ``horizons``) is
 what ``--family mixture`` drew before; it is still read and weighed, for the runs it made.
 """
@@ -40,7 +40,8 @@ from jaxlc.sim.braking import start_probability
 from jaxlc.sim.env import EnvParams
 
 PILOT_ROUNDS = 2  # each one pilot chunk per component
-# A role no pilot failure braked in keeps this share of the failures in its component's share
+# The shares' prior: each role counts as braking in this share of the failures more than the
+# pilots saw, so a role none of their few failures braked in keeps a share
 SHARE_PRIOR = 1.0 / len(ROLES)
 # The nominal's share of the estimate's chunks (``--defensive``'s default with this family):
 # each component already bounds the weight of a path without its role's braking

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import flax.struct
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from jaxlc.evaluation import rare
@@ -63,8 +64,9 @@ STATS = (
     # log p / q of the role's braking draws under its conditional tilt (0 without a horizon)
     *(f"cond_{r}" for r in ROLES),
 )
+# (4,) columns of each role's trials and events (numpy: no device array at import)
 _TRIALS, _EVENTS = (
-    jnp.asarray([STATS.index(f"brake_{s}_{r}") for r in ROLES]) for s in ("trials", "events")
+    np.asarray([STATS.index(f"brake_{s}_{r}") for r in ROLES]) for s in ("trials", "events")
 )
 
 
