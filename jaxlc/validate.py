@@ -220,6 +220,15 @@ def main(argv: list[str] | None = None) -> int:
             return 0 if same else 1
         cfg, rows = model_rows(args.run_dir, args.model)
         cfg = heldout.in_traffic(cfg, args.traffic)
+        if (
+            args.method == "is"
+            and args.family == "mixture"
+            and not (cfg.env.braking and cfg.env.braking_rate > 0)
+        ):
+            raise EvalError(
+                "--family mixture tilts braking events, and this traffic has none "
+                "(--traffic env.braking=true, env.braking_rate > 0)"
+            )
         peak = machine.matmul_peak_gflops()
         results = []
         for row in rows:

@@ -416,6 +416,64 @@ def test_bad_run_directory_is_one_line(tmp_path, capsys):
     assert err.startswith("error:") and "not a run directory" in err and "\n" not in err
 
 
+def test_a_mixture_without_braking_events_is_refused_in_one_line(smoke_run, capsys):
+    from jaxlc import validate
+
+    args = [str(smoke_run[0]), "--model", "scripted", "--family", "mixture"]
+    assert validate.main(args) == 2  # the smoke run's traffic: the paper's, no braking events
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and "env.braking=true" in err and "\n" not in err
+
+
+def test_the_mixtures_pilots_set_each_horizon_to_the_most_trials_a_lane_change_held(
+    monkeypatch,
+):
+    """``mixture.fit_mixture`` on a fake pilot program: after each round every horizon is the
+    most braking trials of its role a performed pilot lane change held (not a case that never
+    became one), each round and component draws keys of its own, and the shares favour the
+    role the failures braked in."""
+    from types import SimpleNamespace
+
+    from jaxlc.evaluation import mixture, validation
+    from jaxlc.evaluation.heldout import in_traffic
+    from jaxlc.evaluation.proposal import ROLES, STATS
+    from jaxlc.sim.env import EnvParams
+
+    p = EnvParams.from_config(in_traffic(config.load(), ["env.braking=true"]).env)
+    n, seen, col = 20, [], {name: i for i, name in enumerate(STATS)}
+
+    def run(prop, pol, keys):
+        seen.append(np.asarray(keys))
+        r = len(seen)
+        tilt = np.zeros((1, n, len(STATS)), np.float32)
+        for k, role in enumerate(ROLES):  # trials grow with the case and the call
+            tilt[0, :, col[f"brake_trials_{role}"]] = np.arange(n) + 10 * k + r
+        tilt[0, :3, col["brake_events_lead"]] = 1  # the failures brake in the lead's role
+        out = SimpleNamespace(
+            names=(),
+            performed=(np.arange(n) < n - 1)[None],  # the last case: no lane change
+            log_w=np.zeros((1, n), np.float32),
+            tilt=tilt,
+            steps=np.arange(n)[None],
+            reason=np.where(np.arange(n) < 3, 1, 0)[None],
+        )
+        return (out,)
+
+    def kinds(out, dt):  # failure kind 0: the cases the fake run marked
+        return np.stack([out["reason"][0] == 1] * len(validation.KINDS), axis=1)
+
+    monkeypatch.setattr(validation, "kinds", kinds)
+    start = mixture.start(p, 0.05, "entry", 100)
+    mix, history = mixture.fit_mixture(run, None, p, start, n, kind="failure", log=lambda m: 0)
+    calls = len(seen)
+    assert calls == mixture.PILOT_ROUNDS * len(ROLES) and len({a.tobytes() for a in seen}) == calls
+    # the most trials: the last performed case (n - 2) of the last call
+    assert list(mix.horizons) == [n - 2 + 10 * k + calls for k in range(len(ROLES))]
+    assert history[0]["mixture"]["horizons"][0] == n - 2 + len(ROLES)
+    assert sum(mix.shares) == pytest.approx(1.0) and mix.shares[0] == max(mix.shares)
+    assert history[-1]["pooled_failures"] == 3 * calls
+
+
 def test_benchmark_scripts_tiny(tmp_path, monkeypatch):
     """benchmarks/scripts/validate_toy.py and validate_throughput.py end to end, tiny (their
     ``main`` in this process: its imports and compiled programs shared with the suite)."""
