@@ -35,7 +35,7 @@ import numpy as np
 
 from jaxlc.evaluation import validation
 from jaxlc.evaluation.cases import Policies, columns
-from jaxlc.evaluation.proposal import ROLES, STATS, TILT_FROM, Proposal, nominal
+from jaxlc.evaluation.proposal import COND, EVENTS, ROLES, TILT_FROM, TRIALS, Proposal, nominal
 from jaxlc.sim.braking import start_probability
 from jaxlc.sim.env import EnvParams
 
@@ -47,7 +47,6 @@ SHARE_PRIOR = 1.0 / len(ROLES)
 # each component already bounds the weight of a path without its role's braking
 # (docs/decisions.md)
 DEFENSIVE_SHARE = 0.05
-_COL = {name: i for i, name in enumerate(STATS)}
 
 
 @dataclass(frozen=True)
@@ -80,10 +79,10 @@ class Mixture:
         ``(n, len(STATS))`` (+inf where component ``k`` cannot draw the lane change)."""
         stats = np.asarray(stats, np.float64)
         if self.horizons:
-            return stats[:, [_COL[f"cond_{role}"] for role in ROLES]]
+            return stats[:, COND]
         p, cols = self.p_fire, []
-        for role, q in zip(ROLES, self.rates, strict=True):
-            ev, tr = stats[:, _COL[f"brake_events_{role}"]], stats[:, _COL[f"brake_trials_{role}"]]
+        for q, e, t in zip(self.rates, EVENTS, TRIALS, strict=True):
+            ev, tr = stats[:, e], stats[:, t]
             cols.append(ev * math.log(p / q) + (tr - ev) * (math.log1p(-p) - math.log1p(-q)))
         return np.stack(cols, axis=1)
 
@@ -163,7 +162,7 @@ def fitted_shares(
     mixture's variance would be ``sum_k m_k reach_k / shares_k`` (each failure weighs
     ``reach_k / shares_k``), least at these shares with ``SHARE_PRIOR = 0``; the prior keeps a
     role the few pilot failures missed from starving."""
-    events = np.asarray(stats)[:, [_COL[f"brake_events_{r}"] for r in ROLES]] > 0
+    events = np.asarray(stats)[:, EVENTS] > 0
     m = (w[:, None] * events).sum(axis=0) / w.sum() if w.size else np.zeros(len(ROLES))
     s = np.sqrt(reach(horizons, p_fire) * (m + SHARE_PRIOR))
     return tuple(float(x) for x in s / s.sum())
@@ -189,7 +188,6 @@ def fit_mixture(
     Returns the mixture and each round's record."""
     mix, history, pool_st, pool_w = start, [], [], []
     col, n_comp = validation.KINDS.index(kind), len(ROLES)
-    trials = [_COL[f"brake_trials_{r}"] for r in ROLES]
     most = np.zeros(n_comp)
     for r in range(rounds):
         failures = lane_changes = 0
@@ -200,7 +198,7 @@ def fit_mixture(
             out = columns(jax.device_get(run(mix.component(p, k), pol, keys)[0]))
             perf = out["performed"][0]
             st = out["tilt"][0].astype(np.float64)
-            most = np.maximum(most, st[perf][:, trials].max(axis=0, initial=0.0))
+            most = np.maximum(most, st[perf][:, TRIALS].max(axis=0, initial=0.0))
             failed = validation.kinds(out, p.dt)[:, col] & perf
             # the round's draw: each component one chunk, so its q / p is their mean
             pool_w.append(1.0 / np.mean(np.exp(-mix.log_ratios(st[failed])), axis=1))

@@ -64,9 +64,11 @@ STATS = (
     # log p / q of the role's braking draws under its conditional tilt (0 without a horizon)
     *(f"cond_{r}" for r in ROLES),
 )
-# (4,) columns of each role's trials and events (numpy: no device array at import)
-_TRIALS, _EVENTS = (
-    np.asarray([STATS.index(f"brake_{s}_{r}") for r in ROLES]) for s in ("trials", "events")
+# (4,) by ROLES: the columns of each role's braking trials, events and conditional log ratio
+# in ``STATS`` (numpy: no device array at import)
+TRIALS, EVENTS, COND = (
+    np.asarray([STATS.index(f"{s}_{r}") for r in ROLES])
+    for s in ("brake_trials", "brake_events", "cond")
 )
 
 
@@ -164,7 +166,7 @@ class TiltedEnv(LaneChangeEnv):
             # expm1 differ in the last bit): its weight is exactly 1.
             q_role = jnp.where(jnp.abs(q.brake - p_fire) <= 1e-6 * p_fire, p_fire, q.brake)
             horizon = jnp.broadcast_to(q.horizon, (len(ROLES),))
-            q_cond = first_event_hazard(p_fire, horizon, so_far[_TRIALS], so_far[_EVENTS])
+            q_cond = first_event_hazard(p_fire, horizon, so_far[TRIALS], so_far[EVENTS])
             q_role = jnp.where(jnp.broadcast_to(q.conditional, q_cond.shape) > 0.5, q_cond, q_role)
             q_fire = jnp.max(jnp.where(role, q_role[:, None, None], 0.0), axis=0)
             q_fire = jnp.where(near, jnp.maximum(q_fire, 1e-12), p_fire)
@@ -203,7 +205,7 @@ class TiltedEnv(LaneChangeEnv):
                 [jnp.sum(jnp.where(near & started, x, 0.0)) for x in (ut.brake_acc, ut.brake_time)]
             )
             stats = [trials, events, sums]
-            first = jnp.where(so_far[_EVENTS] < 0.5, trials, 0.0)
+            first = jnp.where(so_far[EVENTS] < 0.5, trials, 0.0)
             # each role's draws against its own conditional tilt: (4, rows, slots) -> (4,)
             r_cond = rare.bernoulli_log_ratio(ut.brake_fire, p_fire, q_cond[:, None, None])
             cond = jnp.sum(jnp.where(role & eligible, r_cond, 0.0), axis=(1, 2))
