@@ -88,9 +88,12 @@ def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
     eligible = tr.active.reshape(-1) & ~changing(tr).reshape(-1)
     eligible &= tr.lc_time.reshape(-1) >= p.mobil_interval
     acts = eligible & (u.lc_fire.reshape(-1) < -jnp.expm1(-p.mobil_rate * p.dt))  # (N,)
+    # A driver's place among them (>= K: none): how many act up to it, by a product with a
+    # triangle of ones (exact in float32), which XLA's CPU runs faster than a cumsum.
+    upto = (i[:, None] <= i[None, :]).astype(jnp.float32)  # (N, N) [j, i]: j <= i
+    at = jnp.where(acts, (acts.astype(jnp.float32) @ upto).astype(jnp.int32) - 1, k)
     # (K,) the deciders, n where none: compacted by a scatter, which also keeps the draws
     # from being recomputed by every reader (``_written``).
-    at = jnp.where(acts, jnp.cumsum(acts) - 1, k)  # a driver's place among them; >= K: none
     c = jnp.full(k, n, jnp.int32).at[at].set(i, mode="drop")
     valid = c < n
     c = jnp.minimum(c, n - 1)
