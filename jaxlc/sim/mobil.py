@@ -89,7 +89,8 @@ def decide(tr: Traffic, a: Around, u: TrafficDraws, p: EnvParams) -> Decision:
     eligible &= tr.lc_time.reshape(-1) >= p.mobil_interval
     acts = eligible & (u.lc_fire.reshape(-1) < -jnp.expm1(-p.mobil_rate * p.dt))  # (N,)
     # A driver's place among them (>= K: none): how many act up to it, by a product with a
-    # triangle of ones (exact in float32), which XLA's CPU runs faster than a cumsum.
+    # triangle of ones (exact: ones summed to at most N, in float32 as in TF32 or bfloat16),
+    # which XLA's CPU runs faster than a cumsum.
     upto = (i[:, None] <= i[None, :]).astype(jnp.float32)  # (N, N) [j, i]: j <= i
     at = jnp.where(acts, (acts.astype(jnp.float32) @ upto).astype(jnp.int32) - 1, k)
     # (K,) the deciders, n where none: compacted by a scatter, which also keeps the draws
