@@ -19,7 +19,9 @@ import glob
 import gzip
 import json
 import re
+import sys
 import tempfile
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -27,15 +29,17 @@ import jax.numpy as jnp
 import jaxlc
 from jaxlc import config
 
-TRAFFIC = {"paper": (), "hazards": ("env.mobil=true", "env.braking=true")}
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+from sim_throughput import TRAFFIC  # noqa: E402  (the traffics by name, one definition)
+
 CALLS = 10
 
 
 def frames(hlo: str) -> dict[str, str]:
     """Each instruction's innermost source location, ``file:line function``."""
     lines = hlo.split("\n")
-    at = {name: lines.index(name) for name in ("FileNames", "FunctionNames", "FileLocations")}
-    at["StackFrames"] = lines.index("StackFrames")
+    names = ("FileNames", "FunctionNames", "FileLocations", "StackFrames")
+    at = {name: lines.index(name) for name in names}
 
     def table(name: str, end: str) -> list[str]:
         return [x for x in lines[at[name] + 1 : at[end]] if x.strip()]

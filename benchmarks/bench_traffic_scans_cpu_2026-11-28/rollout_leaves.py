@@ -10,6 +10,7 @@ files that differ (exact, NaN equal to NaN).
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -17,23 +18,25 @@ import numpy as np
 import jaxlc
 from jaxlc import config
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+from sim_throughput import TRAFFIC as _NAMED  # noqa: E402  (the traffics by name)
+
 TRAFFIC = {
-    "hazards": ["env.mobil=true", "env.braking=true"],
+    "hazards": _NAMED["hazards"],
     # MOBIL ten times as often, no politeness, braking 300 times as often: rows fill, lane
     # changes and clashes between starters happen every few steps
-    "busy": [
-        "env.mobil=true",
-        "env.braking=true",
+    "busy": (
+        *_NAMED["hazards"],
         "env.mobil_rate=5",
         "env.braking_rate=600",
         "env.mobil_politeness=0",
-    ],
+    ),
 }
 ENVS, STEPS = 256, 300
 
 
 def rollout(name: str, out: str) -> None:
-    env, p = jaxlc.make(config.load(overrides=TRAFFIC[name]))
+    env, p = jaxlc.make(config.load(overrides=list(TRAFFIC[name])))
     keys = jax.random.split(jax.random.PRNGKey(0), ENVS)
     _, st = jax.jit(jax.vmap(env.reset, (0, None)))(keys, p)
 
