@@ -13,9 +13,13 @@ pytest.importorskip("rejax", reason="optional: pip install -e '.[ecosystem]'")
 
 ALGOS = ("ppo", "sac")
 # Decisions of a smoke run: at this budget each learner beat its untrained policy by a wide
-# margin on this project's 2-core VM in the suite's build (return -158 and -205 against -2007
-# and -1985); at half of it (level 1 alone) PPO's margin was 57.
+# margin on this project's 2-core VM in the suite's build (on the first 32 cases: return -125
+# and -210 against -2004 and -1946; on 100: -158 and -205 against -2007 and -1985); at half
+# of it (level 1 alone) PPO's margin was 57.
 SMOKE_DECISIONS = 32_768
+# Fixed cases driven: fewer than the evaluation's spill batch (``cases.SPILL_MIN_BATCH``), so
+# each rollout compiles as one loop (the benchmark's 100: 25 s of the fixture's 71; 32: 11 of 56).
+SMOKE_CASES = 32
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +28,8 @@ def rows(tmp_path_factory) -> dict[str, dict]:
     fixed cases' start program are paid once."""
     csv = tmp_path_factory.mktemp("vs_rejax") / "r.csv"
     out = load_benchmark("vs_rejax").main(
-        ["--algos", *ALGOS, "--seeds", "1", "--timesteps", str(SMOKE_DECISIONS), "--csv", str(csv)]
+        ["--algos", *ALGOS, "--seeds", "1", "--timesteps", str(SMOKE_DECISIONS)]
+        + ["--cases", str(SMOKE_CASES), "--csv", str(csv)]
     )
     assert csv.is_file() and len(csv.read_text().splitlines()) == 1 + len(ALGOS)
     return {row["learner"].split()[-1]: row for row in out}

@@ -1,12 +1,12 @@
 """Rejax's learners, unmodified, on the lane-change task (``jaxlc.make_gymnax``), beside
-jaxlc's DDPG: evaluated success on the 100 fixed cases, wall time, decisions/s, seeds.
+jaxlc's DDPG: evaluated success on the fixed cases, wall time, decisions/s, seeds.
 
 Each algorithm is ``rejax.get_algo(name).create(env=FiveValueAdapter(env), env_params=params,
 ...)`` (Rejax 0.1.3 unpacks gymnax 0.0.x's five step values; ``jaxlc.gymnax_env``) with
 Rejax's defaults except ``gamma = 0.98`` (the task's), ``--timesteps`` RL decisions per seed
 and the settings in ``HYPER``; its ``train`` runs vmapped over ``--seeds`` seeds in one jitted
 call, compiled ahead so that the compile time is reported apart. Every seed's final policy
-then drives the same 100 fixed cases as jaxlc's checkpoints
+then drives the first ``--cases`` fixed cases (the protocol's 100), as jaxlc's checkpoints do
 (``jaxlc.evaluation.cases.evaluate_act``), with its deterministic action (the Gaussian's
 mean, squashed for SAC; TD3's actor as it is), beside the untrained policies of the same
 learner (each seed's initial one; the mean over seeds is reported). Success is over the
@@ -90,14 +90,16 @@ def policy_of(algo: Any, ts: Any) -> tuple[Any, Any]:
     return ts.actor_ts.params, ts.obs_rms_state if normalize else None
 
 
-def evaluate(cfg: config.Config, name: str, algo: Any, policies: list[Any]) -> list[dict[str, Any]]:
-    """The result rows (``jaxlc.evaluation.results``) of greedy policies on the 100 fixed
-    cases of ``jaxlc.evaluation.cases.evaluate_act``, all in one compiled rollout vmapped over
-    the policies."""
+def evaluate(
+    cfg: config.Config, name: str, algo: Any, policies: list[Any], n_cases: int
+) -> list[dict[str, Any]]:
+    """The result rows (``jaxlc.evaluation.results``) of greedy policies on the first
+    ``n_cases`` fixed cases of ``jaxlc.evaluation.cases.evaluate_act``, all in one compiled
+    rollout vmapped over the policies."""
     max_steps, n = 1500, len(policies)
     start, _ = cases.programs(cfg, max_steps)  # the checkpoints' own (cached) case program
     rollout = jax.jit(cases.make_rollout(jaxlc.make(cfg)[1], greedy(name, algo), max_steps))
-    cs = start(cases.case_keys(0, 100))
+    cs = start(cases.case_keys(0, n_cases))
     pol = cases.Policies(
         actor=jax.tree.map(lambda *xs: jnp.stack(xs), *policies),
         k=jnp.ones(n, jnp.int32),
@@ -107,7 +109,7 @@ def evaluate(cfg: config.Config, name: str, algo: Any, policies: list[Any]) -> l
     return results.summarise({k: np.asarray(v) for k, v in cases.columns(out).items()}, cfg.env.dt)
 
 
-def run(name: str, seeds: int, timesteps: int, cfg: config.Config) -> dict[str, Any]:
+def run(name: str, seeds: int, timesteps: int, cfg: config.Config, n_cases: int) -> dict[str, Any]:
     import rejax
 
     from jaxlc.gymnax_env import FiveValueAdapter
@@ -138,7 +140,7 @@ def run(name: str, seeds: int, timesteps: int, cfg: config.Config) -> dict[str, 
     policies = [
         jax.tree.map(lambda a, s=s: a[s], p) for p in (final, initial) for s in range(seeds)
     ]
-    rows = evaluate(cfg, name, algo, policies)
+    rows = evaluate(cfg, name, algo, policies, n_cases)
     success = [row["success_rate"] for row in rows[:seeds]]
     ret = [row["avg_return"] for row in rows[:seeds]]
     untrained = {
@@ -167,6 +169,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     ap.add_argument("--algos", nargs="+", default=["ppo", "sac", "td3"], choices=list(HYPER))
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--timesteps", type=int, default=1_000_000, help="RL decisions per seed")
+    ap.add_argument("--cases", type=int, default=cases.PROTOCOL.cases, help="fixed cases")
     ap.add_argument("--csv", type=Path, default=ROOT / "benchmarks" / "results" / "vs_rejax.csv")
     ap.add_argument("--tiny", action="store_true", help="16k decisions, one seed (tests)")
     args = ap.parse_args(argv)
@@ -178,7 +181,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     peak = machine.matmul_peak_gflops()
     rows = []
     for name in args.algos:
-        row = run(name, args.seeds, args.timesteps, cfg)
+        row = run(name, args.seeds, args.timesteps, cfg, args.cases)
         row |= {"machine": platform.processor() or platform.machine(), "date": str(date.today())}
         rows.append(row | {"matmul_peak_gflops": round(peak)})
         print({k: row[k] for k in ("learner", "success_mean", "success_lo", "success_hi",
