@@ -1,12 +1,14 @@
 """Evaluation: determinism, checkpoint round trip, outcome accounting, baselines, outputs, errors.
 
-One smoke sweep and one evaluation (module fixture) serve every test. Every other evaluation
-here uses the same number of cases and policies per chunk, so the jitted programs compile once.
+The worker's smoke sweep and one evaluation of it (module fixture) serve every test. Every
+other evaluation here uses the same number of cases and policies per chunk, so the jitted
+programs compile once.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -15,7 +17,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxlc import config, evaluate, sweep
+from jaxlc import config, evaluate
 from jaxlc.evaluation import cases, heldout, results, safety
 from jaxlc.evaluation.report_text import FIGURES
 from jaxlc.evaluation.results import OUTCOMES
@@ -33,10 +35,12 @@ LANE_CHANGES = 40  # held-out lane changes per final checkpoint (1000 by default
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, config.Config, dict]:
-    out = tmp_path_factory.mktemp("smoke")
-    cfg = config.load(SMOKE, ["train.episodes=20", "train.checkpoint_every=10"])  # < 2 min
-    sweep.run_sweep(cfg, out, force=True, progress=False)
+def run(smoke_run, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, config.Config, dict]:
+    """The worker's smoke sweep (checkpoints at 20 and 40 episodes), copied so that the
+    evaluation's files stay this module's, evaluated by the CLI."""
+    out = tmp_path_factory.mktemp("smoke") / "run"
+    shutil.copytree(smoke_run[0], out)
+    cfg = config.load(SMOKE)
     args = [str(out), "--cases", str(CASES), "--chunk", str(CHUNK)]
     assert evaluate.main([*args, "--lane-changes", str(LANE_CHANGES)]) == 0
     return out, cfg, json.loads((out / "eval" / "eval.json").read_text())
@@ -58,7 +62,7 @@ def test_outcome_counts_add_up_to_the_cases(run) -> None:
     rows = result["rows"]
     assert rows[0]["model"] is None  # the scripted baseline row
     n_ckpt = len(checkpoint.list_checkpoints(run_dir))
-    assert len(rows) == 1 + n_ckpt  # checkpoints 10, 20: both default episodes
+    assert len(rows) == 1 + n_ckpt  # checkpoints 20, 40: both default episodes
     for r in rows:
         assert r["cases"] == CASES
         assert sum(r[o] for o in OUTCOMES) == CASES
