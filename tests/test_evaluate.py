@@ -27,23 +27,24 @@ from jaxlc.sim.controller import scripted_action
 from jaxlc.sim.env import EnvParams, LaneChangeEnv
 from jaxlc.study import checkpoint
 
-from .conftest import HANG_GUARD_S
+from .conftest import HANG_GUARD_S, SMOKE
 
-SMOKE = Path(__file__).resolve().parent.parent / "configs" / "smoke.toml"
 CASES, CHUNK = 60, 4  # 60 cases: ~40 lane changes, enough for the success-rate thresholds
 LANE_CHANGES = 40  # held-out lane changes per final checkpoint (1000 by default)
 
 
 @pytest.fixture(scope="module")
-def run(smoke_run, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, config.Config, dict]:
+def run(
+    smoke_run, smoke_cfg: config.Config, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, config.Config, dict]:
     """The worker's smoke sweep (checkpoints at 20 and 40 episodes), copied so that the
     evaluation's files stay this module's, evaluated by the CLI."""
+    run_dir, _ = smoke_run
     out = tmp_path_factory.mktemp("smoke") / "run"
-    shutil.copytree(smoke_run[0], out)
-    cfg = config.load(SMOKE)
+    shutil.copytree(run_dir, out)
     args = [str(out), "--cases", str(CASES), "--chunk", str(CHUNK)]
     assert evaluate.main([*args, "--lane-changes", str(LANE_CHANGES)]) == 0
-    return out, cfg, json.loads((out / "eval" / "eval.json").read_text())
+    return out, smoke_cfg, json.loads((out / "eval" / "eval.json").read_text())
 
 
 def _evaluate(cfg: config.Config, actors: list, ks: list[int]) -> list[dict]:
