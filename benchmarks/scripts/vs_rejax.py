@@ -96,7 +96,7 @@ def evaluate(
     """The result rows (``jaxlc.evaluation.results``) of greedy policies on the first
     ``n_cases`` fixed cases of ``jaxlc.evaluation.cases.evaluate_act``, all in one compiled
     rollout vmapped over the policies."""
-    max_steps, n = 1500, len(policies)
+    max_steps, n = cases.PROTOCOL.max_steps, len(policies)
     start, _ = cases.programs(cfg, max_steps)  # the checkpoints' own (cached) case program
     rollout = jax.jit(cases.make_rollout(jaxlc.make(cfg)[1], greedy(name, algo), max_steps))
     cs = start(cases.case_keys(0, n_cases))
