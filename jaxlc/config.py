@@ -6,11 +6,13 @@ built-in default of ``python -m jaxlc.sweep``; ``configs/paper.toml`` the paper'
 written. Overrides are ``table.key=value`` strings (TOML syntax for the value).
 
 Any problem (unknown table or key, wrong type, value out of range) raises ``ConfigError`` with
-one line naming the key and what is allowed; nothing is run with a bad config.
+one line naming the key and what is allowed; nothing is run with a bad config. The ``[env]``
+keys are declared once, in ``EnvParams`` (``jaxlc/sim/params.py``): ``EnvConfig`` is made from
+that declaration. A run's config written by an older jaxlc reads through ``migrate``.
 
-This module stays at the top of the package, below every layer: ``jaxlc.sim``, ``learn``,
-``study`` and ``evaluation`` may all import it, and it imports no other jaxlc module
-(``tests/test_layout.py`` checks both).
+This module stays at the bottom of the package, below every layer: ``jaxlc.sim``, ``learn``,
+``study`` and ``evaluation`` may all import it, and it imports no other jaxlc module but
+``jaxlc.sim.params``, the env's declaration (``tests/test_layout.py`` checks both).
 """
 
 from __future__ import annotations
@@ -26,16 +28,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from jaxlc.sim.params import ConfigError, EnvParams, settings
+
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 PAPER_CONFIG = CONFIG_DIR / "paper.toml"  # the paper's method as written
 DEFAULT_CONFIG = CONFIG_DIR / "default.toml"  # the built-in default: the dataclasses' values
 # Fewest env-steps one episode can take: the ego must drive command_distance (80 m) from the
 # entrance at no more than its entry speed plus IDM acceleration; 50 steps (5 s) is below that.
 MIN_EPISODE_STEPS = 50
-
-
-class ConfigError(ValueError):
-    """A config value is not allowed; the message names the key and the allowed values."""
 
 
 def _f(
@@ -45,161 +45,32 @@ def _f(
     *,
     open_lo: bool = False,
     doc: str = "",
+    choices: tuple[str, ...] = (),
 ) -> Any:
-    """A dataclass field with bounds: ``lo <= v <= hi`` (``lo < v`` when ``open_lo``)."""
-    meta = {"lo": lo, "hi": hi, "open_lo": open_lo, "doc": doc}
+    """A dataclass field with bounds: ``lo <= v <= hi`` (``lo < v`` when ``open_lo``), or one
+    of ``choices`` (a text key)."""
+    meta = {"lo": lo, "hi": hi, "open_lo": open_lo, "doc": doc, "choices": choices}
     if isinstance(default, list | tuple):
         return field(default_factory=lambda: tuple(default), metadata=meta)
     return field(default=default, metadata=meta)
 
 
-@dataclass(frozen=True)
-class EnvConfig:
-    """Road, traffic, IDM, episode, ego kinematics and reward (docs/usage.md, "The simulator
-    in a few lines")."""
+def _env_table() -> type:
+    """``[env]``: ``EnvParams``' settings (``jaxlc/sim/params.py``, one declaration each) as
+    keys in the units a file is written in, in their order, with their defaults and bounds."""
+    hints = typing.get_type_hints(EnvParams)
+    keys = [
+        (m["key"] or f.name, m["toml"] or hints[f.name], field(default=m["default"], metadata=m))
+        for f in settings()
+        for m in [f.metadata]
+    ]
+    doc = "The [env] table: EnvParams' settings in a config file's units (jaxlc/sim/params.py)."
+    return dataclasses.make_dataclass(
+        "EnvConfig", keys, frozen=True, namespace={"__doc__": doc, "__module__": __name__}
+    )
 
-    road_length: float = _f(600.0, 50.0, open_lo=True, doc="m")
-    lanes: int = _f(3, 2, 8, doc="lanes in the ego's direction; the ego starts on lanes // 2")
-    lane_width: float = _f(3.7, 2.0, 6.0, doc="m")
-    curvature: float | tuple[float, float] = _f(
-        0.0,
-        -0.01,
-        0.01,
-        doc="1/m (> 0 bends toward the higher lanes), a state input: a number (a constant "
-        "road) or [min, max], drawn per episode from U(min, max)",
-    )
-    dt: float = _f(0.1, 0.0, 1.0, open_lo=True, doc="s")
-    vehicle_length: float = _f(5.0, 1.0, 20.0)
-    vehicle_width: float = _f(1.8, 1.0, 3.0)
-    entry_speed_min: float = _f(0.0, 0.0, 200.0, doc="km/h")
-    entry_speed_max: float = _f(40.0, 0.0, 200.0, doc="km/h")
-    # Below 10 km/h an ego crawls: at 5 km/h no gap is ever accepted (tests/test_ranges.py).
-    desired_speed_min: float = _f(80.0, 10.0, 250.0, doc="km/h")
-    desired_speed_max: float = _f(120.0, 10.0, 250.0, doc="km/h")
-    # The ego is the next vehicle to enter the middle lane: at 60 veh/h it waits a minute on
-    # average, and far fewer would leave episodes waiting past the decision loop's cap.
-    inflow_min: float = _f(800.0, 60.0, 4000.0, doc="veh/h per lane")
-    inflow_max: float = _f(1600.0, 60.0, 4000.0, doc="veh/h per lane")
-    slots_per_lane: int = _f(16, 2, 256, doc="static vehicle slots per lane")
-    warmup_time: float = _f(40.0, 0.0, 600.0, doc="s of traffic simulated by reset()")
-    # IDM [S]
-    idm_a_max: float = _f(1.5, 0.0, 10.0, open_lo=True)
-    idm_b: float = _f(2.0, 0.0, 10.0, open_lo=True)
-    idm_time_headway: float = _f(1.5, 0.0, 5.0, open_lo=True)
-    idm_s0: float = _f(2.0, 0.0, 20.0)
-    idm_delta: float = _f(4.0, 1.0, 10.0)
-    idm_b_max: float = _f(9.0, 0.0, 20.0, open_lo=True, doc="braking clip, m/s^2")
-    # episode
-    p_yield: float = _f(0.5, 0.0, 1.0)
-    command_distance: float = _f(80.0, 0.0, 400.0, doc="m travelled before the command")
-    gap_time_limit: float = _f(5.0, 0.0, 60.0, open_lo=True, doc="s to find a gap")
-    gap_x_limit: float = _f(450.0, 0.0, open_lo=True, doc="m; no gap beyond this x")
-    gap_time_headway: float = _f(0.5, 0.0, 5.0, doc="s in s0 + T*v of gap acceptance")
-    b_safe: float = _f(4.0, 0.0, 20.0, open_lo=True, doc="m/s^2, lag deceleration bound")
-    gap_min_ttc: float = _f(
-        4.0, 0.0, 20.0, doc="s, least time-to-collision (margin s0) of the gap's lead and lag"
-    )
-    # ego lateral
-    max_yaw_acc: float = _f(0.5, 0.0, 10.0, open_lo=True, doc="A in a_lat = A*action, rad/s^2")
-    manoeuvre_time_limit: float = _f(10.0, 0.0, 120.0, open_lo=True, doc="s")
-    terminal_timeout: bool = _f(
-        False,
-        doc="true: a timeout is terminal and the manoeuvre time is observed; false: it "
-        "truncates (the learner bootstraps) and the time is not observed (obs[6] = 0)",
-    )
-    border: float = _f(3.7, 0.0, 20.0, open_lo=True, doc="D, m (paper: = lane width)")
-    success_offset: float = _f(0.2, 0.0, open_lo=True, doc="m")
-    success_heading: float = _f(0.02, 0.0, open_lo=True, doc="rad")
-    success_yaw_rate: float = _f(0.02, 0.0, open_lo=True, doc="rad/s")
-    # reward, eqs. (8)-(11); gamma is ddpg.gamma
-    w1: float = _f(10.0, 0.0)
-    w2: float = _f(5.0, 0.0)
-    w3: float = _f(0.075, 0.0)
-    w4: float = _f(1.0, 0.0)
-    # The whole manoeuvre's terms (jaxlc.sim.reward.MANOEUVRE: r_long, r_lat, r_gap, r_speed),
-    # [D], off until named in reward_terms; their weights and the norms they read.
-    w_long_acc: float = _f(0.0, 0.0, doc="r_long: per m/s^2 of |longitudinal acceleration|")
-    w_long_jerk: float = _f(0.0, 0.0, doc="r_long: per m/s^3 of |longitudinal jerk|")
-    w_lat_acc: float = _f(0.0, 0.0, doc="r_lat: per m/s^2 of |v*omega| past lat_acc_max")
-    w_lat_jerk: float = _f(0.0, 0.0, doc="r_lat: per m/s^3 of lateral jerk past lat_jerk_max")
-    lat_acc_max: float = _f(3.0, 0.0, open_lo=True, doc="m/s^2, ISO 11270's bound")
-    lat_jerk_max: float = _f(5.0, 0.0, open_lo=True, doc="m/s^3, ISO 11270's bound")
-    w_headway: float = _f(0.0, 0.0, doc="r_gap: per s of headway under headway_min")
-    headway_min: float = _f(0.9, 0.0, doc="s, the critical time headway")
-    w_speed: float = _f(0.0, 0.0, doc="r_speed: per unit of |v - v0| / v0")
-    reward_scale: float = _f(1.0, 0.0, open_lo=True, doc="multiplies every reward term")
-    reward_terms: tuple[str, ...] = _f(
-        ["r_s", "r_e", "r_d"],
-        doc="the reward's terms by name, summed: the paper's r_s, r_e, r_d (jaxlc.sim.reward) "
-        "and any registered with jaxlc.sim.reward.register",
-    )
-    offset_obs_scale: float = _f(3.7, 0.0, 100.0, open_lo=True, doc="m per unit of obs dd")
-    # The ego's longitudinal control in the RL phase ([D], the paper's future work).
-    longitudinal: str = _f(
-        "idm",
-        doc="'idm' (the paper's: IDM with adaptation to the target lane's lead; the action is "
-        "the yaw acceleration alone) or 'policy' (a second action entry u adds "
-        "long_acc_bound*u to that IDM acceleration, within [-idm_b_max, idm_a_max] and never "
-        "past the ego's desired speed)",
-    )
-    long_acc_bound: float = _f(
-        2.0, 0.0, 10.0, open_lo=True, doc="m/s^2, the policy's longitudinal authority"
-    )
-    assist: str = _f(
-        "none",
-        doc="'none' (the policy's action is executed) or 'fitting' (a driver-assist layer adds "
-        "jaxlc.sim.controller.fitting_action, which holds the origin lane and adjusts the "
-        "speed until the gap fits the headway norm, to the policy's action in the RL phase: "
-        "the policy learns a residual on it), or 'fitting_hold' (the same, but while the "
-        "assist holds the origin lane its lateral action is executed alone)",
-    )
-    assist_authority: float = _f(
-        1.0,
-        0.0,
-        1.0,
-        doc="with an assist, the share of each action bound the policy's residual may take: "
-        "the executed action is clip(assist + assist_authority * action)",
-    )
-    # Traffic that cuts in and brakes ([D], SPEC "Beyond the paper"): off in the paper's
-    # traffic. The switches are static (they add state); every number below is traced.
-    mobil: bool = _f(
-        False,
-        doc="true: the other vehicles change lanes by MOBIL on the IDM (jaxlc.sim.mobil); "
-        "false: they keep their lane (the paper's traffic)",
-    )
-    mobil_politeness: float = _f(0.2, 0.0, 1.0, doc="MOBIL's p: weight of the others' gain")
-    mobil_threshold: float = _f(0.1, 0.0, 5.0, doc="MOBIL's switching threshold, m/s^2")
-    mobil_bias_right: float = _f(
-        0.0,
-        -2.0,
-        2.0,
-        doc="m/s^2 added to the incentive toward the lower lanes (the right), taken from "
-        "the one toward the left; 0 keeps the traffic symmetric under the road's reflection",
-    )
-    mobil_rate: float = _f(
-        0.5,
-        0.0,
-        10.0,
-        open_lo=True,
-        doc="1/s: a driver acts on an allowed lane change at this rate (a drawn latency)",
-    )
-    mobil_interval: float = _f(
-        10.0, 0.0, 600.0, doc="s, least time between a vehicle's lane change starts"
-    )
-    lane_change_time_min: float = _f(3.0, 0.5, 20.0, doc="s, a lane change lasts U(min, max)")
-    lane_change_time_max: float = _f(6.0, 0.5, 20.0, doc="s")
-    braking: bool = _f(
-        False,
-        doc="true: every vehicle brakes hard now and then (a Poisson process, "
-        "jaxlc.sim.braking); false: only for its leader (the paper's traffic)",
-    )
-    braking_rate: float = _f(
-        2.0, 0.0, 3600.0, doc="braking events per vehicle-hour (a Poisson process)"
-    )
-    braking_decel_min: float = _f(3.0, 0.0, 9.0, doc="m/s^2, an event brakes at U(min, max)")
-    braking_decel_max: float = _f(7.0, 0.0, 9.0, doc="m/s^2 (at most the IDM's idm_b_max)")
-    braking_time_min: float = _f(1.0, 0.1, 60.0, doc="s, an event lasts U(min, max)")
-    braking_time_max: float = _f(3.0, 0.1, 60.0, doc="s")
+
+EnvConfig = _env_table()
 
 
 @dataclass(frozen=True)
@@ -219,8 +90,9 @@ class DDPGConfig:
     updates_per_transition: int = _f(
         0, 0, 8, doc="updates per RL transition (the paper: 1); 0 uses updates_per_step"
     )
+    # the learners are jaxlc.learn.learners.LEARNERS (tests/test_ddpg.py checks they agree)
     learner: str = _f(
-        "ddpg", doc="the learner (jaxlc.learn.learners): 'ddpg' (the paper's) or 'td3'"
+        "ddpg", doc="the learner: 'ddpg' (the paper's) or 'td3'", choices=("ddpg", "td3")
     )
     td3_target_noise: float = _f(0.2, 0.0, 2.0, doc="TD3 target smoothing sigma, tanh units")
     td3_target_clip: float = _f(0.5, 0.0, 2.0, doc="TD3 target smoothing noise clip")
@@ -314,20 +186,19 @@ class Config:
         return hashlib.sha256(blob).hexdigest()[:12]
 
 
-# The values a text key takes (the learners are jaxlc.learn.learners.LEARNERS; this module
-# imports no other jaxlc module, and tests/test_ddpg.py checks that the two lists agree).
-CHOICES: dict[str, tuple[str, ...]] = {
-    "ddpg.learner": ("ddpg", "td3"),
-    "env.longitudinal": ("idm", "policy"),
-    "env.assist": ("none", "fitting", "fitting_hold"),
-}
-
 _TABLES: dict[str, type] = {
     "env": EnvConfig,
     "ddpg": DDPGConfig,
     "train": TrainConfig,
     "grid": GridConfig,
     "eval": EvalConfig,
+}
+# The values a text key takes, as its field declares them.
+CHOICES: dict[str, tuple[str, ...]] = {
+    f"{table}.{f.name}": f.metadata["choices"]
+    for table, cls in _TABLES.items()
+    for f in dataclasses.fields(cls)
+    if f.metadata.get("choices")
 }
 
 
@@ -348,14 +219,14 @@ def _check_scalar(key: str, value: Any, typ: type, meta: dict[str, Any]) -> Any:
                 f"config key '{key}': each entry must be env.KEY=VALUE, got {value!r}"
             )
         return value
-    if typ is str and key not in CHOICES:  # a name another layer resolves (a reward term)
+    allowed = meta.get("choices")
+    if typ is str and not allowed:  # a name another layer resolves (a reward term)
         if not (isinstance(value, str) and value.isidentifier()):
             raise ConfigError(
                 f"config key '{key}': must be a name (letters, digits, _), got {value!r}"
             )
         return value
     if typ is str:
-        allowed = CHOICES[key]
         if value not in allowed:
             raise ConfigError(
                 f"config key '{key}': must be one of {', '.join(map(repr, allowed))}, got {value!r}"
@@ -482,31 +353,57 @@ def _cross_checks(cfg: Config) -> None:
         )
 
 
-def from_dict(data: dict[str, Any]) -> Config:
-    """Build and validate a ``Config`` from nested tables (missing keys take defaults)."""
+def from_dict(data: dict[str, Any], *, resolved: bool = False) -> Config:
+    """Build and validate a ``Config`` from nested tables (missing keys take defaults; a
+    ``resolved`` run's config reads through ``migrate`` as one)."""
     for table, values in data.items():
         if table not in _TABLES:
             raise ConfigError(f"unknown config table '[{table}]'; allowed: {', '.join(_TABLES)}")
         if not isinstance(values, dict):
             raise ConfigError(f"config key '{table}': must be a table")
-    data = _legacy(data)
+    data = migrate(data, resolved=resolved)
     cfg = Config(**{t: _build(t, data.get(t, {})) for t in _TABLES})
     _cross_checks(cfg)
     return cfg
 
 
-def _legacy(data: dict[str, Any]) -> dict[str, Any]:
-    """Keys that runs were written with and that another key now holds: ``ddpg.td3`` (a bool,
-    until ``ddpg.learner``) reads as ``learner = "td3"`` when true, as nothing when false."""
-    d = data.get("ddpg", {})
-    if "td3" not in d:
-        return data
-    d = dict(d)
-    if _check_scalar("ddpg.td3", d.pop("td3"), bool, {}) and d.get("learner", "td3") == "td3":
-        d["learner"] = "td3"
-    elif "learner" not in d:
-        d["learner"] = "ddpg"
-    return {**data, "ddpg": d}
+# How jaxlc's configs changed, oldest first: each version, the keys it added with the value that
+# reproduces how a run written before behaved, and the keys it renamed (old -> (new, value of the
+# old -> value of the new)). A run's resolved config (``to_toml``) spells every key it had, so
+# the keys it lacks date it; a file a user writes takes today's defaults for the keys it omits.
+VERSIONS: tuple[tuple[str, dict[str, Any], dict[str, tuple[str, Any]]], ...] = (
+    # time-to-collision test of a gap; the odd (symmetric) actor
+    ("2026-11-23", {"env.gap_min_ttc": 0.0, "ddpg.symmetric_actor": False}, {}),
+    # ddpg.learner ('ddpg' | 'td3') replaces the bool ddpg.td3
+    (
+        "2026-11-25",
+        {},
+        {"ddpg.td3": ("ddpg.learner", lambda v: "td3" if _bool("ddpg.td3", v) else "ddpg")},
+    ),
+    # reflection pairs; before them, rows were reflected at random
+    ("2026-11-26", {"ddpg.mirror_pairs": False}, {}),
+)
+
+
+def _bool(key: str, value: Any) -> bool:
+    return _check_scalar(key, value, bool, {})
+
+
+def migrate(data: dict[str, Any], *, resolved: bool = False) -> dict[str, Any]:
+    """``data`` (a config's tables as read) in today's keys, version by version (``VERSIONS``):
+    a renamed key reads as its successor (an explicit successor wins); with ``resolved`` (a
+    run's config), a key added since it was written takes the value the run ran with."""
+    data = {table: dict(values) for table, values in data.items()}
+    for _, added, renamed in VERSIONS:
+        for old, (new, convert) in renamed.items():
+            table, key = old.split(".")
+            if key in data.get(table, {}):
+                new_table, new_key = new.split(".")
+                data.setdefault(new_table, {}).setdefault(new_key, convert(data[table].pop(key)))
+        for name, value in added.items() if resolved else ():
+            table, key = name.split(".")
+            data.setdefault(table, {}).setdefault(key, value)
+    return data
 
 
 def parse_override(text: str) -> tuple[str, str, Any]:
@@ -527,12 +424,13 @@ def parse_override(text: str) -> tuple[str, str, Any]:
 def load(
     path: str | Path | None = None,
     overrides: typing.Sequence[str] = (),
-    missing: typing.Mapping[str, typing.Mapping[str, Any]] | None = None,
+    *,
+    resolved: bool = False,
 ) -> Config:
     """Load ``path`` (default ``configs/default.toml``), apply overrides, validate.
 
-    ``missing``: values for keys the file does not spell, in place of the defaults (a run's
-    resolved config spells every key, so there a missing key dates the run)."""
+    ``resolved``: ``path`` is a run's resolved config, which spells every key its version had
+    (``migrate``)."""
     path = Path(path) if path is not None else DEFAULT_CONFIG
     data: dict[str, Any] = {}
     if path.exists() or path != DEFAULT_CONFIG:
@@ -542,13 +440,10 @@ def load(
             raise ConfigError(f"config file '{path}' does not exist") from None
         except tomllib.TOMLDecodeError as err:
             raise ConfigError(f"config file '{path}' is not valid TOML: {err}") from None
-    for table, keys in (missing or {}).items():
-        for key, value in keys.items():
-            _table(data, table).setdefault(key, value)
     for text in overrides:
         table, key, value = parse_override(text)
         _table(data, table)[key] = value
-    return from_dict(data)
+    return from_dict(data, resolved=resolved)
 
 
 def _table(data: dict[str, Any], table: str) -> dict[str, Any]:

@@ -3,7 +3,8 @@ layers that import only downwards.
 
 The floors, lowest first (a module may import its own floor and those below, never above):
 
-    0  jaxlc.config        the validated edge every layer reads; imports no jaxlc module
+    0  jaxlc.config        the validated edge every layer reads; imports no jaxlc module but
+                           jaxlc.sim.params, the declaration of its [env] keys
     0  jaxlc.paper         the paper's grid and claims, a plug-in; imports nothing outside it
     1  jaxlc.sim           the simulator
     2  jaxlc.learn         DDPG and the training grid
@@ -37,6 +38,7 @@ TOP_LEVEL = {
 # Upward imports allowed by name, each with its reason; an entry no module makes fails a test.
 EXCEPTIONS = {
     ("jaxlc.study.checkpoint", "jaxlc"): "reads jaxlc.__version__ (deferred) for the metadata",
+    ("jaxlc.config", "jaxlc.sim.params"): "[env] is EnvParams' declaration: one per setting",
 }
 
 
@@ -129,7 +131,12 @@ def test_every_exception_is_still_needed():
 
 
 def test_config_imports_no_jaxlc_module():
-    assert _graph()["jaxlc.config"] == set()
+    """Only the env's settings, declared once in ``EnvParams``; that module imports no config
+    (the circle test) and nothing of the sim but the reward's terms it names."""
+    graph = _graph()
+    assert graph["jaxlc.config"] == {"jaxlc.sim.params"}
+    assert graph["jaxlc.sim.params"] == {"jaxlc.sim.reward"}
+    assert graph["jaxlc.sim.reward"] == set()
 
 
 def test_the_paper_imports_nothing_outside_it():

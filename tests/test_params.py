@@ -1,7 +1,10 @@
-"""EnvParams: EnvConfig's fields written out and held in step with it, passed traced and
-vmapped over drawn tasks, and a manoeuvre that starts exactly one lane width from its target."""
+"""EnvParams: each env setting declared once (default, bounds, unit, static or traced) and read
+by the TOML loader and ``jaxlc.make`` alike, passed traced and vmapped over drawn tasks, and a
+manoeuvre that starts exactly one lane width from its target."""
 
+import ast
 import dataclasses
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -12,21 +15,23 @@ from jaxlc import config
 from jaxlc.config import EnvConfig
 from jaxlc.sim import reward, road
 from jaxlc.sim.env import RL, EnvParams, LaneChangeEnv
-from jaxlc.sim.params import CONVERSIONS, DERIVED, STATIC
+from jaxlc.sim.params import STATIC, settings
 
 ENV = LaneChangeEnv()
+# The fields that are no [env] key: read from the table, or handed in by the learner.
+DERIVED = {"mobil_deciders", "curvature_min", "curvature_max", "curvature_drawn", "gamma", "k"}
 
 
 def test_every_env_config_field_is_a_param_converted_by_the_table():
     params = {f.name for f in dataclasses.fields(EnvParams)}
-    for f in dataclasses.fields(EnvConfig):
-        assert (f.name in params) != (f.name in DERIVED - {"curvature", "reward_terms"}), f.name
+    keys = {f.name for f in dataclasses.fields(EnvConfig)}
+    assert keys - params == {"warmup_time"}  # held as warmup_steps
+    assert params - keys == DERIVED | {"warmup_steps"}
     cfg = EnvConfig(entry_speed_max=72.0, inflow_max=3600.0, lane_width=3.5, border=4.0)
     p = EnvParams.from_config(cfg)
     assert p.entry_speed_max == pytest.approx(20.0)  # km/h -> m/s
     assert p.inflow_max == pytest.approx(1.0)  # veh/h -> veh/s
     assert (p.lane_width, p.border) == (3.5, 4.0)  # taken as they are
-    assert set(CONVERSIONS) <= params
     # Static fields are not leaves: a vmapped batch may differ in every other field.
     leaves = len(jax.tree_util.tree_leaves(p))
     statics = STATIC | {"warmup_steps", "mobil_deciders", "curvature_drawn", "reward_terms"}
@@ -34,20 +39,90 @@ def test_every_env_config_field_is_a_param_converted_by_the_table():
 
 
 def test_env_params_spells_env_config_in_its_order_with_its_converted_defaults():
-    """The fields written out in jaxlc/sim/params.py are EnvConfig's (less DERIVED), in its
-    order (the pytree's leaves), then the derived ones; their defaults are the config's."""
+    """The [env] keys are EnvParams' settings, in their order (the resolved config.toml's and
+    the pytree's), then the derived fields; their defaults are the config's."""
     names = [f.name for f in dataclasses.fields(EnvParams)]
-    from_config = [f.name for f in dataclasses.fields(EnvConfig) if f.name not in DERIVED]
-    assert names[: len(from_config)] == from_config
-    derived = {"warmup_steps", "mobil_deciders", "curvature", "curvature_min", "curvature_max"}
-    derived |= {"curvature_drawn"}
-    assert set(names[len(from_config) :]) == derived | {"reward_terms", "gamma", "k"}
+    keys = [f.metadata["key"] or f.name for f in settings()]
+    assert keys == [f.name for f in dataclasses.fields(EnvConfig)]
+    assert set(names[len(keys) :]) == DERIVED
     assert EnvParams() == EnvParams.from_config(EnvConfig())
     assert EnvParams().gamma == config.DDPGConfig().gamma  # the learner's default discount
     assert STATIC == {
         "lanes", "slots_per_lane", "longitudinal", "assist", "mobil", "braking",
         "warmup_steps", "mobil_deciders", "curvature_drawn", "reward_terms",
     }  # fmt: skip
+
+
+def test_each_setting_is_declared_once_with_its_default_bounds_unit_and_staticness():
+    """One declaration per setting, in EnvParams' class body: EnvConfig's fields carry that
+    declaration's metadata (no second copy to drift), and every setting states its unit,
+    bounds (or choices) and whether it is static; static is what flax sees."""
+    for f in settings():
+        m = f.metadata
+        assert isinstance(m["unit"], str) and isinstance(m["static"], bool), f.name
+        assert m["static"] == (not m["pytree_node"]) == (f.name in STATIC), f.name
+        number = isinstance(m["default"], int | float) and not isinstance(m["default"], bool)
+        assert (m["lo"] is not None) == number, f"{f.name}: a number needs bounds"
+        if number:  # the default is allowed
+            assert m["lo"] <= m["default"] and (m["hi"] is None or m["default"] <= m["hi"])
+        key = m["key"] or f.name
+        assert EnvConfig.__dataclass_fields__[key].metadata == m, key
+        assert getattr(EnvConfig(), key) == m["default"], key
+    # and no class of jaxlc/config.py declares an [env] key a second time
+    tree = ast.parse(Path(config.__file__).read_text())
+    declared = {
+        node.target.id
+        for cls in ast.walk(tree)
+        if isinstance(cls, ast.ClassDef)
+        for node in cls.body
+        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+    }
+    assert "actor_lr" in declared  # (the scan sees the other tables)
+    assert not declared & {f.name for f in dataclasses.fields(EnvConfig)}
+
+
+@pytest.mark.parametrize(
+    ("override", "words"),
+    [
+        ("env.lanes=9", "config key 'env.lanes': must be >= 2 and <= 8, got 9"),
+        ("env.dt=0.0", "config key 'env.dt': must be > 0 and <= 1, got 0.0"),
+        ("env.entry_speed_max=201", "config key 'env.entry_speed_max': must be >= 0 and <= 200"),
+        ("env.assist='fit'", "config key 'env.assist': must be one of 'none', 'fitting'"),
+        ("env.warmup_time=-1", "config key 'env.warmup_time': must be >= 0 and <= 600, got -1"),
+        ("env.curvature=[0.0, 0.02]", "config key 'env.curvature': must be >= -0.01 and <= 0.01"),
+        ("env.mobil=1", "config key 'env.mobil': must be true or false, got 1"),
+        ("env.lane_widht=3.0", "unknown config key 'env.lane_widht'; allowed: assist, "),
+    ],
+)
+def test_the_toml_loader_refuses_a_value_out_of_its_declared_bounds(override, words):
+    with pytest.raises(config.ConfigError) as err:
+        config.load(None, [override])
+    assert str(err.value).startswith(words), str(err.value)
+
+
+def test_an_old_run_config_migrates_to_todays_keys_in_one_function(tmp_path):
+    """A resolved config from before 2026-11-23 (no gap_min_ttc, symmetric_actor,
+    mirror_pairs; ddpg.td3 in place of ddpg.learner) reads as the run behaved; the same file
+    read as a user's (not resolved) takes today's defaults for the keys it omits."""
+    from jaxlc.study.rundir import RunDir
+
+    today = config.Config()
+    text = config.to_toml(today)
+    assert config.to_toml(config.from_dict(config.migrate(today.to_dict()))) == text
+    old = [
+        x
+        for x in text.splitlines()
+        if not x.startswith(("gap_min_ttc", "symmetric_", "mirror_pairs", "learner"))
+    ]
+    old.insert(old.index("[ddpg]") + 1, "td3 = true")
+    (tmp_path / "config.toml").write_text("\n".join(old) + "\n")
+    ran = RunDir(tmp_path).load_config()
+    assert ran.env.gap_min_ttc == 0.0 and ran.ddpg.learner == "td3"
+    assert not ran.ddpg.symmetric_actor and not ran.ddpg.mirror_pairs
+    assert ran.env == dataclasses.replace(today.env, gap_min_ttc=0.0)
+    user = config.load(tmp_path / "config.toml")
+    assert user.ddpg.learner == "td3" and user.ddpg.symmetric_actor and user.env == today.env
+    assert [v for v, _, _ in config.VERSIONS] == sorted(v for v, _, _ in config.VERSIONS)
 
 
 def _drawn(key, n: int, base: EnvParams, **ranges) -> EnvParams:

@@ -1,12 +1,17 @@
-"""The simulator's parameters, ``EnvParams``: ``EnvConfig`` (``jaxlc/config.py``, which
-documents each field) in SI units, and the values derived from it.
+"""The simulator's settings, each declared once, in ``EnvParams``'s class body.
+
+A field declared with ``setting`` is a key of a config's ``[env]`` table: its default and
+bounds in the unit the file is written in (``unit``), ``si`` (the conversion to the SI value
+the simulator holds, when the units differ) and whether it is static (it fixes shapes or loop
+lengths: not a pytree leaf, so a change compiles a new program) or traced (it may differ
+between vmapped models). ``jaxlc.config`` reads the same declaration: its ``EnvConfig`` is these
+keys in the file's units, validated against the bounds; ``EnvParams.from_config`` (what
+``jaxlc.make`` calls) turns one into params. A field declared with ``derived`` is no key: it is
+read from the table (``warmup_steps`` from ``warmup_time / dt``, the curvature's range) or
+handed in by the learner (``gamma``, ``k``).
 
     params = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma, k=1)
     params = EnvParams()                       # the defaults: configs/default.toml's [env]
-
-Every ``EnvConfig`` field but ``DERIVED`` is a field here of the same name, converted by
-``CONVERSIONS`` where its unit differs; ``tests/test_params.py`` holds the two in step (names
-and defaults), so a new simulator setting is a field of both.
 """
 
 from __future__ import annotations
@@ -18,35 +23,27 @@ from typing import Any
 
 import flax.struct
 
-from jaxlc.config import ConfigError, EnvConfig
 from jaxlc.sim import reward
 
 KMH = 1.0 / 3.6  # m/s per km/h
 GAMMA = 0.98  # eq. (11)'s discount unless the learner hands its own (``ddpg.gamma``)
 
-# An EnvConfig field (in the config's units) -> its EnvParams value (SI); any field not named
-# here is taken as it is.
-CONVERSIONS: dict[str, Callable[[Any], Any]] = {
-    "entry_speed_min": lambda v: v * KMH,
-    "entry_speed_max": lambda v: v * KMH,
-    "desired_speed_min": lambda v: v * KMH,
-    "desired_speed_max": lambda v: v * KMH,
-    "inflow_min": lambda v: v / 3600.0,  # veh/h -> veh/s
-    "inflow_max": lambda v: v / 3600.0,
-    "braking_rate": lambda v: v / 3600.0,  # per vehicle-hour -> per vehicle-second
-}
-# EnvConfig fields that EnvParams holds as other fields (``from_config``).
-DERIVED = frozenset({"warmup_time", "curvature", "reward_terms"})
+
+class ConfigError(ValueError):
+    """A config value is not allowed; the message names the key and the allowed values.
+
+    ``jaxlc.config.ConfigError``: declared here, beside the settings whose reading raises it,
+    so that this module imports no config (``jaxlc.config`` imports it)."""
 
 
-def _static(default: Any) -> Any:
-    """A field that fixes array shapes or loop lengths: not a leaf, so a change compiles a new
-    program; every other field is traced and may differ between vmapped models."""
-    return flax.struct.field(pytree_node=False, default=default)
+def kmh(v: float) -> float:
+    """km/h -> m/s"""
+    return v * KMH
 
 
-def _same(v: Any) -> Any:
-    return v
+def per_hour(v: float) -> float:
+    """per hour -> per second"""
+    return v / 3600.0
 
 
 def curvature_range(value: float | tuple[float, float]) -> tuple[float, float]:
@@ -56,126 +53,315 @@ def curvature_range(value: float | tuple[float, float]) -> tuple[float, float]:
     return float(value), float(value)
 
 
+def _constant_curvature(value: float | tuple[float, float]) -> float:
+    """The constant road's curvature, or the middle of a drawn one's range."""
+    lo, hi = curvature_range(value)
+    return lo if lo == hi else 0.5 * (lo + hi)
+
+
+def setting(
+    default: Any,
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    unit: str,
+    doc: str = "",
+    open_lo: bool = False,
+    static: bool = False,
+    si: Callable[[Any], Any] | None = None,
+    choices: tuple[str, ...] = (),
+    key: str | None = None,
+    toml: Any = None,
+    read: Callable[[Any], Any] | None = None,
+    value: Any = None,
+) -> Any:
+    """A key of ``[env]`` and its field: ``default`` in ``unit`` (the file's), allowed when
+    ``lo <= v <= hi`` (``lo < v`` when ``open_lo``) or one of ``choices``; the field holds
+    ``si(v)`` (``v`` when ``si`` is None). ``key``/``toml``: the key's name and type where they
+    are not the field's; ``read``: the field from the whole table (``value`` its default)."""
+    convert = si or _same
+    meta = dict(key=key, default=default, lo=lo, hi=hi, open_lo=open_lo, unit=unit, doc=doc)
+    meta.update(static=static, si=convert, choices=choices, toml=toml, read=read)
+    value = convert(default) if value is None else value
+    return flax.struct.field(pytree_node=not static, default=value, metadata=meta)
+
+
+def derived(value: Any, read: Callable[[Any], Any] | None, *, unit: str, static: bool) -> Any:
+    """A field that is no key: ``read`` from the ``[env]`` table, or handed in (``read`` None)."""
+    meta = dict(unit=unit, static=static, read=read)
+    return flax.struct.field(pytree_node=not static, default=value, metadata=meta)
+
+
+def _same(v: Any) -> Any:
+    return v
+
+
+def _warmup_steps(env: Any) -> int:
+    return int(round(env.warmup_time / env.dt))
+
+
+def _curvature_drawn(env: Any) -> bool:
+    lo, hi = curvature_range(env.curvature)
+    return lo < hi
+
+
+def _mobil_deciders(env: Any) -> int:
+    return deciders(env.lanes * env.slots_per_lane, -math.expm1(-env.mobil_rate * env.dt))
+
+
 @flax.struct.dataclass
 class EnvParams:
     """Simulator parameters in SI units (speeds m/s, inflow veh/s); the static fields
     (``STATIC``) fix shapes, every other one is traced (vmappable over models or tasks)."""
 
     # road, traffic
-    road_length: float = 600.0
-    lanes: int = _static(3)
-    lane_width: float = 3.7
-    dt: float = 0.1
-    vehicle_length: float = 5.0
-    vehicle_width: float = 1.8
-    entry_speed_min: float = 0.0 * KMH  # m/s
-    entry_speed_max: float = 40.0 * KMH  # m/s
-    desired_speed_min: float = 80.0 * KMH  # m/s
-    desired_speed_max: float = 120.0 * KMH  # m/s
-    inflow_min: float = 800.0 / 3600.0  # veh/s per lane
-    inflow_max: float = 1600.0 / 3600.0  # veh/s per lane
-    slots_per_lane: int = _static(16)
+    road_length: float = setting(600.0, 50.0, unit="m", open_lo=True)
+    lanes: int = setting(
+        3,
+        2,
+        8,
+        unit="",
+        static=True,
+        doc="lanes in the ego's direction; the ego starts on lanes // 2",
+    )
+    lane_width: float = setting(3.7, 2.0, 6.0, unit="m")
+    # The road's curvature (> 0 bends toward the higher lanes): the constant, or with a range
+    # the middle of it; each episode then draws its own (``curvature_drawn``).
+    curvature: float = setting(
+        0.0,
+        -0.01,
+        0.01,
+        unit="1/m",
+        toml=float | tuple[float, float],
+        si=_constant_curvature,
+        doc="a state input: a number (a constant road) or [min, max], drawn per episode from "
+        "U(min, max)",
+    )
+    dt: float = setting(0.1, 0.0, 1.0, unit="s", open_lo=True)
+    vehicle_length: float = setting(5.0, 1.0, 20.0, unit="m")
+    vehicle_width: float = setting(1.8, 1.0, 3.0, unit="m")
+    entry_speed_min: float = setting(0.0, 0.0, 200.0, unit="km/h", si=kmh)
+    entry_speed_max: float = setting(40.0, 0.0, 200.0, unit="km/h", si=kmh)
+    # Below 10 km/h an ego crawls: at 5 km/h no gap is ever accepted (tests/test_ranges.py).
+    desired_speed_min: float = setting(80.0, 10.0, 250.0, unit="km/h", si=kmh)
+    desired_speed_max: float = setting(120.0, 10.0, 250.0, unit="km/h", si=kmh)
+    # The ego is the next vehicle to enter the middle lane: at 60 veh/h it waits a minute on
+    # average, and far fewer would leave episodes waiting past the decision loop's cap.
+    inflow_min: float = setting(800.0, 60.0, 4000.0, unit="veh/h per lane", si=per_hour)
+    inflow_max: float = setting(1600.0, 60.0, 4000.0, unit="veh/h per lane", si=per_hour)
+    slots_per_lane: int = setting(16, 2, 256, unit="", static=True, doc="vehicle slots per lane")
+    warmup_steps: int = setting(
+        40.0,
+        0.0,
+        600.0,
+        unit="s",
+        key="warmup_time",
+        toml=float,
+        static=True,
+        read=_warmup_steps,
+        value=400,
+        doc="of traffic simulated by reset(); held as round(warmup_time / dt) steps",
+    )
     # IDM [S]
-    idm_a_max: float = 1.5
-    idm_b: float = 2.0
-    idm_time_headway: float = 1.5
-    idm_s0: float = 2.0
-    idm_delta: float = 4.0
-    idm_b_max: float = 9.0
+    idm_a_max: float = setting(1.5, 0.0, 10.0, unit="m/s^2", open_lo=True)
+    idm_b: float = setting(2.0, 0.0, 10.0, unit="m/s^2", open_lo=True)
+    idm_time_headway: float = setting(1.5, 0.0, 5.0, unit="s", open_lo=True)
+    idm_s0: float = setting(2.0, 0.0, 20.0, unit="m")
+    idm_delta: float = setting(4.0, 1.0, 10.0, unit="")
+    idm_b_max: float = setting(9.0, 0.0, 20.0, unit="m/s^2", open_lo=True, doc="braking clip")
     # episode
-    p_yield: float = 0.5
-    command_distance: float = 80.0
-    gap_time_limit: float = 5.0
-    gap_x_limit: float = 450.0
-    gap_time_headway: float = 0.5
-    b_safe: float = 4.0
-    gap_min_ttc: float = 4.0
+    p_yield: float = setting(0.5, 0.0, 1.0, unit="")
+    command_distance: float = setting(80.0, 0.0, 400.0, unit="m", doc="before the command")
+    gap_time_limit: float = setting(5.0, 0.0, 60.0, unit="s", open_lo=True, doc="to find a gap")
+    gap_x_limit: float = setting(450.0, 0.0, unit="m", open_lo=True, doc="no gap beyond this x")
+    gap_time_headway: float = setting(
+        0.5, 0.0, 5.0, unit="s", doc="T in s0 + T*v of gap acceptance"
+    )
+    b_safe: float = setting(
+        4.0, 0.0, 20.0, unit="m/s^2", open_lo=True, doc="lag deceleration bound"
+    )
+    gap_min_ttc: float = setting(
+        4.0,
+        0.0,
+        20.0,
+        unit="s",
+        doc="least time-to-collision (margin s0) of the gap's lead and lag",
+    )
     # ego lateral
-    max_yaw_acc: float = 0.5
-    manoeuvre_time_limit: float = 10.0
-    terminal_timeout: bool = False
-    border: float = 3.7
-    success_offset: float = 0.2
-    success_heading: float = 0.02
-    success_yaw_rate: float = 0.02
-    # reward, eqs. (8)-(11), and the whole manoeuvre's terms (reward.MANOEUVRE)
-    w1: float = 10.0
-    w2: float = 5.0
-    w3: float = 0.075
-    w4: float = 1.0
-    w_long_acc: float = 0.0
-    w_long_jerk: float = 0.0
-    w_lat_acc: float = 0.0
-    w_lat_jerk: float = 0.0
-    lat_acc_max: float = 3.0
-    lat_jerk_max: float = 5.0
-    w_headway: float = 0.0
-    headway_min: float = 0.9
-    w_speed: float = 0.0
-    reward_scale: float = 1.0
-    # observation, the ego's longitudinal control, the driver assist
-    offset_obs_scale: float = 3.7
-    longitudinal: str = _static("idm")
-    long_acc_bound: float = 2.0
-    assist: str = _static("none")
-    assist_authority: float = 1.0
-    # traffic that cuts in and brakes
-    mobil: bool = _static(False)
-    mobil_politeness: float = 0.2
-    mobil_threshold: float = 0.1
-    mobil_bias_right: float = 0.0
-    mobil_rate: float = 0.5
-    mobil_interval: float = 10.0
-    lane_change_time_min: float = 3.0
-    lane_change_time_max: float = 6.0
-    braking: bool = _static(False)
-    braking_rate: float = 2.0 / 3600.0  # per vehicle-second
-    braking_decel_min: float = 3.0
-    braking_decel_max: float = 7.0
-    braking_time_min: float = 1.0
-    braking_time_max: float = 3.0
-    # derived from EnvConfig's DERIVED fields
-    warmup_steps: int = _static(400)  # round(warmup_time / dt)
-    # The most drivers of one env that weigh a lane change on one step (``mobil.decide``):
-    # ``deciders`` at the config's mobil_rate, so that more act on one step with probability
-    # under 1e-6 even with every slot filled (a batch of traffics with traced rates should
-    # carry its highest rate's).
-    mobil_deciders: int = _static(12)
-    # The road's curvature (1/m, > 0 bends toward +y): the constant ``curvature``, or, when
-    # ``curvature_drawn`` (static: it adds a leaf to the state), one drawn per episode from
-    # U(curvature_min, curvature_max) as the ego spawns and kept in ``EnvState.curvature``.
-    curvature: float = 0.0
-    curvature_min: float = 0.0
-    curvature_max: float = 0.0
-    curvature_drawn: bool = _static(False)
-    # The reward's terms (``reward.Term``), summed; static: each is a function.
-    reward_terms: tuple[reward.Term, ...] = _static(reward.PAPER)
-    # handed in by the learner
-    gamma: float = GAMMA  # the discount of eq. (11)'s out-of-bounds penalty
-    k: int = 1  # the action-update step: an action is held for k RL steps
+    max_yaw_acc: float = setting(
+        0.5, 0.0, 10.0, unit="rad/s^2", open_lo=True, doc="A in a_lat = A*action"
+    )
+    manoeuvre_time_limit: float = setting(10.0, 0.0, 120.0, unit="s", open_lo=True)
+    terminal_timeout: bool = setting(
+        False,
+        unit="",
+        doc="true: a timeout is terminal and the manoeuvre time is observed; false: it "
+        "truncates (the learner bootstraps) and the time is not observed (obs[6] = 0)",
+    )
+    border: float = setting(3.7, 0.0, 20.0, unit="m", open_lo=True, doc="D (paper: = lane width)")
+    success_offset: float = setting(0.2, 0.0, unit="m", open_lo=True)
+    success_heading: float = setting(0.02, 0.0, unit="rad", open_lo=True)
+    success_yaw_rate: float = setting(0.02, 0.0, unit="rad/s", open_lo=True)
+    # reward, eqs. (8)-(11) (gamma is ddpg.gamma): each weight in reward per unit of its term
+    w1: float = setting(10.0, 0.0, unit="")
+    w2: float = setting(5.0, 0.0, unit="")
+    w3: float = setting(0.075, 0.0, unit="")
+    w4: float = setting(1.0, 0.0, unit="")
+    # The whole manoeuvre's terms (reward.MANOEUVRE: r_long, r_lat, r_gap, r_speed), [D], off
+    # until named in reward_terms; their weights and the norms they read.
+    w_long_acc: float = setting(
+        0.0, 0.0, unit="", doc="r_long: per m/s^2 of |longitudinal acceleration|"
+    )
+    w_long_jerk: float = setting(0.0, 0.0, unit="", doc="r_long: per m/s^3 of |longitudinal jerk|")
+    w_lat_acc: float = setting(
+        0.0, 0.0, unit="", doc="r_lat: per m/s^2 of |v*omega| past lat_acc_max"
+    )
+    w_lat_jerk: float = setting(0.0, 0.0, unit="", doc="r_lat: per m/s^3 of jerk past lat_jerk_max")
+    lat_acc_max: float = setting(3.0, 0.0, unit="m/s^2", open_lo=True, doc="ISO 11270's bound")
+    lat_jerk_max: float = setting(5.0, 0.0, unit="m/s^3", open_lo=True, doc="ISO 11270's bound")
+    w_headway: float = setting(0.0, 0.0, unit="", doc="r_gap: per s of headway under headway_min")
+    headway_min: float = setting(0.9, 0.0, unit="s", doc="the critical time headway")
+    w_speed: float = setting(0.0, 0.0, unit="", doc="r_speed: per unit of |v - v0| / v0")
+    reward_scale: float = setting(
+        1.0, 0.0, unit="", open_lo=True, doc="multiplies every reward term"
+    )
+    reward_terms: tuple[reward.Term, ...] = setting(
+        ("r_s", "r_e", "r_d"),
+        unit="",
+        static=True,  # each is a function
+        toml=tuple[str, ...],
+        si=reward.lookup,
+        doc="the reward's terms by name, summed: the paper's r_s, r_e, r_d (jaxlc.sim.reward) "
+        "and any registered with jaxlc.sim.reward.register",
+    )
+    # observation, the ego's longitudinal control ([D], the paper's future work), the assist
+    offset_obs_scale: float = setting(
+        3.7, 0.0, 100.0, unit="m", open_lo=True, doc="per unit of obs dd"
+    )
+    longitudinal: str = setting(
+        "idm",
+        unit="",
+        static=True,
+        choices=("idm", "policy"),
+        doc="'idm' (the paper's: IDM with adaptation to the target lane's lead; the action is "
+        "the yaw acceleration alone) or 'policy' (a second action entry u adds "
+        "long_acc_bound*u to that IDM acceleration, within [-idm_b_max, idm_a_max] and never "
+        "past the ego's desired speed)",
+    )
+    long_acc_bound: float = setting(
+        2.0, 0.0, 10.0, unit="m/s^2", open_lo=True, doc="the policy's longitudinal authority"
+    )
+    assist: str = setting(
+        "none",
+        unit="",
+        static=True,
+        choices=("none", "fitting", "fitting_hold"),
+        doc="'none' (the policy's action is executed) or 'fitting' (a driver-assist layer adds "
+        "jaxlc.sim.controller.fitting_action, which holds the origin lane and adjusts the "
+        "speed until the gap fits the headway norm, to the policy's action in the RL phase: "
+        "the policy learns a residual on it), or 'fitting_hold' (the same, but while the "
+        "assist holds the origin lane its lateral action is executed alone)",
+    )
+    assist_authority: float = setting(
+        1.0,
+        0.0,
+        1.0,
+        unit="",
+        doc="with an assist, the share of each action bound the policy's residual may take: "
+        "the executed action is clip(assist + assist_authority * action)",
+    )
+    # Traffic that cuts in and brakes ([D], SPEC "Beyond the paper"): off in the paper's
+    # traffic. The switches are static (they add state); every number below is traced.
+    mobil: bool = setting(
+        False,
+        unit="",
+        static=True,
+        doc="true: the other vehicles change lanes by MOBIL on the IDM (jaxlc.sim.mobil); "
+        "false: they keep their lane (the paper's traffic)",
+    )
+    mobil_politeness: float = setting(
+        0.2, 0.0, 1.0, unit="", doc="MOBIL's p: weight of the others' gain"
+    )
+    mobil_threshold: float = setting(0.1, 0.0, 5.0, unit="m/s^2", doc="MOBIL's switching threshold")
+    mobil_bias_right: float = setting(
+        0.0,
+        -2.0,
+        2.0,
+        unit="m/s^2",
+        doc="added to the incentive toward the lower lanes (the right), taken from the one "
+        "toward the left; 0 keeps the traffic symmetric under the road's reflection",
+    )
+    mobil_rate: float = setting(
+        0.5,
+        0.0,
+        10.0,
+        unit="1/s",
+        open_lo=True,
+        doc="a driver acts on an allowed lane change at this rate (a drawn latency)",
+    )
+    mobil_interval: float = setting(
+        10.0, 0.0, 600.0, unit="s", doc="least time between a vehicle's lane change starts"
+    )
+    lane_change_time_min: float = setting(
+        3.0, 0.5, 20.0, unit="s", doc="a lane change lasts U(min, max)"
+    )
+    lane_change_time_max: float = setting(6.0, 0.5, 20.0, unit="s")
+    braking: bool = setting(
+        False,
+        unit="",
+        static=True,
+        doc="true: every vehicle brakes hard now and then (a Poisson process, "
+        "jaxlc.sim.braking); false: only for its leader (the paper's traffic)",
+    )
+    braking_rate: float = setting(
+        2.0, 0.0, 3600.0, unit="per vehicle-hour", si=per_hour, doc="braking events (Poisson)"
+    )
+    braking_decel_min: float = setting(
+        3.0, 0.0, 9.0, unit="m/s^2", doc="an event brakes at U(min, max)"
+    )
+    braking_decel_max: float = setting(
+        7.0, 0.0, 9.0, unit="m/s^2", doc="at most the IDM's idm_b_max"
+    )
+    braking_time_min: float = setting(1.0, 0.1, 60.0, unit="s", doc="an event lasts U(min, max)")
+    braking_time_max: float = setting(3.0, 0.1, 60.0, unit="s")
+    # --- no keys: read from the table above, or handed in by the learner
+    # The most drivers of one env that weigh a lane change on one step (``mobil.decide``) at the
+    # config's mobil_rate, so that more act on one step with probability under 1e-6 even with
+    # every slot filled (a batch of traffics with traced rates should carry its highest rate's).
+    mobil_deciders: int = derived(12, _mobil_deciders, unit="", static=True)
+    # A drawn curvature's range, U(curvature_min, curvature_max), drawn as the ego spawns and
+    # kept in ``EnvState.curvature`` when ``curvature_drawn`` (static: it adds a state leaf).
+    curvature_min: float = derived(
+        0.0, lambda env: curvature_range(env.curvature)[0], unit="1/m", static=False
+    )
+    curvature_max: float = derived(
+        0.0, lambda env: curvature_range(env.curvature)[1], unit="1/m", static=False
+    )
+    curvature_drawn: bool = derived(False, _curvature_drawn, unit="", static=True)
+    gamma: float = derived(GAMMA, None, unit="", static=False)  # eq. (11)'s discount
+    k: int = derived(1, None, unit="", static=False)  # an action is held for k RL steps
 
     @classmethod
-    def from_config(cls, env: EnvConfig, gamma: float = GAMMA, k: int = 1) -> EnvParams:
-        """A validated ``EnvConfig`` (km/h, veh/h) as SI params, with the learner's ``gamma``
-        and ``k``; an unknown reward term raises ``ConfigError``."""
-        values = {
-            f.name: CONVERSIONS.get(f.name, _same)(getattr(env, f.name))
-            for f in dataclasses.fields(EnvConfig)
-            if f.name not in DERIVED
-        }
-        values["warmup_steps"] = int(round(env.warmup_time / env.dt))
-        values["mobil_deciders"] = deciders(
-            env.lanes * env.slots_per_lane, -math.expm1(-env.mobil_rate * env.dt)
-        )
-        lo, hi = curvature_range(env.curvature)
-        values["curvature"] = lo if lo == hi else 0.5 * (lo + hi)
-        values["curvature_min"], values["curvature_max"] = lo, hi
-        values["curvature_drawn"] = lo < hi
-        try:
-            values["reward_terms"] = reward.lookup(env.reward_terms)
-        except KeyError as e:
-            raise ConfigError(f"config key 'env.reward_terms': {e.args[0]}") from None
-        return cls(**values, gamma=gamma, k=k)
+    def from_config(cls, env: Any, gamma: float = GAMMA, k: int = 1) -> EnvParams:
+        """A validated ``EnvConfig`` (the ``[env]`` table in its units) as params, with the
+        learner's ``gamma`` and ``k``; an unknown reward term raises ``ConfigError``."""
+        values: dict[str, Any] = {"gamma": gamma, "k": k}
+        for f in dataclasses.fields(cls):
+            m = f.metadata
+            if m["read"] is not None:
+                values[f.name] = m["read"](env)
+            elif "key" in m:
+                key = m["key"] or f.name
+                try:
+                    values[f.name] = m["si"](getattr(env, key))
+                except KeyError as e:
+                    raise ConfigError(f"config key 'env.{key}': {e.args[0]}") from None
+        return cls(**values)
+
+
+def settings() -> tuple[dataclasses.Field, ...]:
+    """``EnvParams``' fields that are keys of ``[env]``, in their order."""
+    return tuple(f for f in dataclasses.fields(EnvParams) if "key" in f.metadata)
 
 
 def deciders(n: int, q: float, tail: float = 1e-6) -> int:
@@ -197,7 +383,7 @@ def deciders(n: int, q: float, tail: float = 1e-6) -> int:
     return k
 
 
-# The fields that fix array shapes or loop lengths (declared with ``_static`` above).
+# The fields that fix array shapes or loop lengths (declared ``static`` above).
 STATIC = frozenset(
     f.name for f in dataclasses.fields(EnvParams) if not f.metadata.get("pytree_node", True)
 )

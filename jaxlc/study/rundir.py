@@ -32,14 +32,6 @@ import numpy as np
 from jaxlc import config
 from jaxlc.study import checkpoint
 
-# Keys added after runs were written, with the value that reproduces how those runs behaved.
-BEFORE_KEY: dict[str, dict[str, Any]] = {
-    "env": {"gap_min_ttc": 0.0},  # added 2026-11-23: before it, no time-to-collision test
-    # symmetric_actor added 2026-11-23: before it, a plain actor; mirror_pairs added
-    # 2026-11-26: before it, rows reflected at random
-    "ddpg": {"symmetric_actor": False, "mirror_pairs": False},
-}
-
 
 @dataclass(frozen=True)
 class RunDir:
@@ -157,9 +149,9 @@ class RunDir:
 
     def load_config(self) -> config.Config:
         """The resolved config of the run. The sweep writes every key, so a key missing here
-        means the run predates it: it takes the behaviour the run had (``BEFORE_KEY``), not
-        today's default, or an old run's plain actor would be evaluated as a symmetric one."""
-        return config.load(self.config, missing=BEFORE_KEY)
+        means the run predates it: it takes the behaviour the run had (``config.migrate``),
+        not today's default, or an old run's plain actor would be evaluated as a symmetric one."""
+        return config.load(self.config, resolved=True)
 
     def write_config(self, cfg: config.Config) -> None:
         self.root.mkdir(parents=True, exist_ok=True)
