@@ -78,7 +78,9 @@ def setting(
     """A key of ``[env]`` and its field: ``default`` in ``unit`` (the file's), allowed when
     ``lo <= v <= hi`` (``lo < v`` when ``open_lo``) or one of ``choices``; the field holds
     ``si(v)`` (``v`` when ``si`` is None). ``key``/``toml``: the key's name and type where they
-    are not the field's; ``read``: the field from the whole table (``value`` its default)."""
+    are not the field's; ``read``: the field from the whole table (``value`` its default).
+    ``unit`` "" is a count, a flag, a name or a pure number (a reward weight: per unit of its
+    term, the ``doc``)."""
     convert = si or _same
     meta = dict(key=key, default=default, lo=lo, hi=hi, open_lo=open_lo, unit=unit, doc=doc)
     meta.update(static=static, si=convert, choices=choices, toml=toml, read=read)
@@ -117,12 +119,7 @@ class EnvParams:
     # road, traffic
     road_length: float = setting(600.0, 50.0, unit="m", open_lo=True)
     lanes: int = setting(
-        3,
-        2,
-        8,
-        unit="",
-        static=True,
-        doc="lanes in the ego's direction; the ego starts on lanes // 2",
+        3, 2, 8, unit="", static=True, doc="the ego's way; it starts on lanes // 2"
     )
     lane_width: float = setting(3.7, 2.0, 6.0, unit="m")
     # The road's curvature (> 0 bends toward the higher lanes): the constant, or with a range
