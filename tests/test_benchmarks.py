@@ -212,3 +212,14 @@ def test_sweep_timing_keeps_the_timing_and_counts_the_models(smoke_run, smoke_cf
     gpu = importlib.import_module("tables.gpu")  # load_benchmark put its folder on sys.path
     expected = (light["env_steps"] - first) / (light["wall_s"] - light["first_chunk_s"])
     assert gpu.sweep_steady(light) == pytest.approx(expected)
+
+
+def test_program_hashes_tell_the_traffics_apart_and_repeat():
+    """The programs' hashes that show two commits run the same simulator: one per traffic and
+    program, the same on a second lowering, different between the traffics."""
+    bench = load_benchmark("program_hashes")
+    first, again = bench.hashes(envs=2), bench.hashes(envs=2)
+    assert sorted(first) == ["hazards reset", "hazards step", "paper reset", "paper step"]
+    assert first == again
+    assert first["paper step"] != first["hazards step"]
+    assert len(set(first.values())) == 4

@@ -1,4 +1,7 @@
-"""The traffic: who follows whom, every vehicle's IDM acceleration, and the inflow at x = 0.
+"""The traffic: its own part of the env's step (``step``: every vehicle's acceleration and
+move, the lane changes, the inflow at x = 0, the braking events, in that order), its draws
+(``step_draws``) and an empty road's traffic (``empty``); who follows whom, every vehicle's IDM
+acceleration, and the inflow.
 
 In the paper's traffic only the ego changes lanes, so vehicles of a lane never pass each other
 and a vehicle's leader is simply the slot written before it in its lane's ring buffer: no
