@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -212,3 +213,15 @@ def test_sweep_timing_keeps_the_timing_and_counts_the_models(smoke_run, smoke_cf
     gpu = importlib.import_module("tables.gpu")  # load_benchmark put its folder on sys.path
     expected = (light["env_steps"] - first) / (light["wall_s"] - light["first_chunk_s"])
     assert gpu.sweep_steady(light) == pytest.approx(expected)
+
+
+def test_program_hashes_tell_the_traffics_apart_and_repeat():
+    """The programs' hashes that show two commits run the same simulator: one per traffic and
+    program, the same on a second lowering, different between the traffics."""
+    bench = load_benchmark("program_hashes")
+    first = bench.hashes(envs=2)
+    assert sorted(first) == ["hazards reset", "hazards step", "paper reset", "paper step"]
+    again = bench._programs((), jax.random.split(jax.random.PRNGKey(0), 2))  # paper traffic
+    assert again == {"step": first["paper step"], "reset": first["paper reset"]}
+    assert first["paper step"] != first["hazards step"]
+    assert len(set(first.values())) == 4

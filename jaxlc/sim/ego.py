@@ -21,7 +21,18 @@ from jaxlc.sim import gap
 from jaxlc.sim.idm import NO_LEADER_GAP, idm_with_params
 from jaxlc.sim.motion import Motion
 from jaxlc.sim.road import origin_lane, origin_y, road_curvature, target_frame
-from jaxlc.sim.state import CRUISE, GAP, RL, Draws, Ego, EnvParams, EnvState, Traffic
+from jaxlc.sim.state import (
+    CRUISE,
+    GAP,
+    RL,
+    WAIT,
+    Draws,
+    Ego,
+    EnvParams,
+    EnvState,
+    Traffic,
+    action_dim,
+)
 
 
 def clean_action(action: Array, entry: int = 0) -> Array:
@@ -132,3 +143,26 @@ def gap_decision(
     accept = looking & gap.beside_acceptable(nb_m, x_m, ego.v, p)
     no_gap = looking & ~accept & ((ego.gap_time >= p.gap_time_limit) | (ego.x >= p.gap_x_limit))
     return accept, no_gap
+
+
+def parked_ego(p: EnvParams) -> Ego:
+    """The ego of a reset: off the road (WAIT), at rest, its target the origin lane."""
+    f0 = jnp.float32(0.0)
+    ego = Ego(
+        phase=jnp.int32(WAIT),
+        x=f0,
+        y=origin_y(p),
+        v=f0,
+        v0=f0 + p.desired_speed_max,
+        accel=f0,
+        psi=f0,
+        omega=f0,
+        held=f0,
+        target=jnp.int32(origin_lane(p)),
+        steps=jnp.int32(0),
+        gap_time=f0,
+        yielding=jnp.bool_(False),
+        ep_return=f0,
+        held_long=f0 if action_dim(p) > 1 else None,
+    )
+    return ego

@@ -10,16 +10,11 @@ is kept apart from the slots (``ego``). The road is a band of concentric arcs of
 kappa (0: straight; a constant, or drawn per episode), and everything runs in its frame
 (``road``, ``kinematics``).
 
-This module is the step alone; each concept has its own module:
-  ``params``      EnvParams (EnvConfig in SI units);
-  ``state``       the state types, the phases, the draws;
-  ``road``        lanes, centre lines and scales, where the ego is on them;
-  ``traffic``     who follows whom, IDM accelerations, inflow;
-  ``ego``         the ego's action, longitudinal acceleration, phases, gap decision;
-  ``motion``      one dt of integration for every vehicle;
-  ``collision``   box overlaps;
-  ``reward``      the reward terms and why an episode ends;
-  ``observation`` the observation's layout and the function computing it.
+This module is the step alone; each concept has its own module: ``params`` (EnvParams),
+``state`` (the state types, phases, draws), ``road`` (lanes, centre lines, scales),
+``traffic`` (the traffic's own step: leaders, IDM, lane changes, inflow, braking events),
+``ego`` (action, acceleration, phases, gap decision), ``motion`` (one dt of integration),
+``collision``, ``reward`` (terms and why an episode ends) and ``observation``.
 
 The ego goes through four phases (``info["phase"]``, ``ego.py``): WAIT, CRUISE, GAP, then RL,
 where the action steers it; only RL steps are transitions (``info["rl_step"]``). When an
@@ -40,18 +35,24 @@ both give the same rollout, its reals to float32 rounding (``tests/test_rollout_
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 from jax import Array
 
 from jaxlc.config import Config, EnvConfig
-from jaxlc.sim import braking, leaders, mobil, reward
+from jaxlc.sim import braking, mobil, reward
+from jaxlc.sim import traffic as traffic_mod
 from jaxlc.sim.collision import collided
 from jaxlc.sim.controller import assist_action
-from jaxlc.sim.ego import ego_accel, ego_phase, gap_decision, held_action, held_long_action
-from jaxlc.sim.motion import Motion, move
+from jaxlc.sim.ego import (
+    ego_accel,
+    ego_phase,
+    gap_decision,
+    held_action,
+    held_long_action,
+    parked_ego,
+)
 from jaxlc.sim.observation import (  # noqa: F401 (OBS_DIM, MIRROR_SIGNS, GAP_CLIP re-exported)
     GAP_CLIP,
     MIRROR_SIGNS,
@@ -62,13 +63,9 @@ from jaxlc.sim.observation import (  # noqa: F401 (OBS_DIM, MIRROR_SIGNS, GAP_CL
 )
 from jaxlc.sim.road import (
     body_in_lane,
-    ego_lanes,
     ego_yaw_rate,
     lane_keeping_yaw_rate,
-    lane_scales,
     lateral_offset,
-    origin_lane,
-    origin_y,
     road_curvature,
 )
 from jaxlc.sim.state import (  # noqa: F401 (the state types and phases re-exported)
@@ -88,7 +85,6 @@ from jaxlc.sim.state import (  # noqa: F401 (the state types and phases re-expor
     action_dim,
     between,
 )
-from jaxlc.sim.traffic import inflow, traffic_accel
 
 
 @dataclass(frozen=True)
@@ -132,54 +128,6 @@ def _executed(state: EnvState, action: Array, p: EnvParams) -> tuple:
     return held, held_long, lat, lon
 
 
-class TrafficStep(NamedTuple):
-    """The traffic's part of one step (``_move_traffic``)."""
-
-    motion: Motion  # every vehicle, the ego included, one dt on, before inflow
-    before_inflow: Traffic  # after the lane changes' start, before inflow (an entrant's speeds)
-    traffic: Traffic  # the traffic after the step
-    spawned: Array  # () bool: the origin lane's entrant became the ego
-    around: leaders.Around | None  # with env.mobil: leaders by position, before the move
-    lane_changes: mobil.Decision | None  # with env.mobil
-    events: braking.Events | None  # with env.braking
-
-
-def _step_draws(key: Array, p: EnvParams, draws: tuple = ()) -> tuple[Draws, TrafficDraws | None]:
-    """The step's ``(Draws, TrafficDraws)`` from ``key``, or ``draws`` where given; no
-    ``TrafficDraws`` (None) in the paper's traffic, which draws and computes none of them."""
-    u = draws[0] if draws else Draws.draw(key, p.lanes)
-    ut = None
-    if p.mobil or p.braking:  # static
-        ut = draws[1] if draws else TrafficDraws.draw(key, p.lanes, p.slots_per_lane)
-    return u, ut
-
-
-def _move_traffic(
-    state: EnvState,
-    u: Draws,
-    ut: TrafficDraws | None,
-    a_ego: Array,
-    a_lat: Array,
-    can_spawn: Array,
-    p: EnvParams,
-    kappa: Array,
-) -> TrafficStep:
-    """Every vehicle's acceleration and move, the lane changes (env.mobil), inflow and the
-    braking events (env.braking); the ego moves by ``a_ego`` and ``a_lat``."""
-    tr, eg = state.traffic, state.ego
-    around = leaders.around(tr, eg, p, lane_scales(kappa, p)) if p.mobil else None
-    m = move(tr, eg, traffic_accel(state, p, around), a_ego, a_lat, p, kappa)
-    lc = events = None
-    if p.mobil:  # lanes change before inflow, so an entrant sees who moved into its lane
-        lc = mobil.decide(tr, around, ut, p)
-        tr = mobil.advance(tr, m.active, lc, ut, p)
-    traffic, spawned = inflow(tr, m, ego_lanes(eg, p), can_spawn, u, p, kappa)
-    if p.braking:
-        events = braking.advance(traffic, ut, p)
-        traffic = events.traffic
-    return TrafficStep(m, tr, traffic, spawned, around, lc, events)
-
-
 def _advance(
     key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool, draws: tuple = ()
 ) -> tuple[EnvState, Array, dict[str, Array]]:
@@ -187,13 +135,13 @@ def _advance(
     holds each of ``p.reward_terms`` under its name. ``draws``: the step's ``(Draws,
     TrafficDraws)`` given instead of drawn from ``key`` (a proposal's: ``jaxlc.validate``)."""
     eg = state.ego
-    u, ut = _step_draws(key, p, draws)
+    u, ut = traffic_mod.step_draws(key, p, draws)
     kappa = road_curvature(state, p)
     in_rl = eg.phase == RL
     held, held_long, lat, lon = _executed(state, action, p)
     a_lat = p.max_yaw_acc * lat
     a_ego = ego_accel(state, p, lon)
-    t = _move_traffic(state, u, ut, a_ego, a_lat, (eg.phase == WAIT) & spawn, p, kappa)
+    t = traffic_mod.step(state, u, ut, a_ego, a_lat, (eg.phase == WAIT) & spawn, p, kappa)
     traffic, spawned = t.traffic, t.spawned
     hazards = mobil.counts(t.lane_changes, t.around, eg, p) if p.mobil else {}
     ego = ego_phase(eg, t.motion, a_ego, held, held_long, spawned, t.before_inflow, u, p)
@@ -248,9 +196,9 @@ def _advance(
 def _warm_traffic(key: Array, state: EnvState, p: EnvParams) -> EnvState:
     """One warm-up step of the traffic alone: ``_advance``'s traffic, with its draws, while no
     ego is on the road and none spawns; the ego is not moved."""
-    u, ut = _step_draws(key, p)
+    u, ut = traffic_mod.step_draws(key, p)
     zero, kappa = jnp.float32(0.0), road_curvature(state, p)
-    t = _move_traffic(state, u, ut, zero, zero, jnp.bool_(False), p, kappa)
+    t = traffic_mod.step(state, u, ut, zero, zero, jnp.bool_(False), p, kappa)
     return state.replace(traffic=t.traffic, time=state.time + 1)
 
 
@@ -278,47 +226,11 @@ class LaneChangeEnv:
         coast (nothing after its spawn reads them). Its traffic is the full step's to float32
         rounding, not to the bit: XLA's CPU code rounds an entry's headway one ulp apart in
         a few lanes in 10^4."""
-        p, lanes, slots = params, params.lanes, params.slots_per_lane
+        p, lanes = params, params.lanes
         k_init, k_warm = jax.random.split(key)
         u = jax.random.uniform(k_init, (4, lanes))
-        zeros = jnp.zeros((lanes, slots), jnp.float32)
-        inflow = between(u[3], p.inflow_min, p.inflow_max)
-        traffic = Traffic(
-            x=zeros,
-            v=zeros,
-            v0=zeros + p.desired_speed_max,
-            active=jnp.zeros((lanes, slots), bool),
-            tail=jnp.zeros(lanes, jnp.int32),
-            timer=-jnp.log1p(-u[0]) / inflow,
-            next_v=between(u[1], p.entry_speed_min, p.entry_speed_max),
-            next_v0=between(u[2], p.desired_speed_min, p.desired_speed_max),
-            inflow=inflow,
-        )
-        if p.mobil:
-            rows = jnp.broadcast_to(jnp.arange(lanes, dtype=jnp.int32)[:, None], (lanes, slots))
-            traffic = traffic.replace(
-                lane=rows, lane_from=rows, lc_time=zeros + mobil.NEVER, lc_dur=zeros
-            )
-        if p.braking:
-            traffic = traffic.replace(brake_left=zeros, brake_acc=zeros)
-        f0 = jnp.float32(0.0)
-        ego = Ego(
-            phase=jnp.int32(WAIT),
-            x=f0,
-            y=origin_y(p),
-            v=f0,
-            v0=f0 + p.desired_speed_max,
-            accel=f0,
-            psi=f0,
-            omega=f0,
-            held=f0,
-            target=jnp.int32(origin_lane(p)),
-            steps=jnp.int32(0),
-            gap_time=f0,
-            yielding=jnp.bool_(False),
-            ep_return=f0,
-            held_long=f0 if action_dim(p) > 1 else None,
-        )
+        traffic = traffic_mod.empty(u, p)
+        ego = parked_ego(p)
         road = None
         if p.curvature_drawn:  # its own key: a constant road's draws are left as they were
             u_road = jax.random.uniform(jax.random.fold_in(k_init, 1))

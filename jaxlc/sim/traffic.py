@@ -1,4 +1,7 @@
-"""The traffic: who follows whom, every vehicle's IDM acceleration, and the inflow at x = 0.
+"""The traffic: its own part of the env's step (``step``: every vehicle's acceleration and
+move, the lane changes, the inflow at x = 0, the braking events, in that order), its draws
+(``step_draws``) and an empty road's traffic (``empty``); who follows whom, every vehicle's IDM
+acceleration, and the inflow.
 
 In the paper's traffic only the ego changes lanes, so vehicles of a lane never pass each other
 and a vehicle's leader is simply the slot written before it in its lane's ring buffer: no
@@ -9,15 +12,26 @@ leader is found by position in each lane the vehicle counts in (``leaders.around
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax.numpy as jnp
 from jax import Array
 
-from jaxlc.sim import braking, gap, kinematics, mobil
+from jaxlc.sim import braking, gap, kinematics, leaders, mobil
 from jaxlc.sim.idm import NO_LEADER_GAP, idm_with_params
 from jaxlc.sim.leaders import Around, occupancy
-from jaxlc.sim.motion import Motion
+from jaxlc.sim.motion import Motion, move
 from jaxlc.sim.road import ego_lanes, lane_scales, origin_lane, road_curvature
-from jaxlc.sim.state import CRUISE, RL, Draws, EnvParams, EnvState, Traffic, between
+from jaxlc.sim.state import (
+    CRUISE,
+    RL,
+    Draws,
+    EnvParams,
+    EnvState,
+    Traffic,
+    TrafficDraws,
+    between,
+)
 
 
 def ring_leaders(tr: Traffic, p: EnvParams, scale: Array) -> tuple[Array, Array]:
@@ -150,3 +164,78 @@ def inflow(
     if tr.brake_left is not None:
         traffic = traffic.replace(brake_left=jnp.where(write, 0.0, tr.brake_left))
     return traffic, spawned
+
+
+def empty(u: Array, p: EnvParams) -> Traffic:
+    """An empty road's traffic; ``u`` ``(4, lanes)`` uniform numbers: the first entries'
+    timers, speeds and desired speeds, and the lanes' inflow."""
+    lanes, slots = p.lanes, p.slots_per_lane
+    zeros = jnp.zeros((lanes, slots), jnp.float32)
+    inflow = between(u[3], p.inflow_min, p.inflow_max)
+    traffic = Traffic(
+        x=zeros,
+        v=zeros,
+        v0=zeros + p.desired_speed_max,
+        active=jnp.zeros((lanes, slots), bool),
+        tail=jnp.zeros(lanes, jnp.int32),
+        timer=-jnp.log1p(-u[0]) / inflow,
+        next_v=between(u[1], p.entry_speed_min, p.entry_speed_max),
+        next_v0=between(u[2], p.desired_speed_min, p.desired_speed_max),
+        inflow=inflow,
+    )
+    if p.mobil:
+        rows = jnp.broadcast_to(jnp.arange(lanes, dtype=jnp.int32)[:, None], (lanes, slots))
+        traffic = traffic.replace(
+            lane=rows, lane_from=rows, lc_time=zeros + mobil.NEVER, lc_dur=zeros
+        )
+    if p.braking:
+        traffic = traffic.replace(brake_left=zeros, brake_acc=zeros)
+    return traffic
+
+
+class TrafficStep(NamedTuple):
+    """The traffic's part of one step (``step``)."""
+
+    motion: Motion  # every vehicle, the ego included, one dt on, before inflow
+    before_inflow: Traffic  # after the lane changes' start, before inflow (an entrant's speeds)
+    traffic: Traffic  # the traffic after the step
+    spawned: Array  # () bool: the origin lane's entrant became the ego
+    around: leaders.Around | None  # with env.mobil: leaders by position, before the move
+    lane_changes: mobil.Decision | None  # with env.mobil
+    events: braking.Events | None  # with env.braking
+
+
+def step_draws(key: Array, p: EnvParams, draws: tuple = ()) -> tuple[Draws, TrafficDraws | None]:
+    """The step's ``(Draws, TrafficDraws)`` from ``key``, or ``draws`` where given; no
+    ``TrafficDraws`` (None) in the paper's traffic, which draws and computes none of them."""
+    u = draws[0] if draws else Draws.draw(key, p.lanes)
+    ut = None
+    if p.mobil or p.braking:  # static
+        ut = draws[1] if draws else TrafficDraws.draw(key, p.lanes, p.slots_per_lane)
+    return u, ut
+
+
+def step(
+    state: EnvState,
+    u: Draws,
+    ut: TrafficDraws | None,
+    a_ego: Array,
+    a_lat: Array,
+    can_spawn: Array,
+    p: EnvParams,
+    kappa: Array,
+) -> TrafficStep:
+    """Every vehicle's acceleration and move, the lane changes (env.mobil), inflow and the
+    braking events (env.braking); the ego moves by ``a_ego`` and ``a_lat``."""
+    tr, eg = state.traffic, state.ego
+    around = leaders.around(tr, eg, p, lane_scales(kappa, p)) if p.mobil else None
+    m = move(tr, eg, traffic_accel(state, p, around), a_ego, a_lat, p, kappa)
+    lc = events = None
+    if p.mobil:  # lanes change before inflow, so an entrant sees who moved into its lane
+        lc = mobil.decide(tr, around, ut, p)
+        tr = mobil.advance(tr, m.active, lc, ut, p)
+    traffic, spawned = inflow(tr, m, ego_lanes(eg, p), can_spawn, u, p, kappa)
+    if p.braking:
+        events = braking.advance(traffic, ut, p)
+        traffic = events.traffic
+    return TrafficStep(m, tr, traffic, spawned, around, lc, events)
