@@ -22,13 +22,10 @@ The test files run heaviest first (``HEAVY_FIRST``): ``--dist loadfile`` hands f
 workers in collection order, and a heavy file started last would run on after the rest.
 """
 
-import importlib.util
 import os
 import shutil
-import sys
 import tempfile
 from pathlib import Path
-from types import ModuleType
 
 CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
 # Set before jax is imported (here and in every xdist worker and subprocess, which inherit it).
@@ -56,18 +53,7 @@ SMOKE = config.CONFIG_DIR / "smoke.toml"
 
 # Only stops a hung subprocess; never a speed judgement: a run slower than this is broken.
 HANG_GUARD_S = 3600
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks" / "scripts"
-
-
-def load_benchmark(name: str) -> ModuleType:
-    """``benchmarks/scripts/NAME.py`` as a module (the benchmarks are scripts, not a package),
-    its folder on ``sys.path`` as when it runs as a script (a script imports its neighbours)."""
-    if str(BENCHMARKS) not in sys.path:
-        sys.path.insert(0, str(BENCHMARKS))
-    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+ROOT = Path(__file__).resolve().parent.parent  # where ``python -m benchmarks.NAME`` runs
 
 
 def changed_env_keys(name: str, base: config.Config) -> set[str]:

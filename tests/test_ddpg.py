@@ -16,8 +16,6 @@ from jaxlc.learn.networks import Actor, make_networks
 from jaxlc.sim.observation import MIRROR_SIGNS
 from jaxlc.sim.observation import OBS_DIM as FULL_OBS
 
-from .conftest import load_benchmark
-
 OBS_DIM = 5
 # a big final init and tau so that every term of the update moves the params visibly
 # huber_delta=0: the paper's squared error of eq. (4); the Huber option and the symmetric
@@ -294,7 +292,8 @@ def test_explore_truncates_noise_and_stays_in_bounds():
 
 
 def test_benchmark_tiny_runs(tmp_path):
-    bench = load_benchmark("update_throughput")
+    from benchmarks import update_throughput as bench
+
     out = tmp_path / "tiny.csv"
     figures = bench.main(["--tiny", "--out", str(out)])
     for name in (
@@ -350,7 +349,8 @@ def test_benchmark_counts_the_products_that_the_update_computes(symmetric, pairs
     }
     traced = jax.make_jaxpr(lambda lrn: ddpg.update(lrn, data, ddpg.Hyper.from_config(cfg), cfg))
     in_update = _dot_flops(traced(learner).jaxpr)
-    bench = load_benchmark("update_throughput")
+    from benchmarks import update_throughput as bench
+
     counted = bench.matmul_flops(
         bench.update_products(obs_dim, cfg.hidden, batch, 1, cfg.symmetric_actor, cfg.mirror_pairs)
     )

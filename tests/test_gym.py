@@ -22,8 +22,6 @@ from jaxlc.sim.controller import scripted_action
 from jaxlc.sim.env import RL, LaneChangeEnv
 from jaxlc.sim.reward import REASONS
 
-from .conftest import load_benchmark
-
 N_VEC = 4  # one batch size for every vector test, so the vmapped program compiles once
 
 
@@ -285,7 +283,8 @@ def _positive(x: float) -> bool:
 
 def test_vs_highway_env_tiny(tmp_path):
     pytest.importorskip("highway_env", reason="optional: pip install -e '.[bench]'")
-    bench = load_benchmark("vs_highway_env")
+    from benchmarks import vs_highway_env as bench
+
     out = bench.main(["--tiny", "--csv", str(tmp_path / "hw.csv")])
     assert _positive(out["ratio_single"]) and _positive(out["ratio_best"])
     for row in out["rows"]:
@@ -295,7 +294,8 @@ def test_vs_highway_env_tiny(tmp_path):
 
 def test_vs_sb3_tiny(tmp_path):
     pytest.importorskip("stable_baselines3", reason="optional: pip install -e '.[bench]'")
-    bench = load_benchmark("vs_sb3")
+    from benchmarks import vs_sb3 as bench
+
     out = bench.main(["--tiny", "--csv", str(tmp_path / "sb3.csv")])
     for name in ("sb3", "jaxlc", "jaxlc_grid", "sb3_nine"):
         row = out[name]

@@ -19,7 +19,7 @@ from jaxlc.sim import leaders, mobil
 from jaxlc.sim.env import EnvParams
 from jaxlc.sim.state import TrafficDraws
 
-from .conftest import changed_env_keys, load_benchmark
+from .conftest import changed_env_keys
 
 HAZARDS = ("env.mobil=true", "env.braking=true")
 
@@ -27,7 +27,8 @@ HAZARDS = ("env.mobil=true", "env.braking=true")
 @pytest.fixture(scope="module")
 def long_run():
     """256 envs x 400 steps (102,400 env-steps) at the ranges' highest rates."""
-    bench = load_benchmark("traffic_properties")
+    from benchmarks import traffic_properties as bench
+
     return bench.check(256, 400, bench.HIGHEST, chunk=400)
 
 
@@ -271,7 +272,7 @@ def test_every_config_file_spells_the_traffic_keys_off_but_reactive():
 
 
 def test_the_traffic_table_pools_each_cells_seeds(tmp_path):
-    table = load_benchmark("traffic_table")
+    from benchmarks import traffic_table as table
 
     def row(label, seed, ok, hits, cut, brake, norm):
         return {
