@@ -28,21 +28,16 @@ applies to all of them.
 Usage: ``python -m benchmarks.update_throughput [--models 9 --batch 64 --repeats 5]``;
 ``--tiny`` shrinks everything for tests. Writes ``benchmarks/results/update_throughput.csv``.
 
-``python -m benchmarks.update_throughput actors [--rounds 2 --episodes 600]``: the plain and
-the reflection-odd actor side by side (``actors``): MFLOP per model update, grid-updates/s and
-a default sweep's env-steps/s, each beside the matmul peak. Writes
-``benchmarks/results/actors.csv``.
+Its ``actors`` mode (the plain, odd and paired actors side by side with a sweep each, which
+chose ``ddpg.mirror_pairs``) is retired; it reads as it was at commit b98c04d.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import statistics
-import subprocess
-import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -54,7 +49,6 @@ from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
 from benchmarks.csvfile import write_csv
-from jaxlc import config
 from jaxlc.config import DDPGConfig
 from jaxlc.learn import ddpg, replay
 from jaxlc.sim.env import OBS_DIM
@@ -259,83 +253,6 @@ def grid_update_call(
     return lambda: run(learners, memory, hyper, keys)
 
 
-def sweep_rate(overrides: Sequence[str], out: Path) -> dict[str, float]:
-    """One default sweep (``python -m jaxlc.sweep``, a fresh process) with ``overrides``:
-    its env-steps/s (compile included, as the sweep reports it) and the matmul peak it
-    measured at its end (``summary.json``)."""
-    cmd = [sys.executable, "-m", "jaxlc.sweep", "--no-progress", "--force", "--out", str(out)]
-    subprocess.run([*cmd, *overrides], check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
-    doc = json.loads((out / "summary.json").read_text())
-    return {
-        "env_steps_per_s": doc["env_steps"] / doc["wall_s"],
-        "wall_s": doc["wall_s"],
-        "peak_gflops": doc["matmul_peak_gflops"],
-    }
-
-
-# The actors ``actors`` compares: (ddpg.symmetric_actor, ddpg.mirror_pairs).
-ACTORS = {"plain": (False, False), "odd": (True, False), "paired": (True, True)}
-
-
-def actors(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
-    """The plain actor, the reflection-odd one (``ddpg.symmetric_actor``) and the odd one on
-    paired batches (``ddpg.mirror_pairs``), side by side in one run: MFLOP per model update,
-    grid-updates/s of the default's update (nine models, batch 64, mirrored batches) and the
-    default sweep's env-steps/s over ``--episodes`` episodes, each with the matmul peak
-    measured next to it. Runs alternate (plain, odd, paired, plain, ...) so all see the same
-    machine state; writes ``--out`` (CSV, one row per run)."""
-    p = argparse.ArgumentParser(description=actors.__doc__.splitlines()[0])
-    p.add_argument("--rounds", type=int, default=2, help="alternating rounds of both actors")
-    p.add_argument("--episodes", type=int, default=600, help="episodes of each default sweep")
-    p.add_argument("--updates", type=int, default=200, help="updates per timed scan")
-    p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--matmul-n", type=int, default=2048)
-    p.add_argument("--out", type=Path, default=RESULTS / "actors.csv")
-    args = p.parse_args(argv)
-    base = config.load(ROOT / "configs" / "default.toml").ddpg
-    time_dot = _timed(matmul_call(args.matmul_n))
-
-    def peak() -> float:
-        return 2 * args.matmul_n**3 / statistics.median([time_dot() for _ in range(3)]) / 1e9
-
-    rows: list[dict[str, object]] = []
-    for rnd in range(args.rounds):
-        for actor, (odd, pairs) in ACTORS.items():
-            cfg = dataclasses.replace(base, symmetric_actor=odd, mirror_pairs=pairs)
-            time_grid = _timed(grid_update_call(cfg, 9, (2000, 4000, 8000), args.updates))
-            before = peak()
-            rate = args.updates / statistics.median([time_grid() for _ in range(args.repeats)])
-            after = peak()
-            flops = matmul_flops(
-                update_products(OBS_DIM, cfg.hidden, cfg.batch_size, 1, odd, pairs)
-            )
-            overrides = [
-                f"train.episodes={args.episodes}",
-                f"ddpg.symmetric_actor={str(odd).lower()}",
-                f"ddpg.mirror_pairs={str(pairs).lower()}",
-            ]
-            sweep = sweep_rate(overrides, RESULTS / "actors_sweep")
-            rows.append(
-                {
-                    "round": rnd,
-                    "actor": actor,
-                    "mflop_per_model_update": round(flops / 1e6, 3),
-                    "grid_updates_per_s": round(rate, 2),
-                    "peak_gflops_before_update": round(before, 1),
-                    "peak_gflops_after_update": round(after, 1),
-                    "sweep_episodes": args.episodes,
-                    "sweep_env_steps_per_s": round(sweep["env_steps_per_s"], 1),
-                    "sweep_wall_s": round(sweep["wall_s"], 2),
-                    "sweep_peak_gflops": round(sweep["peak_gflops"], 1),
-                    "loadavg_1min": round(os.getloadavg()[0], 2),
-                }
-            )
-            print(rows[-1], flush=True)
-    write_csv(args.out, rows)
-    print(f"wrote {args.out}")
-    return rows
-
-
 def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--models", type=int, default=9)
@@ -454,7 +371,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
 
 
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["actors"]:  # the plain and the odd actor side by side
-        actors(sys.argv[2:])
-    else:
-        main(sys.argv[1:])
+    main()

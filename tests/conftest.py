@@ -127,9 +127,30 @@ HEAVY_FIRST = (
 )
 
 
+# The quick tier (``-m "not slow"``): a test is slow when it uses one of these fixtures (each
+# compiles and runs a sweep, an evaluation or a long rollout), when its file is in SLOW_FILES,
+# or when it carries ``@pytest.mark.slow`` itself.
+SLOW_FIXTURES = {
+    "smoke_run",  # conftest: one smoke sweep per worker
+    "runs",  # test_merge, test_runs_evaluate*: sweeps and their evaluation
+    "validated",  # test_validate: jaxlc.validate on the smoke run
+    "exported",  # test_export: ONNX export of the smoke run
+    "tracked",  # test_tracking: a tracked smoke sweep
+    "long_run",  # test_traffic: 102,400 env-steps at the highest rates
+    "rows",  # test_ecosystem: Rejax's learners trained
+    "rollout",  # test_env, test_gymnax, test_manoeuvre_reward: long rollouts
+    "rollouts",  # test_joint
+    "run",  # test_evaluate, test_ranges: compiled evaluation programs
+}
+SLOW_FILES = {"test_devices.py", "test_notebook.py", "test_rollout_golden.py"}
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Heaviest files first (``--no-loadscope-reorder`` keeps this order); a file's own
-    tests keep theirs."""
+    """Marks the slow tests (above); then the heaviest files first (``--no-loadscope-reorder``
+    keeps this order), a file's own tests keeping theirs."""
+    for item in items:
+        if item.path.name in SLOW_FILES or SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
     rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 

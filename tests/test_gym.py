@@ -279,28 +279,3 @@ def test_observation_bounds_follow_the_params(params):
 
 def _positive(x: float) -> bool:
     return math.isfinite(x) and x > 0
-
-
-def test_vs_highway_env_tiny(tmp_path):
-    pytest.importorskip("highway_env", reason="optional: pip install -e '.[bench]'")
-    from benchmarks import vs_highway_env as bench
-
-    out = bench.main(["--tiny", "--csv", str(tmp_path / "hw.csv")])
-    assert _positive(out["ratio_single"]) and _positive(out["ratio_best"])
-    for row in out["rows"]:
-        assert _positive(row["env_steps_per_s"]), row
-    assert (tmp_path / "hw.csv").read_text().count("\n") == len(out["rows"]) + 1
-
-
-def test_vs_sb3_tiny(tmp_path):
-    pytest.importorskip("stable_baselines3", reason="optional: pip install -e '.[bench]'")
-    from benchmarks import vs_sb3 as bench
-
-    out = bench.main(["--tiny", "--csv", str(tmp_path / "sb3.csv")])
-    for name in ("sb3", "jaxlc", "jaxlc_grid", "sb3_nine"):
-        row = out[name]
-        assert _positive(row["wall_s"]) and _positive(row["transitions_per_s"]), row
-        assert row["episodes"] >= 1
-    assert _positive(out["sb3"]["updates_per_s"]) and _positive(out["jaxlc"]["updates_per_s"])
-    assert out["jaxlc_grid"]["models"] == 9
-    assert (tmp_path / "sb3.csv").exists()

@@ -269,37 +269,3 @@ def test_every_config_file_spells_the_traffic_keys_off_but_reactive():
     assert changed_env_keys("reactive.toml", config.load()) == {"mobil", "braking"}
     reactive = config.load(config.CONFIG_DIR / "reactive.toml")
     assert dataclasses.replace(reactive, env=config.load().env) == config.load()
-
-
-def test_the_traffic_table_pools_each_cells_seeds(tmp_path):
-    from benchmarks import traffic_table as table
-
-    def row(label, seed, ok, hits, cut, brake, norm):
-        return {
-            "label": label,
-            "model": 0,
-            "seed": seed,
-            "lane_changes": 1000,
-            "success": ok,
-            "collision": hits,
-            "met_cut_in": cut,
-            "met_braking": brake,
-            "norm_all": norm,
-        }
-
-    for tag, rows in {
-        "paper": [row("A", 0, 1000, 0, 0, 0, 0.9), row("A", 1, 998, 1, 0, 0, 0.8)],
-        "hazards": [row("A", 0, 999, 1, 120, 5, 0.7), row("A", 1, 1000, 0, 80, 3, 0.9)],
-    }.items():
-        (tmp_path / tag).mkdir()
-        scripted = {**row("scripted", None, 1000, 0, 0, 0, 1.0), "model": None}
-        (tmp_path / tag / "heldout.json").write_text(json.dumps({"rows": [scripted, *rows]}))
-    line = table.table(tmp_path, ["paper", "hazards"]).splitlines()[2]
-    assert line == (
-        "| A | 99.90% of 2,000 | 1 | 0 | 0 | 85.0% | 99.95% of 2,000 | 1 | 200 | 8 | 80.0% |"
-    )
-    point, lo, hi, worst = table.difference(
-        tmp_path / "paper" / "heldout.json", tmp_path / "hazards" / "heldout.json"
-    )
-    assert point == pytest.approx(0.0005) and worst == pytest.approx(0.0005)
-    assert lo <= point <= hi and hi - lo > 0  # two seeds resampled: the interval has width

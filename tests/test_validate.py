@@ -36,7 +36,7 @@ def test_exponential_tilt_is_a_density():
 def test_toy_interval_covers_the_truth():
     """100 independent repeats of the final IS stage with one CE-fitted proposal: the 95%
     interval covers the closed-form 8.4e-7 in at least 93 (the full check with CE in each
-    repeat: benchmarks/validate_toy.py)."""
+    repeat: the retired benchmarks/scripts/validate_toy.py at b98c04d)."""
     q = rare.toy_estimate(jax.random.PRNGKey(7), 1000)["q"]
     keys = jax.random.split(jax.random.PRNGKey(8), 100)
     sample = jax.jit(jax.vmap(lambda k: rare.toy_sample(k, 20_000, q)))
@@ -410,19 +410,16 @@ def test_the_mixtures_pilots_set_each_horizon_to_the_most_trials_a_lane_change_h
 
 
 def test_benchmark_scripts_tiny(tmp_path, monkeypatch):
-    """benchmarks/validate_toy.py and validate_throughput.py end to end, tiny (their
-    ``main`` in this process: its imports and compiled programs shared with the suite)."""
-    import json
+    """benchmarks/validate_throughput.py end to end, tiny (its ``main`` in this process: its
+    imports and compiled programs shared with the suite)."""
     import sys
 
-    from benchmarks import validate_throughput, validate_toy
+    from benchmarks import validate_throughput
 
     def run(script, *args: str) -> None:
         monkeypatch.setattr(sys, "argv", [script.__name__, *args, "--out", str(tmp_path)])
         script.main()
 
-    run(validate_toy, "--repeats", "2", "--samples", "2000")
-    assert json.loads((tmp_path / "toy.json").read_text())["repeats"] == 2
     # one traffic of the script's loop (the braking one: the paper's path is the simpler)
     args = ["--chunk", "8", "--repeats", "1", "--steps", "10", "--traffic", "braking"]
     run(validate_throughput, *args)

@@ -68,7 +68,7 @@ def sim_table() -> str:
 
 
 def highway_table() -> str:
-    """``benchmarks/vs_highway_env.py``: both simulators in one run, and the ratios."""
+    """``vs_highway_env.csv`` (its script retired, at b98c04d): both simulators, the ratios."""
     rows = bench("vs_highway_env.csv")
     names = {
         "single": "one env",
@@ -142,7 +142,7 @@ def update_table() -> str:
 
 
 def actors_table() -> str:
-    """``benchmarks/update_throughput.py actors``: the plain actor, the
+    """``update_throughput.py actors`` (a mode retired, at b98c04d): the plain actor, the
     reflection-odd one and the odd one on paired batches side by side, each run beside the
     matmul peaks measured around it."""
     rows = csv_rows(ACTORS / "actors.csv")
@@ -309,9 +309,9 @@ def time_to_solution() -> str:
 
 
 def sb3_table() -> str:
-    """``benchmarks/vs_sb3.py``: one model of each learner to the target, then nine
-    models to the episode SB3 reached (jaxlc's grid measured, SB3's nine runs extrapolated from
-    one)."""
+    """``vs_sb3.csv`` (its script retired, at b98c04d): one model of each learner to the
+    target, then nine models to the episode SB3 reached (jaxlc's grid measured, SB3's nine
+    runs extrapolated from one)."""
     sb3, jx, grid, sb3_nine = bench("vs_sb3.csv")
 
     def target(r: dict[str, str]) -> str:
