@@ -11,8 +11,8 @@ Usage: ``python -m benchmarks.failed_cases RUN/eval``; writes
 
 from __future__ import annotations
 
+import argparse
 import csv
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +54,9 @@ def failed_cases(eval_dir: Path) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
-    eval_dir = Path((sys.argv[1:] if argv is None else argv)[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("eval_dir", type=Path, help="RUN/eval, as python -m jaxlc.evaluate wrote it")
+    eval_dir = ap.parse_args(argv).eval_dir
     rows = failed_cases(eval_dir)
     write_csv(eval_dir / "failed_cases.csv", rows, FIELDS)
     print(f"{len(rows)} failed lane changes -> {eval_dir / 'failed_cases.csv'}")

@@ -9,8 +9,8 @@ the matmul peak, the number of models and the run's ``train.episodes``, ``chunk_
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 from pathlib import Path
 
 from jaxlc.study.rundir import RunDir
@@ -30,4 +30,8 @@ def main(run: Path, out: Path) -> None:
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]), Path(sys.argv[2]))
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run", type=Path, help="the sweep's run directory")
+    ap.add_argument("out", type=Path, help="the light JSON to write")
+    args = ap.parse_args()
+    main(args.run, args.out)

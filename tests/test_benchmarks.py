@@ -49,6 +49,7 @@ def _bench_here(script, args: list[str], out: Path, capsys):
         return got, capsys.readouterr().out, list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_sim_throughput_tiny(tmp_path, capsys):
     args = ["--envs", "1", "8", "--steps", "300", "--repeats", "1"]
     _, stdout, rows = _bench_here(sim_throughput, args, tmp_path / "sim.csv", capsys)
@@ -60,6 +61,7 @@ def test_sim_throughput_tiny(tmp_path, capsys):
     assert "best:" in stdout
 
 
+@pytest.mark.slow
 def test_devices_throughput_tiny(tmp_path):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
     # the script picks its device counts; the suite's other flags stay (tests/conftest.py)
@@ -75,6 +77,7 @@ def test_devices_throughput_tiny(tmp_path):
         assert abs(int(r["env_steps_per_s"]) - expected) <= 1e-3 * expected
 
 
+@pytest.mark.slow
 def test_scripted_under_noise_tiny(tmp_path, capsys):
     args = ["--k", "1", "--sigma", "0", "0.2", "--envs", "16", "--steps", "700"]
     out = tmp_path / "noise.csv"
@@ -87,6 +90,7 @@ def test_scripted_under_noise_tiny(tmp_path, capsys):
     assert float(rows[0]["success_rate"]) == 1.0  # no noise: the controller never misses
 
 
+@pytest.mark.slow
 def test_time_to_solution_tiny(tmp_path):
     _, rows = _bench("time_to_solution", ["--tiny"], tmp_path / "tts.csv")
     (r,) = rows
@@ -166,3 +170,22 @@ def test_sweep_timing_keeps_the_timing_and_counts_the_models(smoke_run, smoke_cf
     assert 0 < first < light["env_steps"]
     expected = (light["env_steps"] - first) / (light["wall_s"] - light["first_chunk_s"])
     assert gpu.sweep_steady(light) == pytest.approx(expected)
+
+
+COMMANDS = sorted(
+    p.stem for p in (ROOT / "benchmarks").glob("*.py") if p.stem not in {"__init__", "csvfile"}
+)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", COMMANDS)
+def test_every_script_is_a_command_with_help(name):
+    """``python -m benchmarks.NAME --help`` from the repository root, as the docs run them."""
+    done = subprocess.run(
+        [sys.executable, "-m", f"benchmarks.{name}", "--help"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=HANG_GUARD_S,
+    )
+    assert done.returncode == 0 and done.stdout.startswith("usage:"), done.stderr[-2000:]

@@ -109,6 +109,7 @@ def _reference_update(state, batch, t):
     return (a2, c2, soft(at, a2), soft(ct, c2), {"a": mom_a, "c": mom_c}), float(loss)
 
 
+@pytest.mark.slow
 def test_flax_modules_match_plain_mlps_and_final_init():
     learner = _learner(9)
     actor, critic = make_networks(CFG)
@@ -122,6 +123,7 @@ def test_flax_modules_match_plain_mlps_and_final_init():
             assert np.abs(leaf).max() <= CFG.final_init and np.abs(leaf).max() > 0
 
 
+@pytest.mark.slow
 def test_symmetric_actor_is_odd_under_the_road_reflection():
     """ddpg.symmetric_actor: same params as the plain actor, mu(Ms) = -mu(s), and the value is
     the reference (f(s) - f(Ms)) / 2; a state its own mirror image (nothing lateral) gets 0."""
@@ -142,6 +144,7 @@ def test_symmetric_actor_is_odd_under_the_road_reflection():
     np.testing.assert_array_equal(np.asarray(sym.apply(params, own_image)), 0.0)
 
 
+@pytest.mark.slow
 def test_the_paired_actor_reads_f_of_ms_off_the_batch():
     """``Actor.paired`` on a batch [s; Ms] equals the odd actor on the same rows (one trunk
     pass instead of two: rounding may differ), mu(Ms) = -mu(s) exactly; a plain actor's
@@ -194,6 +197,7 @@ def _close(x, y):
         np.testing.assert_allclose(np.asarray(u), np.asarray(v), rtol=2e-5, atol=2e-6)
 
 
+@pytest.mark.slow
 def test_update_matches_reference_of_eqs_4_to_7(update_fn):
     learner = _learner(0)
     zeros = lambda p: jax.tree.map(np.zeros_like, p)  # noqa: E731
@@ -230,6 +234,7 @@ def test_update_moves_every_param(update_fn):
             assert np.any(np.asarray(u) != np.asarray(v))
 
 
+@pytest.mark.slow
 def test_huber_critic_loss_is_squared_inside_delta_and_linear_beyond(update_fn):
     """``ddpg.huber_delta``: TD errors within delta cost their square as in eq. (4); beyond
     it the cost grows linearly (2*delta*|e| - delta^2), so an outlier pulls the critic with
@@ -291,6 +296,7 @@ def test_explore_truncates_noise_and_stays_in_bounds():
     assert np.any(out[2] == 1.0) and np.any(out[2] == -1.0)
 
 
+@pytest.mark.slow
 def test_benchmark_tiny_runs(tmp_path):
     from benchmarks import update_throughput as bench
 

@@ -81,6 +81,7 @@ def _decide(p: EnvParams, s):
     return mobil.decide(s.traffic, a, u, p)
 
 
+@pytest.mark.slow
 def test_mobil_leaves_a_slow_leader_for_a_free_lane_only_when_it_is_safe():
     polite = jaxlc.make(config.load(overrides=HAZARDS))[1]
     p = polite.replace(mobil_politeness=0.0)  # selfish drivers
@@ -98,6 +99,7 @@ def test_mobil_leaves_a_slow_leader_for_a_free_lane_only_when_it_is_safe():
     assert not bool(blocked.start[0, 1])
 
 
+@pytest.mark.slow
 def test_two_drivers_do_not_start_into_one_spot_on_one_step():
     p = jaxlc.make(config.load(overrides=HAZARDS))[1]
     # lanes 0 and 2 each hold a car behind a slow truck, side by side: both want lane 1
@@ -107,6 +109,7 @@ def test_two_drivers_do_not_start_into_one_spot_on_one_step():
     assert int(d.start.sum()) == 1
 
 
+@pytest.mark.slow
 def test_of_the_drivers_acting_on_one_step_the_first_deciders_weigh_a_change():
     p = jaxlc.make(config.load(overrides=HAZARDS))[1].replace(mobil_deciders=5)
     # twelve cars 30 m apart at 10 m/s in lane 0, lane 1 empty: each gains by moving left (the
@@ -130,6 +133,7 @@ def test_the_deciders_cover_every_driver_acting_but_one_step_in_a_million(rate):
     assert scipy.stats.binom.sf(k, n, q) <= 1e-6 < scipy.stats.binom.sf(k - 1, n, q)
 
 
+@pytest.mark.slow
 def test_the_traffic_draws_are_uniform_and_independent():
     p = jaxlc.make(config.load(overrides=HAZARDS))[1]
     keys = jax.random.split(jax.random.PRNGKey(11), 4096)
@@ -206,6 +210,7 @@ def test_leaders_by_keys_equal_every_pair_compared_in_float():
     assert checked > 1000  # exercised: many leaders and followers, straddlers among them
 
 
+@pytest.mark.slow
 def test_rates_are_traced_one_program_runs_a_batch_of_traffics():
     env, p = jaxlc.make(config.load(overrides=(*HAZARDS, "env.warmup_time=20.0")))
     rates = jnp.array([0.0, 3600.0])  # braking events per vehicle-hour
@@ -216,6 +221,7 @@ def test_rates_are_traced_one_program_runs_a_batch_of_traffics():
     assert braking[0] == 0 and braking[1] > 0
 
 
+@pytest.mark.slow
 def test_paper_traffic_has_no_hazard_state():
     _, s = jaxlc.make()[0].reset(jax.random.PRNGKey(0), jaxlc.make()[1])
     tr = s.traffic

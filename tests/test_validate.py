@@ -33,6 +33,7 @@ def test_exponential_tilt_is_a_density():
     assert abs(rare.exponential_fit(float(np.mean(u))) - 3.0) < 0.1
 
 
+@pytest.mark.slow
 def test_toy_interval_covers_the_truth():
     """100 independent repeats of the final IS stage with one CE-fitted proposal: the 95%
     interval covers the closed-form 8.4e-7 in at least 93 (the full check with CE in each
@@ -409,6 +410,7 @@ def test_the_mixtures_pilots_set_each_horizon_to_the_most_trials_a_lane_change_h
     assert history[-1]["pooled_failures"] == 3 * calls
 
 
+@pytest.mark.slow
 def test_benchmark_scripts_tiny(tmp_path, monkeypatch):
     """benchmarks/validate_throughput.py end to end, tiny (its ``main`` in this process: its
     imports and compiled programs shared with the suite)."""
