@@ -22,13 +22,10 @@ The test files run heaviest first (``HEAVY_FIRST``): ``--dist loadfile`` hands f
 workers in collection order, and a heavy file started last would run on after the rest.
 """
 
-import importlib.util
 import os
 import shutil
-import sys
 import tempfile
 from pathlib import Path
-from types import ModuleType
 
 CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
 # Set before jax is imported (here and in every xdist worker and subprocess, which inherit it).
@@ -56,18 +53,7 @@ SMOKE = config.CONFIG_DIR / "smoke.toml"
 
 # Only stops a hung subprocess; never a speed judgement: a run slower than this is broken.
 HANG_GUARD_S = 3600
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks" / "scripts"
-
-
-def load_benchmark(name: str) -> ModuleType:
-    """``benchmarks/scripts/NAME.py`` as a module (the benchmarks are scripts, not a package),
-    its folder on ``sys.path`` as when it runs as a script (a script imports its neighbours)."""
-    if str(BENCHMARKS) not in sys.path:
-        sys.path.insert(0, str(BENCHMARKS))
-    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+ROOT = Path(__file__).resolve().parent.parent  # where ``python -m benchmarks.NAME`` runs
 
 
 def changed_env_keys(name: str, base: config.Config) -> set[str]:
@@ -141,9 +127,30 @@ HEAVY_FIRST = (
 )
 
 
+# The quick tier (``-m "not slow"``): a test is slow when it uses one of these fixtures (each
+# compiles and runs a sweep, an evaluation or a long rollout), when its file is in SLOW_FILES,
+# or when it carries ``@pytest.mark.slow`` itself.
+SLOW_FIXTURES = {
+    "smoke_run",  # conftest: one smoke sweep per worker
+    "runs",  # test_merge, test_runs_evaluate*: sweeps and their evaluation
+    "validated",  # test_validate: jaxlc.validate on the smoke run
+    "exported",  # test_export: ONNX export of the smoke run
+    "tracked",  # test_tracking: a tracked smoke sweep
+    "long_run",  # test_traffic: 102,400 env-steps at the highest rates
+    "rows",  # test_ecosystem: Rejax's learners trained
+    "rollout",  # test_env, test_gymnax, test_manoeuvre_reward: long rollouts
+    "rollouts",  # test_joint
+    "run",  # test_evaluate, test_ranges: compiled evaluation programs
+}
+SLOW_FILES = {"test_devices.py", "test_notebook.py", "test_rollout_golden.py"}
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Heaviest files first (``--no-loadscope-reorder`` keeps this order); a file's own
-    tests keep theirs."""
+    """Marks the slow tests (above); then the heaviest files first (``--no-loadscope-reorder``
+    keeps this order), a file's own tests keeping theirs."""
+    for item in items:
+        if item.path.name in SLOW_FILES or SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
     rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 

@@ -50,6 +50,7 @@ def _obs(p, **raw: float) -> jnp.ndarray:
 P = _params()
 
 
+@pytest.mark.slow
 def test_a_short_lead_holds_the_lane_and_brakes() -> None:
     obs = _obs(P, lead_gap=15.0)  # 0.6 s behind the target lane's lead
     lat, lon = np.asarray(fitting_action(obs, P))
@@ -111,6 +112,7 @@ def test_the_baseline_row_under_an_assist_is_the_assist_alone() -> None:
     )
 
 
+@pytest.mark.slow
 def test_the_assist_drives_as_the_controller_does_under_a_zero_policy() -> None:
     """A zero policy under ``env.assist = "fitting"`` runs the same lane changes as the
     controller acting itself with the manoeuvre time observed: the same ends, steps and the
@@ -167,6 +169,7 @@ def _rollout(assist: str, authority: float, lat: float, lon: float) -> list[np.n
     return [np.asarray(x) for x in _drive(p, jnp.asarray([lat, lon]))]
 
 
+@pytest.mark.slow
 def test_the_residual_acts_through_its_authority_alone() -> None:
     """``env.assist_authority`` w scales the policy's residual: (w, a) drives as (1, w a), bit
     for bit (w a power of 2), and w = 0 drives as a zero policy; the same actions at full
@@ -181,6 +184,7 @@ def test_the_residual_acts_through_its_authority_alone() -> None:
     assert np.abs(full[1] - quarter[1]).max() > 0.1  # m: a residual at full authority moves the ego
 
 
+@pytest.mark.slow
 def test_a_holding_assist_executes_its_own_lateral_action_alone() -> None:
     """Under ``"fitting_hold"`` a lateral residual at full authority changes nothing while the
     assist holds the origin lane: each env drives as under a zero policy until the zero

@@ -2,7 +2,6 @@
 asserted, only that each measured the real work and wrote its table."""
 
 import csv
-import importlib
 import json
 import os
 import subprocess
@@ -13,17 +12,25 @@ import jax
 import numpy as np
 import pytest
 
-from jaxlc import config
-from jaxlc.study import checkpoint
+from benchmarks import (
+    failed_cases,
+    program_hashes,
+    scripted_under_noise,
+    sim_throughput,
+    study_summary,
+    sweep_timing,
+)
+from benchmarks.tables import gpu
 
-from .conftest import BENCHMARKS, HANG_GUARD_S, load_benchmark
+from .conftest import HANG_GUARD_S, ROOT
 
 
-def _bench(script: str, args: list[str], out: Path, env: dict | None = None):
-    """Run ``benchmarks/script`` with ``args`` plus its CSV option pointing at ``out``;
-    return ``(stdout, csv rows)``."""
+def _bench(name: str, args: list[str], out: Path, env: dict | None = None):
+    """Run ``python -m benchmarks.NAME`` with ``args`` plus its CSV option pointing at
+    ``out``; return ``(stdout, csv rows)``."""
     done = subprocess.run(
-        [sys.executable, str(BENCHMARKS / script), *args, "--csv", str(out)],
+        [sys.executable, "-m", f"benchmarks.{name}", *args, "--csv", str(out)],
+        cwd=ROOT,
         capture_output=True,
         text=True,
         timeout=HANG_GUARD_S,
@@ -34,19 +41,20 @@ def _bench(script: str, args: list[str], out: Path, env: dict | None = None):
         return done.stdout, list(csv.DictReader(f))
 
 
-def _bench_here(script: str, args: list[str], out: Path, capsys):
-    """``benchmarks/script``'s ``main`` in this process (its imports and compiled programs
+def _bench_here(script, args: list[str], out: Path, capsys):
+    """A benchmark module's ``main`` in this process (its imports and compiled programs
     shared with the suite), with ``args`` plus its CSV option pointing at ``out``; return
     ``(main's return, stdout, csv rows)``."""
     capsys.readouterr()
-    got = load_benchmark(script.removesuffix(".py")).main([*args, "--csv", str(out)])
+    got = script.main([*args, "--csv", str(out)])
     with out.open() as f:
         return got, capsys.readouterr().out, list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_sim_throughput_tiny(tmp_path, capsys):
     args = ["--envs", "1", "8", "--steps", "300", "--repeats", "1"]
-    _, stdout, rows = _bench_here("sim_throughput.py", args, tmp_path / "sim.csv", capsys)
+    _, stdout, rows = _bench_here(sim_throughput, args, tmp_path / "sim.csv", capsys)
     assert [int(r["envs"]) for r in rows] == [1, 8]
     for r in rows:
         assert float(r["env_steps_per_s"]) > 0
@@ -55,13 +63,14 @@ def test_sim_throughput_tiny(tmp_path, capsys):
     assert "best:" in stdout
 
 
+@pytest.mark.slow
 def test_devices_throughput_tiny(tmp_path):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
     # the script picks its device counts; the suite's other flags stay (tests/conftest.py)
     flags = env.get("XLA_FLAGS", "").split()
     env["XLA_FLAGS"] = " ".join(f for f in flags if "xla_force_host_platform_device_count" not in f)
     args = ["--devices", "1", "2", "--tiny"]
-    _, rows = _bench("devices_throughput.py", args, tmp_path / "devices.csv", env)
+    _, rows = _bench("devices_throughput", args, tmp_path / "devices.csv", env)
     assert [int(r["devices"]) for r in rows] == [1, 2]
     for r in rows:
         assert float(r["grid_updates_per_s"]) > 0
@@ -70,10 +79,11 @@ def test_devices_throughput_tiny(tmp_path):
         assert abs(int(r["env_steps_per_s"]) - expected) <= 1e-3 * expected
 
 
+@pytest.mark.slow
 def test_scripted_under_noise_tiny(tmp_path, capsys):
     args = ["--k", "1", "--sigma", "0", "0.2", "--envs", "16", "--steps", "700"]
     out = tmp_path / "noise.csv"
-    status, _, rows = _bench_here("scripted_under_noise.py", args, out, capsys)
+    status, _, rows = _bench_here(scripted_under_noise, args, out, capsys)
     assert status == 0
     assert [float(r["sigma"]) for r in rows] == [0.0, 0.2]
     for r in rows:
@@ -82,8 +92,9 @@ def test_scripted_under_noise_tiny(tmp_path, capsys):
     assert float(rows[0]["success_rate"]) == 1.0  # no noise: the controller never misses
 
 
+@pytest.mark.slow
 def test_time_to_solution_tiny(tmp_path):
-    _, rows = _bench("time_to_solution.py", ["--tiny"], tmp_path / "tts.csv")
+    _, rows = _bench("time_to_solution", ["--tiny"], tmp_path / "tts.csv")
     (r,) = rows
     assert r["reached"] == "True" and int(r["episode"]) >= 1 and r["model"]
     per_chunk = 100 * 4 * int(r["models"])  # smoke: chunk_steps x envs_per_model x models
@@ -106,64 +117,13 @@ def test_study_summary_reads_cells_and_one_seed_studies_from_eval_csv(tmp_path, 
     with path.open("w", newline="") as f:
         csv.writer(f).writerows([fields, *rows])
     capsys.readouterr()
-    load_benchmark("study_summary").main([str(path)])
+    study_summary.main([str(path)])
     stdout = capsys.readouterr().out
     lines = {line.split("|")[1].strip(): line for line in stdout.splitlines() if "| " in line}
     collapsed = [c.strip() for c in lines["④ k=1 D=4000"].split("|")]
     assert collapsed[3].startswith("50.0%") and collapsed[4] == "100.0% (100)"
     assert collapsed[5] == "50.0%"  # the drop from the best checkpoint to the last
     assert "Read as 3 one-seed studies: 1 of 3 have a model at >= 99%" in stdout
-
-
-def test_kink_probe_branches_share_their_traffic(smoke_run, capsys):
-    """With every first action equal to the policy's own (spread 0), the branch rollouts
-    see the same traffic, so their returns tie: the peak is at the own action, gain 0."""
-    run_dir, _ = smoke_run
-    ck = max(checkpoint.list_checkpoints(run_dir))
-    args = ["--envs", "8", "--steps", "400", "--at", "0.5", "--horizon", "2"]
-    capsys.readouterr()
-    load_benchmark("kink_probe").main([str(ck), *args, "--spread", "0"])
-    stdout = capsys.readouterr().out
-    assert "peaks at the policy's own first action" in stdout
-    assert "in 100% of them; median gain of the best a0 over mu(s*): 0.00" in stdout
-
-
-def test_lane_occupancy_counts_every_lane_and_sees_a_full_ring():
-    occupancy = load_benchmark("lane_occupancy").occupancy
-    # Four slots under the densest inflow the config allows: the rings must fill.
-    cfg = config.load(None, ["env.slots_per_lane=4", "env.inflow_min=4000", "env.inflow_max=4000"])
-    hist = occupancy(cfg, envs=4, steps=200, seed=0)
-    assert hist.shape == (5,)
-    assert hist.sum() == 4 * 200 * cfg.env.lanes  # one count per env, lane and step
-    assert hist[4] > 0  # full rings are counted, and no count exceeds the slots (shape)
-
-
-def test_update_ratio_divides_transitions_by_updates_per_phase():
-    ratios = load_benchmark("update_ratio").ratios
-    # Model 0: 10 scan steps, 3 transitions and 1 update each; model 1 stops after 4 steps.
-    t = np.array([[3, 6]] * 4 + [[3, 0]] * 6)
-    u = np.array([[1, 2]] * 4 + [[1, 0]] * 6)
-    a, b = ratios(t, u)
-    assert a["scan_steps"] == 10 and b["scan_steps"] == 4
-    assert a["all"] == a["first_10pct"] == a["next_40pct"] == a["second_half"] == 3.0
-    assert b["all"] == b["next_40pct"] == b["second_half"] == 3.0
-    assert np.isnan(b["first_10pct"])  # 10% of 4 steps holds none: no ratio, not 0
-    u[5:, 0] = 3  # more updates in model 0's second half: fewer transitions per update there
-    (a, _) = ratios(t, u)
-    assert a["second_half"] == 1.0 and a["first_10pct"] == 3.0
-
-
-def test_gap_fitting_runs_both_controllers_on_the_same_lane_changes():
-    gap_fitting = load_benchmark("gap_fitting")
-    rows = gap_fitting.rows_for(str(config.CONFIG_DIR / "joint.toml"), True, 0, 10, 1500)
-    scripted, fitting = rows
-    assert (scripted["controller"], fitting["controller"]) == ("scripted", "fitting")
-    assert scripted["lane_changes"] == fitting["lane_changes"] >= 10
-    for r in rows:
-        ends = sum(r[c] for c in ("success", "timeout", "out_of_bounds", "collision"))
-        assert ends == r["lane_changes"] and 0.0 <= r["norm_all"] <= r["norm_min_thw_s"] <= 1.0
-    # it waits for the lead's headway, which the baseline does not
-    assert fitting["thw_crit_lead"] <= scripted["thw_crit_lead"]
 
 
 def test_failed_cases_lists_each_failed_lane_change_of_each_policy(tmp_path):
@@ -186,7 +146,7 @@ def test_failed_cases_lists_each_failed_lane_change_of_each_policy(tmp_path):
         final_omega=np.zeros((2, 4)),
     )
     (tmp_path / "heldout.csv").write_text("label,seed\nscripted controller,\nmodel,0\n")
-    rows = load_benchmark("failed_cases").main([str(tmp_path)])
+    rows = failed_cases.main([str(tmp_path)])
     got = [(r["label"], r["case"], r["reason"], r["rl_steps"], r["final_offset_m"]) for r in rows]
     assert got == [
         ("scripted controller", 11, "out_of_bounds", 1, 3.7),
@@ -202,7 +162,7 @@ def test_sweep_timing_keeps_the_timing_and_counts_the_models(smoke_run, smoke_cf
     first chunk did not (``tables/gpu.sweep_steady``)."""
     run_dir, summary = smoke_run
     out = tmp_path / "sweep.json"
-    load_benchmark("sweep_timing").main(run_dir, out)
+    sweep_timing.main(run_dir, out)
     light = json.loads(out.read_text())
     assert light["models"] == len(summary["models"]) and "config" not in light
     assert light["wall_s"] == summary["wall_s"] and light["env_steps"] == summary["env_steps"]
@@ -210,7 +170,6 @@ def test_sweep_timing_keeps_the_timing_and_counts_the_models(smoke_run, smoke_cf
     assert (light["episodes_per_model"], light["envs_per_model"]) == (t.episodes, t.envs_per_model)
     first = t.chunk_steps * t.envs_per_model * light["models"]
     assert 0 < first < light["env_steps"]
-    gpu = importlib.import_module("tables.gpu")  # load_benchmark put its folder on sys.path
     expected = (light["env_steps"] - first) / (light["wall_s"] - light["first_chunk_s"])
     assert gpu.sweep_steady(light) == pytest.approx(expected)
 
@@ -218,10 +177,28 @@ def test_sweep_timing_keeps_the_timing_and_counts_the_models(smoke_run, smoke_cf
 def test_program_hashes_tell_the_traffics_apart_and_repeat():
     """The programs' hashes that show two commits run the same simulator: one per traffic and
     program, the same on a second lowering, different between the traffics."""
-    bench = load_benchmark("program_hashes")
-    first = bench.hashes(envs=2)
+    first = program_hashes.hashes(envs=2)
     assert sorted(first) == ["hazards reset", "hazards step", "paper reset", "paper step"]
-    again = bench._programs((), jax.random.split(jax.random.PRNGKey(0), 2))  # paper traffic
+    again = program_hashes._programs((), jax.random.split(jax.random.PRNGKey(0), 2))  # paper traffic
     assert again == {"step": first["paper step"], "reset": first["paper reset"]}
     assert first["paper step"] != first["hazards step"]
     assert len(set(first.values())) == 4
+
+
+COMMANDS = sorted(
+    p.stem for p in (ROOT / "benchmarks").glob("*.py") if p.stem not in {"__init__", "csvfile"}
+)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", COMMANDS)
+def test_every_script_is_a_command_with_help(name):
+    """``python -m benchmarks.NAME --help`` from the repository root, as the docs run them."""
+    done = subprocess.run(
+        [sys.executable, "-m", f"benchmarks.{name}", "--help"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=HANG_GUARD_S,
+    )
+    assert done.returncode == 0 and done.stdout.startswith("usage:"), done.stderr[-2000:]

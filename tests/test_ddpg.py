@@ -16,8 +16,6 @@ from jaxlc.learn.networks import Actor, make_networks
 from jaxlc.sim.observation import MIRROR_SIGNS
 from jaxlc.sim.observation import OBS_DIM as FULL_OBS
 
-from .conftest import load_benchmark
-
 OBS_DIM = 5
 # a big final init and tau so that every term of the update moves the params visibly
 # huber_delta=0: the paper's squared error of eq. (4); the Huber option and the symmetric
@@ -111,6 +109,7 @@ def _reference_update(state, batch, t):
     return (a2, c2, soft(at, a2), soft(ct, c2), {"a": mom_a, "c": mom_c}), float(loss)
 
 
+@pytest.mark.slow
 def test_flax_modules_match_plain_mlps_and_final_init():
     learner = _learner(9)
     actor, critic = make_networks(CFG)
@@ -124,6 +123,7 @@ def test_flax_modules_match_plain_mlps_and_final_init():
             assert np.abs(leaf).max() <= CFG.final_init and np.abs(leaf).max() > 0
 
 
+@pytest.mark.slow
 def test_symmetric_actor_is_odd_under_the_road_reflection():
     """ddpg.symmetric_actor: same params as the plain actor, mu(Ms) = -mu(s), and the value is
     the reference (f(s) - f(Ms)) / 2; a state its own mirror image (nothing lateral) gets 0."""
@@ -144,6 +144,7 @@ def test_symmetric_actor_is_odd_under_the_road_reflection():
     np.testing.assert_array_equal(np.asarray(sym.apply(params, own_image)), 0.0)
 
 
+@pytest.mark.slow
 def test_the_paired_actor_reads_f_of_ms_off_the_batch():
     """``Actor.paired`` on a batch [s; Ms] equals the odd actor on the same rows (one trunk
     pass instead of two: rounding may differ), mu(Ms) = -mu(s) exactly; a plain actor's
@@ -196,6 +197,7 @@ def _close(x, y):
         np.testing.assert_allclose(np.asarray(u), np.asarray(v), rtol=2e-5, atol=2e-6)
 
 
+@pytest.mark.slow
 def test_update_matches_reference_of_eqs_4_to_7(update_fn):
     learner = _learner(0)
     zeros = lambda p: jax.tree.map(np.zeros_like, p)  # noqa: E731
@@ -232,6 +234,7 @@ def test_update_moves_every_param(update_fn):
             assert np.any(np.asarray(u) != np.asarray(v))
 
 
+@pytest.mark.slow
 def test_huber_critic_loss_is_squared_inside_delta_and_linear_beyond(update_fn):
     """``ddpg.huber_delta``: TD errors within delta cost their square as in eq. (4); beyond
     it the cost grows linearly (2*delta*|e| - delta^2), so an outlier pulls the critic with
@@ -293,8 +296,10 @@ def test_explore_truncates_noise_and_stays_in_bounds():
     assert np.any(out[2] == 1.0) and np.any(out[2] == -1.0)
 
 
+@pytest.mark.slow
 def test_benchmark_tiny_runs(tmp_path):
-    bench = load_benchmark("update_throughput")
+    from benchmarks import update_throughput as bench
+
     out = tmp_path / "tiny.csv"
     figures = bench.main(["--tiny", "--out", str(out)])
     for name in (
@@ -350,7 +355,8 @@ def test_benchmark_counts_the_products_that_the_update_computes(symmetric, pairs
     }
     traced = jax.make_jaxpr(lambda lrn: ddpg.update(lrn, data, ddpg.Hyper.from_config(cfg), cfg))
     in_update = _dot_flops(traced(learner).jaxpr)
-    bench = load_benchmark("update_throughput")
+    from benchmarks import update_throughput as bench
+
     counted = bench.matmul_flops(
         bench.update_products(obs_dim, cfg.hidden, batch, 1, cfg.symmetric_actor, cfg.mirror_pairs)
     )

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import pytest
 
-from .conftest import load_benchmark
-
 pytest.importorskip("gymnax", reason="optional: pip install -e '.[ecosystem]'")
 pytest.importorskip("rejax", reason="optional: pip install -e '.[ecosystem]'")
 
@@ -27,7 +25,9 @@ def rows(tmp_path_factory) -> dict[str, dict]:
     """One run of the benchmark for both learners: imports, the machine's peak and the
     fixed cases' start program are paid once."""
     csv = tmp_path_factory.mktemp("vs_rejax") / "r.csv"
-    out = load_benchmark("vs_rejax").main(
+    from benchmarks import vs_rejax
+
+    out = vs_rejax.main(
         ["--algos", *ALGOS, "--seeds", "1", "--timesteps", str(SMOKE_DECISIONS)]
         + ["--cases", str(SMOKE_CASES), "--csv", str(csv)]
     )

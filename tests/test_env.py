@@ -222,6 +222,7 @@ def _quiet_state(env, p, key):
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kappa", [0.0, 0.005])
 def test_platoon_settles_to_equilibrium_gap(env_params, kappa):
     """IDM's equilibrium gap holds in metres along the lane, on a curve too: lane 0 lies
@@ -370,6 +371,7 @@ def _lag_scene(env, p, yielding):
     return s.replace(nb=nb, leader_gap=lg, leader_v=lv)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("terminal", [False, True])
 def test_timeout_semantics_are_consistent(env_params, terminal):
     """A timeout either truncates with the manoeuvre time unobserved (the default: the learner
@@ -392,6 +394,7 @@ def test_timeout_semantics_are_consistent(env_params, terminal):
         assert float(before[6]) == 0.0 and float(obs[6]) == 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("lane_of_centre", "leader_x"), [(1, 260.0), (0, 230.0)])
 def test_own_lane_leader_is_in_the_lane_that_holds_the_egos_centre(
     env_params, lane_of_centre, leader_x
@@ -458,6 +461,7 @@ def test_auto_reset_starts_a_new_episode(env_params, rollout, reset_batch):
     assert (np.asarray(out["steps"])[rl_start] == 1).all()
 
 
+@pytest.mark.slow
 def test_action_is_refreshed_only_every_k_steps(env_params):
     env, p = env_params
     p = p.replace(k=3)
@@ -480,6 +484,7 @@ def test_action_is_refreshed_only_every_k_steps(env_params):
 # --- batching and the reference controller --------------------------------------------------
 
 
+@pytest.mark.slow
 def test_vmap_equals_envs_stepped_one_by_one(env_params):
     env, p = env_params
     keys = jax.random.split(jax.random.PRNGKey(11), 3)
@@ -499,6 +504,7 @@ def test_vmap_equals_envs_stepped_one_by_one(env_params):
             np.testing.assert_allclose(a, b[i], rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_offset_observation_scale_changes_units_not_the_controller(env_params, reset_batch):
     """``offset_obs_scale`` only rescales obs[4] (m per unit): every other column, and the
     scripted controller's action, which reads the offset back in metres, stay the same."""
@@ -532,6 +538,7 @@ def test_scripted_controller_completes_lane_changes(env_params, rollout, reset_b
     assert ends[reward.SUCCESS] / performed >= 0.95, dict(zip(reward.REASONS, ends, strict=True))
 
 
+@pytest.mark.slow
 def test_mirror_signs_reflect_the_observation_the_kinematics_and_keep_the_reward(
     env_params, reset_batch
 ):
@@ -583,6 +590,7 @@ def test_mirror_signs_reflect_the_observation_the_kinematics_and_keep_the_reward
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kappa", [-0.002, 0.004])
 def test_the_ego_keeps_its_lane_on_a_curve_until_the_rl_phase(env_params, kappa):
     """Before the RL phase the ego holds its lane's line, so the first RL observation is one
@@ -607,6 +615,7 @@ def test_the_ego_keeps_its_lane_on_a_curve_until_the_rl_phase(env_params, kappa)
     np.testing.assert_allclose(raw["curvature"], kappa, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_curvature_drawn_per_episode_lies_in_its_range_and_is_observed():
     """``env.curvature = [min, max]``: each episode draws its road (a leaf of the state only
     then), the observation reports the draw, and the draws spread over the range."""
@@ -636,6 +645,7 @@ def test_curvature_drawn_per_episode_lies_in_its_range_and_is_observed():
     assert kappa.min() < -0.002 and kappa.max() > 0.0
 
 
+@pytest.mark.slow
 def test_step_ends_are_booleans_whether_params_are_traced_or_constants():
     """``terminated``/``truncated`` are bool arrays also when the params are compiled in as
     Python values (as the trainer does): ``~False`` is -1 in Python, an int."""

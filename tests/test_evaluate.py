@@ -217,6 +217,7 @@ def test_seed_statistics_are_written_and_say_one_seed_is_not_enough(run) -> None
     assert len(claims) == 5 and all("**n/a**" in x or "undecided at 1 seed" in x for x in claims)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("with_config", [False, True])
 def test_dir_without_checkpoints_exits_2_with_one_line(tmp_path: Path, with_config: bool) -> None:
     if with_config:  # a run that stopped before its first checkpoint
@@ -265,6 +266,7 @@ def test_the_protocol_comes_from_the_runs_eval_table_and_flags_override_it(
     assert not (tmp_path / "eval").exists()
 
 
+@pytest.mark.slow
 def test_a_batch_of_case_starts_is_each_case_started_alone() -> None:
     """``make_start_cases`` steps the batch together, then finishes its slowest cases in
     blocks of ``n // SPILL``: every case's start equals the plain vmapped start bit for bit,
@@ -280,6 +282,7 @@ def test_a_batch_of_case_starts_is_each_case_started_alone() -> None:
     assert steps.max() > np.sort(steps)[-(n // cases.SPILL) - 1], steps
 
 
+@pytest.mark.slow
 def test_a_rollout_of_a_batch_is_each_case_rolled_out_alone(monkeypatch) -> None:
     """``make_rollout`` runs most of the batch together, then finishes its slowest cases in
     blocks of ``n // SPILL``: every policy's outcome and trace on every case equal those of
@@ -307,6 +310,7 @@ def test_a_rollout_of_a_batch_is_each_case_rolled_out_alone(monkeypatch) -> None
     assert steps.max() > np.sort(steps)[-(n // cases.SPILL) - 1], steps
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("traffic", [[], ["env.mobil=true", "env.braking=true"]])
 def test_the_traffic_only_warm_up_gives_the_full_warm_ups_traffic(traffic) -> None:
     """``reset(..., traffic_only=True)`` (the validation's cases) warms the same traffic as

@@ -182,6 +182,7 @@ def test_bad_input_gets_one_line_exit_2_and_touches_nothing(smoke_run, tmp_path,
         assert (_tree_of_files(run_dir), _tree_of_files(tmp_path)) == before, argv
 
 
+@pytest.mark.slow
 def test_non_finite_values_stop_the_run_naming_the_model(tmp_path, capsys):
     out = tmp_path / "overflow"
     # A reward scale this large overflows float32 on the first RL step.
@@ -214,6 +215,7 @@ def test_loading_the_training_state_as_a_checkpoint_points_to_resume(smoke_run):
     assert "interrupted" not in msg
 
 
+@pytest.mark.slow
 def test_full_disk_mid_run_says_free_space_then_resume(tmp_path, capsys, monkeypatch):
     """The second full-state save meets a full disk: the process exits 2 with one line that
     says to free space and resume, and the first save is still whole and loadable."""
@@ -236,3 +238,33 @@ def test_full_disk_mid_run_says_free_space_then_resume(tmp_path, capsys, monkeyp
     assert f"--resume {out}" in err[0] and "save again" not in err[0]
     assert RunDir(out).state.read_bytes() == first_state["bytes"]
     assert not (out / "summary.json").exists()
+
+
+def test_the_loops_fault_messages_name_the_model_and_what_to_do(tmp_path):
+    """Without a sweep: a non-finite step names its model, cell, seed and scan step, and a
+    failed write says to resume only once a save exists; a run ends at its episodes."""
+    from jaxlc import config
+    from jaxlc.learn import train
+    from jaxlc.study import loop
+
+    cfg = config.load(SMOKE, ["train.seeds=2"])
+    grid = train.make_grid(cfg)
+    rd = RunDir(tmp_path / "run")
+    finite = np.ones((4, len(grid.seeds)), bool)
+    loop._check_finite({"finite": finite}, 100, grid, rd)  # all finite: no fault
+    finite[2, 3] = False
+    cell = grid.cells[grid.cell_of[3]]
+    with pytest.raises(loop.NumericalFault, match=r"model 3 \(k=") as fault:
+        loop._check_finite({"finite": finite}, 100, grid, rd)
+    assert f"seed {grid.seeds[3]}" in str(fault.value) and "scan step 102" in str(fault.value)
+    assert f"memory={cell['memory']}" in str(fault.value) and "no save was made" in str(fault.value)
+    err = checkpoint.WriteError(tmp_path / "x", "no space left", "free some disk space")
+    assert "run the same command again" in loop.after_write_error(err, rd.root)
+    rd.state.parent.mkdir(parents=True)
+    rd.state.write_bytes(b"")
+    assert f"--resume {rd.root}" in loop.after_write_error(err, rd.root)
+    n = len(grid.seeds)
+    done = {"step": np.zeros(1, int), "episodes": np.full(n, cfg.train.episodes)}
+    assert loop._finished(done, cfg.train)
+    assert not loop._finished({**done, "episodes": done["episodes"] - 1}, cfg.train)
+    assert loop.host_devices(cfg) >= 1

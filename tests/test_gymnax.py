@@ -34,6 +34,7 @@ def made():
     return env, params, env.reset, env.step
 
 
+@pytest.mark.slow
 def test_it_is_a_gymnax_environment(made):
     env, params, reset, step = made
     assert isinstance(env, gymnax.environments.environment.Environment)
@@ -158,6 +159,7 @@ def test_the_five_value_adapter(made):
     assert any(dones)
 
 
+@pytest.mark.slow
 def test_same_numbers_as_the_gymnasium_wrapper(made):
     """Fed the keys the wrapper uses and the same actions, the gymnax env returns the
     wrapper's observations, rewards and ends; on an end, its ``obs`` is the next manoeuvre's

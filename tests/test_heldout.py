@@ -129,6 +129,7 @@ def smoke_cfg() -> config.Config:
     return config.load(config.CONFIG_DIR / "smoke.toml")
 
 
+@pytest.mark.slow
 def test_keys_for_lane_changes_hold_exactly_that_many(smoke_cfg: config.Config) -> None:
     keys, started = cases.cases_for_lane_changes(smoke_cfg, 25, seed=3, batch=16)
     start, _ = cases.programs(smoke_cfg, 1500)
@@ -142,6 +143,7 @@ def test_keys_for_lane_changes_hold_exactly_that_many(smoke_cfg: config.Config) 
     np.testing.assert_array_equal(np.asarray(other), np.asarray(keys))
 
 
+@pytest.mark.slow
 def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -> None:
     """A constant full-left policy on held-out cases; one case replayed with env.step: the
     rollout's peak windowed jerks (lateral and longitudinal), peak longitudinal acceleration,
@@ -209,6 +211,7 @@ def _reaches(state, lane: int, p) -> bool:
     return max(ys) > lo and min(ys) < hi
 
 
+@pytest.mark.slow
 def test_headway_counts_once_the_body_overlaps_the_lane() -> None:
     """Target-lane vehicles count from the ego's first overlap with the target lane on (also if
     it swings back), the own leader while the body overlaps the own lane, centre still in it."""

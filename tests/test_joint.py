@@ -105,6 +105,7 @@ def test_the_longitudinal_action_moves_the_ego_within_its_bounds(rollouts) -> No
     assert float(ego_accel(free, p, jnp.float32(0.0))) == float(ego_accel(free, p))
 
 
+@pytest.mark.slow
 def test_the_joint_env_wants_two_action_entries() -> None:
     env, p = _params("policy")
     _, s = env.reset(jax.random.key(0), p)
@@ -113,6 +114,7 @@ def test_the_joint_env_wants_two_action_entries() -> None:
         env.step(jax.random.key(1), s, jnp.zeros(1), p)
 
 
+@pytest.mark.slow
 def test_the_symmetric_actor_keeps_the_longitudinal_action_even() -> None:
     """mu(Ms) = (-lateral, +longitudinal): the reflection flips the yaw acceleration and keeps
     the longitudinal one, by construction."""
@@ -127,6 +129,7 @@ def test_the_symmetric_actor_keeps_the_longitudinal_action_even() -> None:
     assert np.abs(a).max(axis=0).min() > 0.1  # neither entry is trivially 0
 
 
+@pytest.mark.slow
 def test_mirrored_batches_negate_the_lateral_action_alone() -> None:
     mem = replay.init(64, OBS_DIM, 2, 64)
     rows = np.arange(1, 65, dtype=np.float32)
@@ -152,6 +155,7 @@ def test_the_scripted_controller_leaves_the_longitudinal_to_the_idm() -> None:
     np.testing.assert_array_equal(np.asarray(a2[:, 1]), 0.0)
 
 
+@pytest.mark.slow
 def test_the_wrappers_spaces_follow_the_action() -> None:
     from jaxlc.gym import LaneChangeGymEnv
     from jaxlc.gymnax_env import LaneChangeGymnax, params_for

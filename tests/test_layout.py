@@ -194,3 +194,41 @@ def test_nothing_imports_a_command():
         tree = ast.parse(path.read_text(encoding="utf-8"))
         found = _imports(tree, "benchmarks." + path.stem, modules | COMMANDS)
         assert not found & COMMANDS, f"{path.name} imports {found & COMMANDS}"
+
+
+# benchmarks/: a package of scripts, each ``python -m benchmarks.NAME``; the folders beside
+# them are evidence and hold no code. Helpers that are not commands, by name.
+BENCHMARKS = PACKAGE.parent / "benchmarks"
+BENCHMARK_HELPERS = {"__init__", "csvfile"}
+
+
+def _edits_sys_path(tree: ast.Module) -> bool:
+    """Whether a module touches ``sys.path`` in code (a mention in a string does not count)."""
+    return any(
+        isinstance(node, ast.Attribute)
+        and node.attr == "path"
+        and isinstance(node.value, ast.Name)
+        and node.value.id == "sys"
+        for node in ast.walk(tree)
+    )
+
+
+def test_the_benchmarks_are_a_package_with_no_code_in_their_evidence():
+    scripts = sorted(BENCHMARKS.glob("*.py"))
+    assert (BENCHMARKS / "__init__.py").is_file() and (
+        BENCHMARKS / "tables" / "__init__.py"
+    ).is_file()
+    code = sorted(BENCHMARKS.rglob("*.py"))
+    in_evidence = [p for p in code if p.parent not in (BENCHMARKS, BENCHMARKS / "tables")]
+    assert not in_evidence, in_evidence
+    commands = [p for p in scripts if p.stem not in BENCHMARK_HELPERS]
+    for path in commands:
+        text = path.read_text(encoding="utf-8")
+        assert 'if __name__ == "__main__":' in text and "argparse" in text, path.name
+
+
+def test_no_script_or_test_edits_sys_path():
+    paths = [*BENCHMARKS.rglob("*.py"), *(PACKAGE.parent / "tests").rglob("*.py")]
+    edits = [p.name for p in paths if _edits_sys_path(ast.parse(p.read_text(encoding="utf-8")))]
+    assert not edits, edits
+    assert _edits_sys_path(ast.parse("import sys\nsys.path.insert(0, 'x')"))  # the check sees one

@@ -20,6 +20,7 @@ from .test_faults import _tree_of_files
 SWEEP = [sys.executable, "-m", "jaxlc.sweep", "--no-progress"]
 
 
+@pytest.mark.slow
 def test_a_second_writer_is_refused_while_the_first_holds_the_lock(tmp_path):
     out = tmp_path / "run"
     first = subprocess.Popen(

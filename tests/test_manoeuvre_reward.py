@@ -93,6 +93,7 @@ def test_the_terms_sum_to_the_reward_and_are_costs(rollout) -> None:
     assert (info["r_speed"][rl] < 0).any() and (info["r_long"][rl] < 0).any()
 
 
+@pytest.mark.slow
 def test_the_default_reward_names_none_of_them() -> None:
     env, p = jaxlc.make()
     assert reward.names(p) == ("r_s", "r_e", "r_d")

@@ -72,3 +72,25 @@ def test_runs_that_differ_or_overlap_are_refused(runs, tmp_path, capsys) -> None
     assert merge.main([str(tmp_path / "b"), str(together.root), str(other)]) == 2
     err = capsys.readouterr().err
     assert "differs from" in err and "ddpg.tau" in err
+
+
+def test_configs_are_checked_before_any_run_is_read(tmp_path, capsys) -> None:
+    """Run directories holding a config alone (no sweep): a seed gap and a differing key are
+    refused in one line each, and seeds 0-1 beside seed 2 make one study of three seeds."""
+
+    def run(name: str, *overrides: str) -> RunDir:
+        rd = RunDir(tmp_path / name)
+        rd.root.mkdir()
+        rd.write_config(config.load(SMOKE, list(overrides)))
+        return rd
+
+    a, b = run("a", "train.seeds=2"), run("b", "train.seed=2")
+    gap, other = run("gap", "train.seed=3"), run("other", "train.seed=2", "ddpg.tau=0.01")
+    assert merge.merged_config([a, b]).train.seeds == 3
+    assert merge.main([str(tmp_path / "m1"), str(a.root), str(gap.root)]) == 2
+    assert "distinct and without gaps" in capsys.readouterr().err
+    assert merge.main([str(tmp_path / "m2"), str(a.root), str(other.root)]) == 2
+    err = capsys.readouterr().err
+    assert "differs from" in err and "ddpg.tau" in err
+    assert merge.main([str(tmp_path / "m3"), str(a.root), str(b.root)]) == 2
+    assert "no summary.json" in capsys.readouterr().err

@@ -159,6 +159,7 @@ def _run(steps: int, action: float):
     return jax.jit(jax.vmap(_episode(steps, action)))
 
 
+@pytest.mark.slow
 def test_a_manoeuvre_starts_one_lane_width_from_its_target_with_params_traced():
     """The start-offset hazard: with border = lane width (the paper's), a start a rounding
     step past W would end the manoeuvre out of bounds at once. 64 envs, each with its own
@@ -178,6 +179,7 @@ def test_a_manoeuvre_starts_one_lane_width_from_its_target_with_params_traced():
     assert np.any(why == reward.TIMEOUT)
 
 
+@pytest.mark.slow
 def test_a_vmapped_batch_of_drawn_tasks_runs_in_one_program():
     """64 envs, each with its own road curvature, inflow range and yielding probability,
     in one compiled program; each env keeps to its own task."""

@@ -1,5 +1,5 @@
 """The published tables equal what their committed evidence gives
-(``benchmarks/scripts/publish.py``), the check notices a table edited by hand, and every file
+(``benchmarks/publish.py``), the check notices a table edited by hand, and every file
 a document links to exists."""
 
 import re
@@ -7,14 +7,14 @@ from pathlib import Path
 
 import pytest
 
-from .conftest import load_benchmark
-
 ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
 def publish():
-    return load_benchmark("publish")
+    from benchmarks import publish
+
+    return publish
 
 
 def test_every_published_block_matches_its_evidence(publish):
@@ -51,7 +51,7 @@ def test_every_linked_file_exists(publish):
 def test_the_verdict_default_column_is_decided_at_ten_seeds(publish):
     """Issue 34's bar: the default's column stands on ten seeds per cell, and a claim left
     undecided there says how wide its intervals stayed, never only "at N seeds"."""
-    table = publish.verdict  # benchmarks/scripts/tables/verdict.py
+    table = publish.verdict  # benchmarks/tables/verdict.py
     study = table.VERDICT_STUDY
     assert table._seeds(study) == "10 seeds per cell"
     claims = table.load(study, "convergence.json")["claims"]

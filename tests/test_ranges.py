@@ -108,6 +108,7 @@ def test_values_that_cannot_work_are_refused_with_one_message(overrides, words):
     assert words in message and "\n" not in message, message
 
 
+@pytest.mark.slow
 def test_pairs_need_mirrored_batches_and_nothing_else():
     """Reflection pairs are the default, and a batch without mirroring has nothing to pair:
     ``ddpg.mirror=false`` alone (the paper's batches, as the docs' commands spell them) loads

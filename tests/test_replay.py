@@ -104,6 +104,7 @@ def test_mirrored_sampling_reflects_about_half_the_rows_and_draws_the_same_slots
     assert kept.all()
 
 
+@pytest.mark.slow
 def test_paired_sampling_holds_each_drawn_transition_and_its_reflection(fns):
     """``ddpg.mirror_pairs``: a batch of 2n rows is n stored transitions, then the same n
     reflected in the same order (obs and next obs times the signs, each action entry times

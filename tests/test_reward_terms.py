@@ -56,6 +56,7 @@ def test_a_term_is_named_once_and_an_unknown_one_is_refused():
         config.load(SMOKE, ['env.reward_terms=["r_s", "r_s"]'])
 
 
+@pytest.mark.slow
 def test_env_info_has_the_term_and_the_reward_is_the_sum(cfg):
     env, p = jaxlc.make(cfg)
     assert reward.names(p) == tuple(NAMES)
@@ -82,6 +83,7 @@ def test_env_info_has_the_term_and_the_reward_is_the_sum(cfg):
     np.testing.assert_allclose(np.asarray(r), total, rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_training_metrics_tensorboard_and_evaluation_have_the_term(tmp_path_factory, cfg):
     pytest.importorskip("tensorboardX", reason="optional: pip install -e '.[track]'")
     from jaxlc.study import tracking
@@ -112,6 +114,7 @@ def test_training_metrics_tensorboard_and_evaluation_have_the_term(tmp_path_fact
         assert float(r["avg_return"]) == pytest.approx(parts, rel=1e-4, abs=1e-2)
 
 
+@pytest.mark.slow
 def test_gym_and_gymnax_infos_have_the_term(cfg):
     pytest.importorskip("gymnasium")
     from jaxlc.gym import LaneChangeGymEnv

@@ -129,6 +129,7 @@ def test_a_collision_with_no_lag_vehicle_prints_dashes(runs) -> None:
     assert any("no lag vehicle" in x for x in lines)
 
 
+@pytest.mark.slow
 def test_a_run_stopped_mid_chunk_is_refused_in_one_line_or_evaluated(tmp_path, capsys) -> None:
     out = tmp_path / "stopped"
     cmd = [sys.executable, "-m", "jaxlc.sweep", "--config", str(SMOKE), "--out", str(out)]

@@ -218,6 +218,7 @@ def test_a_shift_between_runs_is_found() -> None:
     assert all(r["diff"] == pytest.approx(0.2) and r["diff_lo"] > 0 for r in final)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("change", ["cells", "episodes"])
 def test_mismatched_runs_are_refused_with_exit_2(tmp_path: Path, change: str) -> None:
     rows = _rows(_grid(best=0.9, seeds=2))

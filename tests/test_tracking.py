@@ -61,3 +61,33 @@ def test_the_tracked_run_trains_as_an_untracked_one(tracked, smoke_run):
     assert a == b and len(a) > 0
     for p in a:
         assert (out / p).read_bytes() == (ref / p).read_bytes(), p
+
+
+class _Writer:
+    """Stands in for a tensorboardX writer: the points ``chunk`` adds, by tag."""
+
+    def __init__(self) -> None:
+        self.points: dict[str, list[tuple[int, float]]] = {}
+
+    def add_scalar(self, tag: str, value: float, step: int) -> None:
+        self.points.setdefault(tag, []).append((step, value))
+
+
+def test_a_chunk_writes_each_models_curves():
+    """``TensorBoard.chunk`` on two models' logs, without a sweep or event files: each curve's
+    point is the mean of the model's last 100 finished episodes, at the model's env-steps."""
+    board = object.__new__(tracking.TensorBoard)
+    board.writers = [_Writer(), _Writer()]
+    ret = np.arange(2 * 150, dtype=np.float32).reshape(2, 150)
+    reason = np.full((2, 150), SUCCESS)
+    reason[1, 140:] = SUCCESS + 1
+    metrics = {"critic_loss": np.array([[1.0, np.nan], [3.0, np.nan]]), "mean_q": np.ones((2, 2))}
+    board.chunk(5000, {"ret": ret, "reason": reason}, np.array([150, 120]), metrics, 99.0)
+    first, second = (w.points for w in board.writers)
+    assert first["train/return_last100"] == [(5000, pytest.approx(ret[0, 50:].mean()))]
+    assert second["train/return_last100"] == [(5000, pytest.approx(ret[1, 20:120].mean()))]
+    assert first["train/success_last100"] == second["train/success_last100"] == [(5000, 1.0)]
+    assert first["train/critic_loss"] == [(5000, 2.0)] and "train/critic_loss" not in second
+    assert second["train/episodes"] == [(5000, 120)]
+    assert first["speed/env_steps_per_s"] == [(5000, 99.0)]
+    assert tracking.run_name({"model": 3, "seed": 1, "k": 2, "memory": 4000}) == "m03_s1_k2_D4000"

@@ -19,7 +19,7 @@ from jaxlc.sim import leaders, mobil
 from jaxlc.sim.env import EnvParams
 from jaxlc.sim.state import TrafficDraws
 
-from .conftest import changed_env_keys, load_benchmark
+from .conftest import changed_env_keys
 
 HAZARDS = ("env.mobil=true", "env.braking=true")
 
@@ -27,7 +27,8 @@ HAZARDS = ("env.mobil=true", "env.braking=true")
 @pytest.fixture(scope="module")
 def long_run():
     """256 envs x 400 steps (102,400 env-steps) at the ranges' highest rates."""
-    bench = load_benchmark("traffic_properties")
+    from benchmarks import traffic_properties as bench
+
     return bench.check(256, 400, bench.HIGHEST, chunk=400)
 
 
@@ -80,6 +81,7 @@ def _decide(p: EnvParams, s):
     return mobil.decide(s.traffic, a, u, p)
 
 
+@pytest.mark.slow
 def test_mobil_leaves_a_slow_leader_for_a_free_lane_only_when_it_is_safe():
     polite = jaxlc.make(config.load(overrides=HAZARDS))[1]
     p = polite.replace(mobil_politeness=0.0)  # selfish drivers
@@ -97,6 +99,7 @@ def test_mobil_leaves_a_slow_leader_for_a_free_lane_only_when_it_is_safe():
     assert not bool(blocked.start[0, 1])
 
 
+@pytest.mark.slow
 def test_two_drivers_do_not_start_into_one_spot_on_one_step():
     p = jaxlc.make(config.load(overrides=HAZARDS))[1]
     # lanes 0 and 2 each hold a car behind a slow truck, side by side: both want lane 1
@@ -106,6 +109,7 @@ def test_two_drivers_do_not_start_into_one_spot_on_one_step():
     assert int(d.start.sum()) == 1
 
 
+@pytest.mark.slow
 def test_of_the_drivers_acting_on_one_step_the_first_deciders_weigh_a_change():
     p = jaxlc.make(config.load(overrides=HAZARDS))[1].replace(mobil_deciders=5)
     # twelve cars 30 m apart at 10 m/s in lane 0, lane 1 empty: each gains by moving left (the
@@ -129,6 +133,7 @@ def test_the_deciders_cover_every_driver_acting_but_one_step_in_a_million(rate):
     assert scipy.stats.binom.sf(k, n, q) <= 1e-6 < scipy.stats.binom.sf(k - 1, n, q)
 
 
+@pytest.mark.slow
 def test_the_traffic_draws_are_uniform_and_independent():
     p = jaxlc.make(config.load(overrides=HAZARDS))[1]
     keys = jax.random.split(jax.random.PRNGKey(11), 4096)
@@ -205,6 +210,7 @@ def test_leaders_by_keys_equal_every_pair_compared_in_float():
     assert checked > 1000  # exercised: many leaders and followers, straddlers among them
 
 
+@pytest.mark.slow
 def test_rates_are_traced_one_program_runs_a_batch_of_traffics():
     env, p = jaxlc.make(config.load(overrides=(*HAZARDS, "env.warmup_time=20.0")))
     rates = jnp.array([0.0, 3600.0])  # braking events per vehicle-hour
@@ -215,6 +221,7 @@ def test_rates_are_traced_one_program_runs_a_batch_of_traffics():
     assert braking[0] == 0 and braking[1] > 0
 
 
+@pytest.mark.slow
 def test_paper_traffic_has_no_hazard_state():
     _, s = jaxlc.make()[0].reset(jax.random.PRNGKey(0), jaxlc.make()[1])
     tr = s.traffic
@@ -268,37 +275,3 @@ def test_every_config_file_spells_the_traffic_keys_off_but_reactive():
     assert changed_env_keys("reactive.toml", config.load()) == {"mobil", "braking"}
     reactive = config.load(config.CONFIG_DIR / "reactive.toml")
     assert dataclasses.replace(reactive, env=config.load().env) == config.load()
-
-
-def test_the_traffic_table_pools_each_cells_seeds(tmp_path):
-    table = load_benchmark("traffic_table")
-
-    def row(label, seed, ok, hits, cut, brake, norm):
-        return {
-            "label": label,
-            "model": 0,
-            "seed": seed,
-            "lane_changes": 1000,
-            "success": ok,
-            "collision": hits,
-            "met_cut_in": cut,
-            "met_braking": brake,
-            "norm_all": norm,
-        }
-
-    for tag, rows in {
-        "paper": [row("A", 0, 1000, 0, 0, 0, 0.9), row("A", 1, 998, 1, 0, 0, 0.8)],
-        "hazards": [row("A", 0, 999, 1, 120, 5, 0.7), row("A", 1, 1000, 0, 80, 3, 0.9)],
-    }.items():
-        (tmp_path / tag).mkdir()
-        scripted = {**row("scripted", None, 1000, 0, 0, 0, 1.0), "model": None}
-        (tmp_path / tag / "heldout.json").write_text(json.dumps({"rows": [scripted, *rows]}))
-    line = table.table(tmp_path, ["paper", "hazards"]).splitlines()[2]
-    assert line == (
-        "| A | 99.90% of 2,000 | 1 | 0 | 0 | 85.0% | 99.95% of 2,000 | 1 | 200 | 8 | 80.0% |"
-    )
-    point, lo, hi, worst = table.difference(
-        tmp_path / "paper" / "heldout.json", tmp_path / "hazards" / "heldout.json"
-    )
-    assert point == pytest.approx(0.0005) and worst == pytest.approx(0.0005)
-    assert lo <= point <= hi and hi - lo > 0  # two seeds resampled: the interval has width

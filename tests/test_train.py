@@ -32,6 +32,7 @@ def _allclose_trees(a, b, rtol=1e-4, atol=1e-5):
         np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol)
 
 
+@pytest.mark.slow
 def test_vmapped_model_equals_the_same_model_trained_alone(smoke_cfg):
     steps = 300  # egos reach the RL phase and the memory (batch 16) fills: updates run
     key = jax.random.PRNGKey(42)
@@ -190,6 +191,7 @@ def test_paper_toml_is_the_papers_method():
     assert changed <= allowed | {("env", "gap_min_ttc")}, changed
 
 
+@pytest.mark.slow
 def test_paper_schedule_makes_one_update_per_rl_transition(smoke_cfg):
     """``ddpg.updates_per_transition = 1`` (paper.toml): once the memory holds a batch, every
     scan step makes exactly as many updates as its envs gave RL transitions."""
@@ -222,6 +224,7 @@ def test_anneal_schedule_is_linear_from_its_start_and_off_by_default():
         np.testing.assert_allclose(got.critic_lr, 1e-3 * m_lr, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_a_short_run_learns(smoke_cfg):
     """A real learning signal: the mean return of the last 100 of 400 episodes beats the first
     100 by a clear margin (settings that learn in seconds on this small task)."""
@@ -248,6 +251,7 @@ def test_a_short_run_learns(smoke_cfg):
     assert last > first + 300.0, (first, last)
 
 
+@pytest.mark.slow
 def test_console_scripts_run_the_clis():
     """``[project.scripts]``: each name the install puts on the PATH runs its module's CLI."""
     scripts = tomllib.loads((config.CONFIG_DIR.parent / "pyproject.toml").read_text())["project"][

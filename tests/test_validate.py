@@ -33,10 +33,11 @@ def test_exponential_tilt_is_a_density():
     assert abs(rare.exponential_fit(float(np.mean(u))) - 3.0) < 0.1
 
 
+@pytest.mark.slow
 def test_toy_interval_covers_the_truth():
     """100 independent repeats of the final IS stage with one CE-fitted proposal: the 95%
     interval covers the closed-form 8.4e-7 in at least 93 (the full check with CE in each
-    repeat: benchmarks/scripts/validate_toy.py)."""
+    repeat: the retired benchmarks/scripts/validate_toy.py at b98c04d)."""
     q = rare.toy_estimate(jax.random.PRNGKey(7), 1000)["q"]
     keys = jax.random.split(jax.random.PRNGKey(8), 100)
     sample = jax.jit(jax.vmap(lambda k: rare.toy_sample(k, 20_000, q)))
@@ -343,75 +344,6 @@ def test_the_mixture_estimate_is_written_and_its_cases_replay(validated_mixture)
     assert same and path.stat().st_size > 0
 
 
-def test_tilt_windows_lists_the_failures_with_nested_braking_counts(smoke_run, tmp_path):
-    """benchmarks/scripts/tilt_windows.py on the nominal test's cases (its program, loaded):
-    the lane changes under the headway norm (about one in ten) are listed, and each met at
-    least as many braking events counted from the entry as from the command, and from the
-    command as from the acceptance."""
-    from jaxlc.evaluation import proposal
-
-    from .conftest import load_benchmark
-
-    out = tmp_path / "windows.csv"
-    args = [str(smoke_run[0]), "--model", "scripted", "--kind", "norm_min_thw_s"]
-    args += ["--chunk", str(CHUNK)]
-    rows = load_benchmark("tilt_windows").main([*args, "--out", str(out), "--traffic", *TRAFFIC])
-    assert rows and len(out.read_text().splitlines()) == 1 + len(rows)
-    for r in rows:
-        counts = [sum(r[f"{w}_events_{x}"] for x in proposal.ROLES) for w in proposal.TILT_FROM]
-        assert counts == sorted(counts), r
-
-
-def test_is_gain_weighs_crude_mcs_failures_by_the_proposal(smoke_run, tmp_path):
-    """benchmarks/scripts/is_gain.py on the headway norm's failures among the nominal test's
-    cases (its program, loaded): under the traffic's own distribution as the proposal every
-    failure weighs exactly 1 and the gain is 1; under braking drawn at 0.05 per step around
-    the ego the weights differ and none exceeds the mixture's 1 / share."""
-    import json
-
-    from jaxlc.evaluation import proposal, validation
-    from jaxlc.evaluation.cases import columns
-    from jaxlc.evaluation.heldout import in_traffic
-    from jaxlc.sim.env import EnvParams
-    from jaxlc.study.rundir import RunDir
-
-    from .conftest import load_benchmark
-
-    cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
-    base = proposal.nominal(EnvParams.from_config(cfg.env))
-    run = validation.program(cfg, config.EvalConfig().max_steps, True)
-    keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, CHUNK)
-    out = columns(jax.device_get(run(base, validation.policies(cfg, None, 1), keys)[0]))
-    col = validation.KINDS.index("norm_min_thw_s")
-    failed = out["performed"][0] & validation.kinds(out, cfg.env.dt)[:, col]
-    assert failed.any()
-    mc, nominal, heavy = (tmp_path / n for n in ("mc", "nominal", "heavy"))
-    est = {"norm_min_thw_s": {"estimate": 0.1}}
-    docs = {
-        mc / "validate.json": {
-            **{"traffic_overrides": TRAFFIC, "seed": 0, "chunk": CHUNK},
-            **{"max_steps": config.EvalConfig().max_steps, "models": [{"estimates": est}]},
-        },
-        mc / "failures.json": {"kind": "norm_min_thw_s", "cases": np.nonzero(failed)[0].tolist()},
-        nominal / "validate.json": {"models": [{"proposal": base.to_dict(), "defensive": 0.2}]},
-        heavy / "validate.json": {
-            "models": [
-                {"proposal": base.replace(brake=jnp.full(4, 0.05)).to_dict(), "defensive": 0.2}
-            ]
-        },
-    }
-    for path, doc in docs.items():
-        path.parent.mkdir(exist_ok=True)
-        path.write_text(json.dumps(doc))
-    gain = tmp_path / "gain.json"
-    argv = [str(smoke_run[0]), "--mc", str(mc), "--is", str(nominal), str(heavy)]
-    same, tilted = load_benchmark("is_gain").main([*argv, "--out", str(gain)])["proposals"]
-    assert same["mean_weight_given_failure"] == 1.0 and same["largest_weight"] == 1.0
-    assert same["gain"] == 1.0 and same["failures_weighing_over_1"] == 0
-    assert tilted["mean_weight_given_failure"] != 1.0 and tilted["largest_weight"] <= 5.0
-    assert json.loads(gain.read_text())["failures"] == int(failed.sum())
-
-
 def test_bad_run_directory_is_one_line(tmp_path, capsys):
     from jaxlc import validate
 
@@ -478,23 +410,21 @@ def test_the_mixtures_pilots_set_each_horizon_to_the_most_trials_a_lane_change_h
     assert history[-1]["pooled_failures"] == 3 * calls
 
 
+@pytest.mark.slow
 def test_benchmark_scripts_tiny(tmp_path, monkeypatch):
-    """benchmarks/scripts/validate_toy.py and validate_throughput.py end to end, tiny (their
-    ``main`` in this process: its imports and compiled programs shared with the suite)."""
-    import json
+    """benchmarks/validate_throughput.py end to end, tiny (its ``main`` in this process: its
+    imports and compiled programs shared with the suite)."""
     import sys
 
-    from .conftest import load_benchmark
+    from benchmarks import validate_throughput
 
-    def run(script: str, *args: str) -> None:
-        monkeypatch.setattr(sys, "argv", [script, *args, "--out", str(tmp_path)])
-        load_benchmark(script.removesuffix(".py")).main()
+    def run(script, *args: str) -> None:
+        monkeypatch.setattr(sys, "argv", [script.__name__, *args, "--out", str(tmp_path)])
+        script.main()
 
-    run("validate_toy.py", "--repeats", "2", "--samples", "2000")
-    assert json.loads((tmp_path / "toy.json").read_text())["repeats"] == 2
     # one traffic of the script's loop (the braking one: the paper's path is the simpler)
     args = ["--chunk", "8", "--repeats", "1", "--steps", "10", "--traffic", "braking"]
-    run("validate_throughput.py", *args)
+    run(validate_throughput, *args)
     rows = (tmp_path / "throughput.csv").read_text().splitlines()
     assert len(rows) == 2 and "share_of_sim" in rows[0] and rows[1].startswith("braking")
 

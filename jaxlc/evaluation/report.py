@@ -21,7 +21,7 @@ import numpy as np
 from jaxlc.evaluation import report_text as text
 from jaxlc.evaluation import stats
 from jaxlc.evaluation.numbers import defined, fixed, interval, percent
-from jaxlc.evaluation.report_text import EVERY_STEP  # benchmarks/scripts/publish.py reads it here
+from jaxlc.evaluation.report_text import EVERY_STEP  # benchmarks/publish.py reads it here
 from jaxlc.evaluation.results import OUTCOMES, EvalError, rank_key, rank_models
 from jaxlc.evaluation.stats import final_rows
 from jaxlc.paper.claims import CLAIM_D, COMPARISONS

@@ -1,0 +1,53 @@
+"""Readers of committed evidence shared by the table modules: a study's ``eval/`` JSON, a
+CSV's rows, a ``heldout.csv`` column per cell, the duration rule a held-out file was
+evaluated under."""
+
+from __future__ import annotations
+
+import csv
+import functools
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+BENCHMARKS = ROOT / "benchmarks"
+
+
+@functools.cache
+def load(study: Path, name: str) -> dict[str, Any]:
+    """``study/eval/name``, a JSON file ``python -m jaxlc.evaluate`` wrote, read once."""
+    return json.loads((study / "eval" / name).read_text())
+
+
+@functools.cache
+def csv_rows(path: Path) -> tuple[dict[str, str], ...]:
+    """A committed CSV's rows, read once however many blocks use it."""
+    with path.open() as f:
+        return tuple(csv.DictReader(f))
+
+
+def per_seed(rows: tuple[dict[str, str], ...], column: str) -> dict[str, np.ndarray]:
+    """A heldout.csv column's values over each cell's seeds, by the cell's label."""
+    cells: dict[str, list[float]] = {}
+    for r in rows:
+        if r["cell"] != "":
+            cells.setdefault(r["label"], []).append(float(r[column]))
+    return {label: np.asarray(v) for label, v in cells.items()}
+
+
+def per_cell(rows: tuple[dict[str, str], ...], column: str) -> dict[str, float]:
+    """A heldout.csv column's mean over each cell's seeds, by the cell's label."""
+    return {label: float(np.mean(v)) for label, v in per_seed(rows, column).items()}
+
+
+def duration_rule(doc: dict[str, Any]) -> str:
+    """Which time the evaluation held to 5 s, read off the norms ``heldout.json`` lists."""
+    if any(n["measure"] == "lcm_s" for n in doc["norms"]):
+        return (
+            "The 5 s norm times UN R79's manoeuvre, the body from first over the line to "
+            "wholly across it."
+        )
+    return "The 5 s norm times the whole RL phase (the rule before 2026-11-26)."

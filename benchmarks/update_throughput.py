@@ -1,0 +1,374 @@
+"""Throughput of the vmapped DDPG update against this machine's float32 matmul peak.
+
+Measured in one run, so that both figures see the same machine state:
+
+1. peak: a jitted ``jnp.dot`` of two ``(n, n)`` float32 matrices, median of ``--repeats``
+   timed calls, as GFLOP/s (``2 n^3`` FLOPs per call);
+2. grid-updates/s: ``jax.jit(jax.vmap(step))`` over ``--models`` models, where ``step`` samples
+   a batch from the model's replay memory (capacities cycle through ``--memories`` under a
+   cap_max of their maximum) and runs ``ddpg.update``; ``--updates`` steps run in one
+   ``lax.scan``; median over ``--repeats`` calls after a compiling call;
+3. achieved GFLOP/s of the update = grid-updates/s x models x ``matmul_flops`` and its share of
+   the peak. Only matmul FLOPs count (see ``update_products``); elementwise work, Adam and the
+   sampling gather are the overhead that keeps the share below 100 %;
+4. where one grid update's time goes: its matrix products timed alone at their own shapes
+   (``products_alone``: their share of the peak is the ceiling of (3) with these kernels),
+   its Adam + soft-target pass alone (``optimizer_alone``), and the rest (sampling, ReLU,
+   tanh, losses; negative when the parts overlap inside the update), beside the bandwidth
+   of a plain streamed ``a + 1e-3 b`` over as much memory as the Adam pass (``stream``);
+5. ``share_ceiling``: the share that an update made of nothing but its products (at their
+   speed alone) and an Adam/target pass moving its minimum 36 bytes per parameter at the
+   streamed bandwidth would reach. (4) and (5) run on one device.
+
+Timed calls of (1), (2) and (4) alternate so that all see the same load from other processes; the
+share is also given from the fastest call of each ("best_of"), and the 1-minute load average is
+recorded, because a shared machine makes single figures noisy. ``XLA_FLAGS`` in the environment
+applies to all of them.
+
+Usage: ``python -m benchmarks.update_throughput [--models 9 --batch 64 --repeats 5]``;
+``--tiny`` shrinks everything for tests. Writes ``benchmarks/results/update_throughput.csv``.
+
+Its ``actors`` mode (the plain, odd and paired actors side by side with a sweep each, which
+chose ``ddpg.mirror_pairs``) is retired; it reads as it was at commit b98c04d.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import statistics
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
+
+from benchmarks.csvfile import write_csv
+from jaxlc.config import DDPGConfig
+from jaxlc.learn import ddpg, replay
+from jaxlc.sim.env import OBS_DIM
+from jaxlc.sim.observation import MIRROR_SIGNS
+
+ROOT = Path(__file__).resolve().parents[1]
+
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+def update_products(
+    obs_dim: int,
+    hidden: Sequence[int],
+    batch: int,
+    act_dim: int = 1,
+    symmetric: bool = False,
+    pairs: bool = False,
+) -> list[tuple[int, int, int]]:
+    """The matrix products ``(m, k, n)`` (an ``(m, k) @ (k, n)``) of one ``ddpg.update`` of
+    one model.
+
+    A dense layer ``in -> out`` on ``batch`` rows is ``(batch, in, out)`` forward; its backward
+    is ``(in, batch, out)`` for the weight gradient and ``(batch, out, in)`` for the input
+    gradient. Counted:
+
+    - target actor on s' and target critic on (s', mu'(s')): one forward each;
+    - critic on (s, a): forward, weight gradients of every layer, input gradients of every
+      layer but the first (the input is data);
+    - actor on s, critic on (s, mu(s)): forward each; input gradients through every critic
+      layer (the first only for the action columns) and every actor layer but the first;
+      weight gradients of every actor layer.
+
+    A symmetric actor (``ddpg.symmetric_actor``) runs its trunk twice, on s and on Ms: every
+    actor product above counts twice; on a paired batch (``ddpg.mirror_pairs``, ``pairs``)
+    Ms is a row of the batch already and ``Actor.paired`` runs it once.
+    """
+    actor = list(zip((obs_dim, *hidden), (*hidden, act_dim), strict=True))
+    critic = list(zip((obs_dim + act_dim, *hidden), (*hidden, 1), strict=True))
+
+    def fwd(layers: list[tuple[int, int]]) -> list[tuple[int, int, int]]:
+        return [(batch, i, o) for i, o in layers]
+
+    def wgrad(layers: list[tuple[int, int]]) -> list[tuple[int, int, int]]:
+        return [(i, batch, o) for i, o in layers]
+
+    def igrad(layers: list[tuple[int, int]]) -> list[tuple[int, int, int]]:
+        return [(batch, o, i) for i, o in layers]
+
+    trunks = 2 if symmetric and not pairs else 1
+    target = fwd(actor) * trunks + fwd(critic)
+    critic_step = fwd(critic) + wgrad(critic) + igrad(critic[1:])
+    actor_step = (
+        fwd(actor) * trunks
+        + fwd(critic)
+        + igrad(critic[1:])
+        + [(batch, hidden[0], act_dim)]  # the first critic layer's action columns
+        + (wgrad(actor) + igrad(actor[1:])) * trunks
+    )
+    return target + critic_step + actor_step
+
+
+def matmul_flops(products: Sequence[tuple[int, int, int]]) -> int:
+    """Matmul FLOPs of ``update_products``' list: 2 per multiply-add."""
+    return sum(2 * m * k * n for m, k, n in products)
+
+
+def _timed(fn: Callable[[], object]) -> Callable[[], float]:
+    """Compile and warm ``fn`` up; return a function that times one call in seconds."""
+    jax.block_until_ready(fn())
+
+    def once() -> float:
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        return time.perf_counter() - t0
+
+    return once
+
+
+def matmul_call(n: int) -> Callable[[], jax.Array]:
+    """A jitted float32 ``(n, n) @ (n, n)``: ``2 n^3`` FLOPs per call."""
+    ka, kb = jax.random.split(jax.random.key(0))
+    a = jax.random.normal(ka, (n, n), jnp.float32)
+    b = jax.random.normal(kb, (n, n), jnp.float32)
+    dot = jax.jit(jnp.dot)
+    return lambda: dot(a, b)
+
+
+def _scanned(body: Callable, carry: object, steps: int, *consts: object) -> Callable[[], object]:
+    """``steps`` iterations of ``carry = body(carry, *consts)`` in one jitted ``lax.scan``:
+    buffers are updated in place, as in the grid update's scan, and a call costs one dispatch.
+    ``consts`` are arguments, not captured: at 900 models they are gigabytes, which a closure
+    would bake into the program as constants (compiling for minutes)."""
+    run = jax.jit(lambda c, *k: jax.lax.scan(lambda c, _: (body(c, *k), None), c, None, steps)[0])
+    return lambda: run(carry, *consts)
+
+
+def stream_call(n: int, steps: int) -> Callable[[], object]:
+    """``a <- a + 1e-3 b`` over two ``(n,)`` float32 arrays, ``steps`` times: each step reads
+    ``8 n`` bytes and writes ``4 n``, the memory bandwidth that an elementwise pass sees."""
+    ka, kb = jax.random.split(jax.random.key(5))
+    b = jax.random.normal(kb, (n,))
+    return _scanned(lambda a, b: a + 1e-3 * b, jax.random.normal(ka, (n,)), steps, b)
+
+
+def kernels_call(
+    products: Sequence[tuple[int, int, int]], models: int, steps: int
+) -> Callable[[], object]:
+    """Every product of ``products`` alone, batched over ``models`` as the vmapped update
+    batches it (``(models, m, k) @ (models, k, n)``), ``steps`` times in a chain: the time XLA's
+    matmul kernels need for one grid update's FLOPs with nothing else around them.
+
+    Each step adds a 1e-30 multiple of one element of every product to one element of every
+    left operand, so that no product can be hoisted out of the loop or dropped, at the cost of
+    a few scalar operations."""
+    keys = jax.random.split(jax.random.key(3), len(products))
+    ab = [
+        (jax.random.normal(ka, (models, m, k)), jax.random.normal(kb, (models, k, n)))
+        for (m, k, n), (ka, kb) in zip(products, map(jax.random.split, keys), strict=True)
+    ]
+
+    def body(left: list[jax.Array], right: list[jax.Array]) -> list[jax.Array]:
+        out = [jnp.einsum("bmk,bkn->bmn", a, b) for a, b in zip(left, right, strict=True)]
+        tick = 1e-30 * sum(o[:, 0, 0] for o in out)  # (models,)
+        return [a.at[:, 0, 0].add(tick) for a in left]
+
+    return _scanned(body, [a for a, _ in ab], steps, [b for _, b in ab])
+
+
+def _learners(cfg: DDPGConfig, models: int, key: jax.Array) -> ddpg.Learner:
+    """``models`` fresh learners stacked on a leading axis (one jitted init: eager takes
+    seconds)."""
+    init = jax.jit(jax.vmap(lambda k: ddpg.init_learner(k, OBS_DIM, cfg)))
+    return init(jax.random.split(key, models))
+
+
+def optimizer_call(cfg: DDPGConfig, models: int, steps: int) -> Callable[[], object]:
+    """``ddpg.optimizer_step`` (Adam and the soft target update) of the actor and the critic
+    of ``models`` models, vmapped, with fixed gradients, ``steps`` times: the update's
+    elementwise pass over every parameter, alone. It moves at least 36 bytes per parameter:
+    params, gradient, both Adam moments and the target read, and all but the gradient
+    written."""
+    lrn = _learners(cfg, models, jax.random.key(4))
+    grads = jax.tree.map(lambda x: jnp.full_like(x, 1e-3), (lrn.critic, lrn.actor))
+
+    def one(lrn: ddpg.Learner, grads: tuple[ddpg.Params, ddpg.Params]) -> ddpg.Learner:
+        c, c_opt, c_t = ddpg.optimizer_step(
+            lrn.critic, grads[0], lrn.critic_opt, cfg.critic_lr, lrn.critic_target, cfg.tau
+        )
+        a, a_opt, a_t = ddpg.optimizer_step(
+            lrn.actor, grads[1], lrn.actor_opt, cfg.actor_lr, lrn.actor_target, cfg.tau
+        )
+        return ddpg.Learner(a, c, a_t, c_t, a_opt, c_opt, lrn.step + 1)
+
+    return _scanned(lambda lrn, grads: jax.vmap(one)(lrn, grads), lrn, steps, grads)
+
+
+def grid_update_call(
+    cfg: DDPGConfig, models: int, memories: Sequence[int], updates: int, devices: int = 1
+) -> Callable[[], object]:
+    """``updates`` vmapped sample + update steps of ``models`` models in one ``lax.scan``;
+    with ``devices > 1`` the models are laid over that many devices (``shard_map``, as the
+    sweep's ``--devices`` does; ``models`` must be a multiple of ``devices``)."""
+    cap_max = max(memories)
+    caps = jnp.asarray([memories[i % len(memories)] for i in range(models)], jnp.int32)
+    k_init, k_run = jax.random.split(jax.random.key(1))
+    learners = _learners(cfg, models, k_init)
+    hyper = jax.vmap(lambda _: ddpg.Hyper.from_config(cfg))(jnp.arange(models))
+
+    # host-side random transitions: one compiled vmapped add, called until the largest is full
+    rng = np.random.default_rng(2)
+    n = min(memories)  # rows per add: add() needs n <= every capacity
+    add = jax.jit(jax.vmap(replay.add))
+    memory = jax.vmap(lambda c: replay.init(cap_max, OBS_DIM, 1, c))(caps)
+    for _ in range(-(-cap_max // n)):
+        obs, next_obs = rng.normal(size=(2, models, n, OBS_DIM)).astype(np.float32)
+        action = rng.uniform(-1, 1, (models, n, 1)).astype(np.float32)
+        reward = rng.normal(size=(models, n)).astype(np.float32)
+        done = np.zeros((models, n), np.float32)
+        memory = add(memory, obs, action, reward, next_obs, done, np.ones((models, n), bool))
+
+    mirror = MIRROR_SIGNS if cfg.mirror else None
+
+    def one(learner: ddpg.Learner, mem: replay.Replay, h: ddpg.Hyper, key: jax.Array):
+        batch = replay.sample(mem, key, cfg.batch_size, mirror, None, cfg.mirror_pairs)
+        return ddpg.update(learner, batch, h, cfg)
+
+    def scan(learners: ddpg.Learner, memory: replay.Replay, hyper: ddpg.Hyper, keys: jax.Array):
+        def body(carry: ddpg.Learner, k: jax.Array) -> tuple[ddpg.Learner, jax.Array]:
+            new, metrics = jax.vmap(one)(carry, memory, hyper, k)
+            return new, metrics["critic_loss"]
+
+        return jax.lax.scan(body, learners, keys)
+
+    if devices > 1:
+        mesh = Mesh(np.asarray(jax.devices()[:devices]), ("models",))
+        specs = (P("models"), P("models"), P("models"), P(None, "models"))
+        scan = jax.shard_map(
+            scan, mesh=mesh, in_specs=specs, out_specs=(P("models"), P(None, "models"))
+        )
+    keys = jax.vmap(lambda k: jax.random.split(k, models))(jax.random.split(k_run, updates))
+    run = jax.jit(scan)
+    return lambda: run(learners, memory, hyper, keys)
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, float]:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--models", type=int, default=9)
+    p.add_argument("--batch", type=int, default=64)
+    p.add_argument("--hidden", type=int, nargs="+", default=[300, 600])
+    p.add_argument("--memories", type=int, nargs="+", default=[2000, 4000, 8000])
+    p.add_argument("--updates", type=int, default=200, help="updates per timed scan")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--matmul-n", type=int, default=2048)
+    p.add_argument(
+        "--stream-n",
+        type=int,
+        default=0,
+        help="floats per streamed array (default: 4.5 per parameter, the Adam pass's footprint)",
+    )
+    p.add_argument("--out", type=Path, default=RESULTS / "update_throughput.csv")
+    p.add_argument(
+        "--devices",
+        type=int,
+        default=1,
+        help="lay the models over this many devices (on a CPU: host devices, made here)",
+    )
+    p.add_argument("--tiny", action="store_true", help="small sizes, for tests")
+    args = p.parse_args(argv)
+    if args.tiny:
+        args.models, args.batch, args.hidden, args.memories = 3, 8, [16, 32], [64, 96, 128]
+        args.updates, args.repeats, args.matmul_n, args.stream_n = 5, 2, 128, 1 << 12
+    if args.devices > len(jax.devices()) or args.models % args.devices:
+        raise SystemExit(
+            f"--devices {args.devices}: must divide --models ({args.models}) and be at most the "
+            f"{len(jax.devices())} device(s) JAX sees (on a CPU, run with "
+            f"XLA_FLAGS=--xla_force_host_platform_device_count={args.devices})"
+        )
+
+    cfg = dataclasses.replace(DDPGConfig(), hidden=tuple(args.hidden), batch_size=args.batch)
+    time_dot = _timed(matmul_call(args.matmul_n))
+    time_grid = _timed(
+        grid_update_call(cfg, args.models, args.memories, args.updates, args.devices)
+    )
+    products = update_products(OBS_DIM, cfg.hidden, cfg.batch_size, 1, cfg.symmetric_actor)
+    time_kernels = _timed(kernels_call(products, args.models, args.updates))
+    time_optimizer = _timed(optimizer_call(cfg, args.models, args.updates))
+    shapes = jax.eval_shape(lambda k: ddpg.init_learner(k, OBS_DIM, cfg), jax.random.key(0))
+    params = args.models * sum(x.size for x in jax.tree.leaves((shapes.actor, shapes.critic)))
+    stream_n = args.stream_n or int(4.5 * params)  # two arrays of 36 bytes per parameter
+    time_stream = _timed(stream_call(stream_n, args.updates))
+    dot_s, grid_s, kernels_s, optimizer_s, stream_s = [], [], [], [], []
+    for _ in range(args.repeats):  # alternate, so all see the same load from other processes
+        dot_s.append(time_dot())
+        grid_s.append(time_grid())
+        kernels_s.append(time_kernels())
+        optimizer_s.append(time_optimizer())
+        stream_s.append(time_stream())
+    peak = 2 * args.matmul_n**3 / statistics.median(dot_s) / 1e9
+    rate = args.updates / statistics.median(grid_s)
+    flops = matmul_flops(products)
+    achieved = rate * args.models * flops / 1e9
+    # the decomposition of one grid update's time, ms: its products alone (the ceiling of the
+    # share with these kernels), its Adam/target pass alone, and what remains
+    update_ms = 1e3 / rate
+    kernels_ms = 1e3 * statistics.median(kernels_s) / args.updates
+    optimizer_ms = 1e3 * statistics.median(optimizer_s) / args.updates
+    kernels_share = args.models * flops / (kernels_ms / 1e3) / 1e9 / peak
+    optimizer_gbps = 36 * params / (optimizer_ms / 1e3) / 1e9
+    stream_gbps = 12 * stream_n * args.updates / statistics.median(stream_s) / 1e9
+    # the share if an update were only its products at their speed alone plus an Adam/target
+    # pass that moves its minimum 36 bytes per parameter at the streamed bandwidth
+    floor_ms = kernels_ms + 36 * params / stream_gbps / 1e6
+    ceiling = args.models * flops / (floor_ms / 1e3) / 1e9 / peak
+    best = args.updates / min(grid_s) * args.models * flops / (2 * args.matmul_n**3 / min(dot_s))
+    row = {
+        "backend": jax.default_backend(),
+        "models": args.models,
+        "devices": args.devices,
+        "batch": args.batch,
+        "hidden": "x".join(map(str, args.hidden)),
+        "memories": "/".join(map(str, args.memories)),
+        "updates_per_scan": args.updates,
+        "repeats": args.repeats,
+        "matmul_n": args.matmul_n,
+        "peak_gflops": round(peak, 2),
+        "grid_updates_per_s": round(rate, 2),
+        "mflop_per_model_update": round(flops / 1e6, 3),
+        "achieved_gflops": round(achieved, 2),
+        "share_of_peak": round(achieved / peak, 4),
+        "share_of_peak_best_of": round(best, 4),
+        "update_ms": round(update_ms, 3),
+        "products_alone_ms": round(kernels_ms, 3),
+        "products_alone_share_of_peak": round(kernels_share, 4),
+        "optimizer_alone_ms": round(optimizer_ms, 3),
+        "optimizer_alone_gbps": round(optimizer_gbps, 2),
+        "stream_gbps": round(stream_gbps, 2),
+        "share_ceiling": round(ceiling, 4),
+        "rest_ms": round(update_ms - kernels_ms - optimizer_ms, 3),
+        "loadavg_1min": round(os.getloadavg()[0], 2),
+    }
+    write_csv(args.out, [row])
+    width = max(map(len, row))
+    for k, v in row.items():
+        print(f"{k:<{width}}  {v}")
+    print(f"wrote {args.out}")
+    return {
+        "peak_gflops": peak,
+        "grid_updates_per_s": rate,
+        "achieved_gflops": achieved,
+        "share_of_peak": achieved / peak,
+        "share_of_peak_best_of": best,
+        "update_ms": update_ms,
+        "products_alone_ms": kernels_ms,
+        "products_alone_share_of_peak": kernels_share,
+        "optimizer_alone_ms": optimizer_ms,
+        "optimizer_alone_gbps": optimizer_gbps,
+        "stream_gbps": stream_gbps,
+        "share_ceiling": ceiling,
+    }
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""Crude Monte Carlo's speed: lane changes per second, and its env-steps/s against the
+simulator's own (``sim_throughput.py``) at the same number of envs.
+
+    python -m benchmarks.validate_throughput --chunk 2048 --traffic paper braking
+
+One chunk of ``--chunk`` lane-change cases of the scripted controller, as ``python -m
+jaxlc.validate --method mc`` runs them (``jaxlc.evaluation.validation.program``: every case
+reset with its traffic-only warm-up, its approach (``cases.make_start_cases``), its manoeuvre
+(``cases.make_rollout``)), median of ``--repeats`` after compiling. Its env-steps are the
+steps its cases needed (warm-up, approach, manoeuvre; the warm-up's are the traffic's alone);
+beside them the scan of ``sim_throughput.py`` at ``--chunk`` envs, in the same process.
+Writes ``OUT/throughput.csv`` with the matmul peak before and after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import statistics
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from benchmarks import sim_throughput
+from benchmarks.csvfile import write_csv
+from jaxlc import config
+from jaxlc.evaluation import heldout, proposal, validation
+from jaxlc.evaluation.cases import columns, make_start_cases
+from jaxlc.sim.env import EnvParams
+from jaxlc.study import machine
+
+HERE = Path(__file__).resolve().parent
+SIM = sim_throughput  # the simulator benchmark
+TRAFFIC = SIM.TRAFFIC  # the traffics by name: the simulator benchmark's
+
+
+def mc_chunk(traffic: str, chunk: int, repeats: int) -> dict:
+    cfg = heldout.in_traffic(config.load(), TRAFFIC[traffic])
+    base = EnvParams.from_config(cfg.env)
+    run = validation.program(cfg, config.EvalConfig().max_steps, False)
+    start = jax.jit(make_start_cases(base, config.EvalConfig().max_steps, traffic_warmup=True))
+    pol, nom = validation.policies(cfg, None, 1), proposal.nominal(base)
+    times, lcs, steps = [], [], []
+    for r in range(repeats + 1):
+        keys = validation.validate_keys(r, validation.VALIDATE_TAG, 0, chunk)
+        t0 = time.perf_counter()
+        out = columns(jax.device_get(run(nom, pol, keys)[0]))
+        times.append(time.perf_counter() - t0)
+        approach = np.asarray(start(keys).state.time)  # the same cases' approach, untimed
+        lcs.append(int(out["performed"][0].sum()))
+        steps.append(int(chunk * base.warmup_steps + approach.sum() + out["steps"][0].sum()))
+    i = int(np.argsort(times[1:])[len(times[1:]) // 2]) + 1  # the median repeat
+    return {
+        "traffic": traffic,
+        "envs": chunk,
+        "lane_changes": lcs[i],
+        "median_s": round(times[i], 3),
+        "lane_changes_per_s": round(lcs[i] / times[i], 1),
+        "env_steps_per_s": round(steps[i] / times[i]),
+        "first_call_s": round(times[0], 1),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--chunk", type=int, default=2048)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--steps", type=int, default=200, help="sim_throughput's scan length")
+    ap.add_argument("--traffic", nargs="+", default=["paper", "braking"], choices=TRAFFIC)
+    ap.add_argument("--out", type=Path, default=HERE / "results")
+    args = ap.parse_args()
+    peak0 = machine.matmul_peak_gflops()
+    rows = []
+    for t in args.traffic:
+        mc = mc_chunk(t, args.chunk, args.repeats)
+        s = SIM.measure(args.chunk, args.steps, args.repeats, t)
+        mc["sim_env_steps_per_s"] = round(s["env_steps_per_s"])
+        mc["share_of_sim"] = round(mc["env_steps_per_s"] / s["env_steps_per_s"], 3)
+        rows.append(mc)
+        print(mc, flush=True)
+    peak1 = machine.matmul_peak_gflops()
+    for r in rows:
+        r |= {"matmul_peak_before": round(peak0), "matmul_peak_after": round(peak1)}
+        r["date"] = datetime.date.today().isoformat()
+    write_csv(args.out / "throughput.csv", rows)
+    print("median share of the simulator:", statistics.median([r["share_of_sim"] for r in rows]))
+
+
+if __name__ == "__main__":
+    main()
