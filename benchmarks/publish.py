@@ -7,10 +7,10 @@
 A block is the text of a document between ``<!-- publish:NAME -->`` and
 ``<!-- /publish:NAME -->``; ``BLOCKS[NAME]`` writes it from the committed folders under
 ``benchmarks/`` (a study's ``eval/`` files as ``python -m jaxlc.evaluate`` wrote them, a
-benchmark session's CSVs). The writers live in ``tables/`` beside this file, one module per
-subject, each naming the folders it reads at its top. Each block appears once, in one of
-``DOCS``. ``tests/test_publish.py`` runs the check, so a table that no longer matches its
-evidence fails the suite.
+benchmark session's CSVs). The writers live in ``tables/`` beside this file (a namespace
+package), one module per subject, each naming the folders it reads at its top. Each block
+appears once, in one of ``DOCS``. ``tests/test_publish.py`` runs the check, so a table that
+no longer matches its evidence fails the suite.
 """
 
 from __future__ import annotations

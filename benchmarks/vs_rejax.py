@@ -173,7 +173,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     args = ap.parse_args(argv)
     if args.tiny:
         args.seeds, args.timesteps = 1, 16_384
-    from csvfile import write_csv
+    from benchmarks.csvfile import write_csv
 
     cfg = config.load()
     peak = machine.matmul_peak_gflops()

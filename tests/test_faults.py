@@ -268,3 +268,17 @@ def test_the_loops_fault_messages_name_the_model_and_what_to_do(tmp_path):
     assert loop._finished(done, cfg.train)
     assert not loop._finished({**done, "episodes": done["episodes"] - 1}, cfg.train)
     assert loop.host_devices(cfg) >= 1
+
+
+def test_one_process_gathers_by_copying_and_a_bad_distributed_env_is_one_message(monkeypatch):
+    """``multihost`` on one process: ``to_host`` is a host copy; ``--distributed`` with a
+    process count that is not an integer is refused before JAX's runtime starts."""
+    from jaxlc import config
+    from jaxlc.study import multihost
+
+    tree = {"a": jax.numpy.arange(3), "b": (jax.numpy.ones(2),)}
+    host = multihost.to_host(tree)
+    assert isinstance(host["a"], np.ndarray) and host["a"].tolist() == [0, 1, 2]
+    monkeypatch.setenv("JAX_NUM_PROCESSES", "two")
+    with pytest.raises(config.ConfigError, match="must be integers"):
+        multihost.distributed_init()

@@ -215,9 +215,7 @@ def _edits_sys_path(tree: ast.Module) -> bool:
 
 def test_the_benchmarks_are_a_package_with_no_code_in_their_evidence():
     scripts = sorted(BENCHMARKS.glob("*.py"))
-    assert (BENCHMARKS / "__init__.py").is_file() and (
-        BENCHMARKS / "tables" / "__init__.py"
-    ).is_file()
+    assert (BENCHMARKS / "__init__.py").is_file()  # tables/: a namespace package
     code = sorted(BENCHMARKS.rglob("*.py"))
     in_evidence = [p for p in code if p.parent not in (BENCHMARKS, BENCHMARKS / "tables")]
     assert not in_evidence, in_evidence

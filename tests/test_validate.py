@@ -484,3 +484,27 @@ def test_the_ce_holds_its_proposal_for_a_round_that_as_many_failures_again_compl
         assert moved[1]
     else:
         assert math.isfinite(history[0]["level"]) and moved[0]
+
+
+def test_the_reports_section_lists_each_failing_kind_of_a_committed_validation(tmp_path):
+    """``validation_io.report_section`` on the crude-MC run the README's claim (d) cites (a
+    committed ``validate.json``): nothing without one; with it, a row for the validated kind
+    and for every kind that failed, the other kinds left out."""
+    import json
+    import shutil
+
+    from jaxlc.evaluation import validation_io
+
+    assert validation_io.report_section(tmp_path) == []
+    from .conftest import ROOT
+
+    src = ROOT / "benchmarks" / "validate_cpu_2026-11-27" / "mc_3M_m3" / "validate.json"
+    (tmp_path / "validate").mkdir()
+    shutil.copy(src, tmp_path / "validate" / "validate.json")
+    doc = json.loads(src.read_text())
+    lines = validation_io.report_section(tmp_path)
+    assert lines[0].startswith("## How rarely it fails") and lines[-1] == ""
+    rows = [line.split(" | ")[1] for line in lines if line.startswith("| ④")]
+    (model,) = doc["models"]
+    shown = [k for k, e in model["estimates"].items() if e["failures"] or k == doc["kind"]]
+    assert rows == shown and doc["kind"] in rows and len(rows) < len(model["estimates"])
