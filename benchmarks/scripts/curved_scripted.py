@@ -1,7 +1,7 @@
 """The scripted controller on curved roads: does the road frame make a curve drivable?
 
 For each road curvature (1/m; > 0 bends toward the higher lanes) the held-out lane changes of
-``jaxlc.evaluation`` (``keys_for_lane_changes``: the fewest held-out keys whose cases hold
+``jaxlc.evaluation`` (``cases_for_lane_changes``' keys: the fewest held-out keys whose cases hold
 ``--lane-changes`` lane changes) are driven by the scripted controller
 (``jaxlc.sim.controller.scripted_action``, the policy ``None`` of ``evaluate_policies``), and
 their ends are counted with ``jaxlc.evaluation.heldout.model_row``. Beside them: the first RL
@@ -32,7 +32,7 @@ from csvfile import write_csv  # noqa: E402
 
 from jaxlc import config  # noqa: E402
 from jaxlc.evaluation import heldout  # noqa: E402
-from jaxlc.evaluation.cases import evaluate_policies, keys_for_lane_changes, programs  # noqa: E402
+from jaxlc.evaluation.cases import cases_for_lane_changes, evaluate_policies, programs  # noqa: E402
 from jaxlc.sim.env import EnvParams  # noqa: E402
 from jaxlc.sim.observation import INDEX, scale  # noqa: E402
 
@@ -61,7 +61,7 @@ MAX_STEPS = 1500  # the held-out evaluation's
 def measure(cfg: config.Config, lane_changes: int, seed: int) -> dict:
     """One curvature's row: the scripted controller on ``lane_changes`` held-out lane changes."""
     t0 = time.time()
-    keys = keys_for_lane_changes(cfg, lane_changes, seed=seed, max_steps=MAX_STEPS)
+    keys, _ = cases_for_lane_changes(cfg, lane_changes, seed=seed, max_steps=MAX_STEPS)
     out, _, info = evaluate_policies(cfg, [None], [1], keys=keys, traced=0, max_steps=MAX_STEPS)
     row = heldout.model_row(out, info, 0, cfg.env.dt)
     # The first RL observation of every case (the start program is cached: no recompile).

@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxlc.evaluation import heldout, proposal, rare, validation
+from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation.cases import columns
 from jaxlc.evaluation.mixture import Mixture
 from jaxlc.sim.env import EnvParams
@@ -61,7 +62,7 @@ def main(argv: list[str] | None = None) -> dict:
     run = validation.program(cfg, mc["max_steps"], True)
     pol = validation.policies(cfg, rows[0]["actor"], rows[0]["k"])
     col = validation.KINDS.index(fail["kind"])
-    keys = validation.keys_at(mc["seed"], validation.VALIDATE_TAG, fail["cases"])
+    keys = streams.stream(mc["seed"], streams.VALIDATE, fail["cases"])
     n, chunk = keys.shape[0], mc["chunk"]  # crude MC's chunk: its program, its shapes
     keys = jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (-n % chunk, 2))])
     rng = np.random.default_rng(0)

@@ -27,6 +27,7 @@ from csvfile import write_csv
 
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
+from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation.cases import columns
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.evaluation.safety import HAZARDS, PARTNERS
@@ -57,7 +58,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         starts = [i * args.chunk for i in range(args.chunks)]
     found, lane_changes = [], 0
     for lo in starts:
-        keys = validation.validate_keys(0, validation.VALIDATE_TAG, lo, args.chunk)
+        keys = streams.stream(0, streams.VALIDATE, range(lo, lo + args.chunk))
         by_window = []
         for w in range(len(proposal.TILT_FROM)):
             nom = proposal.nominal(base).replace(tilt_from=jnp.float32(w))

@@ -41,6 +41,7 @@ sys.path.insert(0, str(ROOT / "benchmarks" / "scripts"))
 import jaxlc  # noqa: E402
 from jaxlc import config  # noqa: E402
 from jaxlc.evaluation import cases, results, stats  # noqa: E402
+from jaxlc.evaluation import keys as streams  # noqa: E402
 from jaxlc.study import machine  # noqa: E402
 
 # Beyond Rejax's defaults: the task's discount (set in run), PPO's reward normalisation
@@ -99,7 +100,7 @@ def evaluate(
     max_steps, n = cases.PROTOCOL.max_steps, len(policies)
     start, _ = cases.programs(cfg, max_steps)  # the checkpoints' own (cached) case program
     rollout = jax.jit(cases.make_rollout(jaxlc.make(cfg)[1], greedy(name, algo), max_steps))
-    cs = start(cases.case_keys(0, n_cases))
+    cs = start(streams.stream(0, streams.PROTOCOL, range(n_cases)))
     pol = cases.Policies(
         actor=jax.tree.map(lambda *xs: jnp.stack(xs), *policies),
         k=jnp.ones(n, jnp.int32),

@@ -33,6 +33,7 @@ import numpy as np
 import scipy.optimize
 
 from jaxlc.evaluation import heldout, proposal, rare, validation
+from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation.cases import columns
 from jaxlc.sim.braking import start_probability
 from jaxlc.sim.env import EnvParams
@@ -90,7 +91,7 @@ class Failures:
         self.p = float(start_probability(self.base))
         self.run = validation.program(cfg, mc["max_steps"], True)
         self.pol = validation.policies(cfg, None, 1)
-        keys = validation.keys_at(mc["seed"], validation.VALIDATE_TAG, fail["cases"])
+        keys = streams.stream(mc["seed"], streams.VALIDATE, fail["cases"])
         self.n, self.chunk = keys.shape[0], mc["chunk"]  # crude MC's chunk: its program
         self.keys = jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (-self.n % self.chunk, 2))])
 

@@ -296,12 +296,16 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
     how = sorted({c["interval"] for c in doc["cells"]})
     lines += ["", f"Cell intervals: {'; '.join(how)}.", ""]
     norms = [n["measure"] for n in doc["norms"]]
+    extra = doc.get("measures", [])  # measures registered with a held-out summary
     lines += [
         "| model | seed | success [95% CP] | out of bounds | collision | timeout | "
         "duration s | R79 manoeuvre s | peak lat. acc. m/s² | peak lat. jerk m/s³ | "
         "peak long. acc. m/s² | peak long. jerk m/s³ | min TTC s, 5th pct. | "
-        "min THW s, 5th pct. | " + " | ".join(f"{m} ok" for m in norms) + " | all norms |",
-        "|---" * (15 + len(norms)) + "|",
+        "min THW s, 5th pct. | "
+        + " | ".join(f"{m} ok" for m in norms)
+        + " | all norms |"
+        + "".join(f" {m} |" for m in extra),
+        "|---" * (15 + len(norms) + len(extra)) + "|",
     ]
     for r in doc["rows"]:
         lines.append(
@@ -315,6 +319,7 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
             f"{_tail(r, 'min_ttc_s')} | {_tail(r, 'min_thw_s')} | "
             + " | ".join(percent(r[f"norm_{m}"]) for m in norms)
             + f" | {percent(r['norm_all'])} |"
+            + "".join(f" {fixed(r.get(m))} |" for m in extra)
         )
     return lines
 
