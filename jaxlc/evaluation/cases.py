@@ -10,7 +10,6 @@ those of ``jaxlc.evaluation.results.OUTCOMES``.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -208,10 +207,11 @@ def case_info(cs: Cases, cfg: config.Config) -> dict[str, np.ndarray]:
 
 
 def columns(x: Any) -> dict[str, Any]:
-    """An ``Outcome``/``Trace``'s arrays by name, in their order."""
+    """An ``Outcome``/``Trace``'s arrays by name, in their order (any other object's
+    attributes, ``names`` aside: tests hand in stand-ins)."""
     if isinstance(x, Outcome):
         return x.columns()
-    return {f.name: getattr(x, f.name) for f in dataclasses.fields(x)}
+    return {k: v for k, v in vars(x).items() if k != "names"}
 
 
 def _concat(parts: list[Any]) -> dict[str, np.ndarray]:

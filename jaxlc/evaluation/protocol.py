@@ -374,9 +374,9 @@ def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
     out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
     out.mkdir(parents=True, exist_ok=True)
     _write_table(out / "compare.csv", table)
-    from jaxlc.evaluation import plots, report
+    from jaxlc.evaluation import plots, report_seeds
 
     plots.fig_compare(table, run_a.name, run_b.name, out / "compare.png")
-    text = report.compare_markdown(table, run_a, run_b)
+    text = report_seeds.compare_markdown(table, run_a, run_b)
     checkpoint.write_text_atomic(out / "compare.md", text)
     return out
