@@ -150,6 +150,37 @@ def test_every_key_stream_is_the_one_committed_files_name() -> None:
         np.testing.assert_array_equal(np.asarray(keys.stream(1, purpose, saved)), want)
 
 
+def test_each_reducer_folds_the_live_steps_alone() -> None:
+    """``measures.fold`` over three steps of two cases, the second live at the first step
+    alone: sum, max, min, the last value and the first other than ``fill``; an ``at_end``
+    measure waits for ``finish``; ``from_start`` starts from the start step's value."""
+    from jaxlc.evaluation import measures
+
+    fills = {"sum": 0.0, "max": -jnp.inf, "min": jnp.inf, "last": jnp.nan, "first": -1.0}
+    ms = [measures.Measure(r, r, lambda s, p: s.reward, f) for r, f in fills.items()]
+    ms += [measures.Measure("end", "last", lambda s, p: 10 * s.reward, 0.0, at_end=True)]
+    ms += [measures.Measure("from0", "sum", lambda s, p: s.reward, from_start=True)]
+    ms = tuple(ms)
+
+    def step(v: list[float]) -> measures.Step:
+        r = jnp.asarray([v], jnp.float32)  # (policies 1, cases 2)
+        zero = jnp.zeros_like(r)
+        return measures.Step(None, zero, zero, r, {}, zero, zero, zero, zero, zero, 0.0, 0.0)
+
+    out = measures.start(ms, step([5.0, 7.0]), None)
+    for i, v in enumerate(([3.0, 4.0], [1.0, 9.0], [2.0, 8.0])):
+        out = measures.fold(ms, out, step(v), jnp.asarray([[True, i == 0]]), None)
+    out = measures.finish(ms, out, step([0.5, 0.25]), None)
+    got = {k: np.asarray(v)[0].tolist() for k, v in out.columns().items()}
+    assert got["sum"] == [6.0, 4.0] and got["max"] == [3.0, 4.0] and got["min"] == [1.0, 4.0]
+    assert got["last"] == [2.0, 4.0] and got["first"] == [3.0, 4.0]
+    assert got["end"] == [5.0, 2.5] and got["from0"] == [11.0, 11.0]
+    with pytest.raises(ValueError, match="only a 'last'"):
+        measures.register(measures.Measure("bad", "max", lambda s, p: s.reward, at_end=True))
+    with pytest.raises(ValueError, match="registered already"):
+        measures.register(measures.Measure("steps", "last", lambda s, p: s.steps))
+
+
 @pytest.fixture(scope="module")
 def smoke_cfg() -> config.Config:
     return config.load(config.CONFIG_DIR / "smoke.toml")

@@ -24,23 +24,20 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import numpy as np
+from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator
 
-matplotlib.use("Agg")  # files only; no display on training machines
+from jaxlc.evaluation import heldout, stats
+from jaxlc.evaluation import plots_scenes as scenes
+from jaxlc.evaluation.convergence import moving
+from jaxlc.evaluation.numbers import number
+from jaxlc.evaluation.plots_io import PillowWriter, plt  # noqa: F401  (validation_io's; on Agg)
+from jaxlc.evaluation.plots_io import eval_files as _eval
+from jaxlc.evaluation.plots_io import npz as _npz
+from jaxlc.evaluation.plots_io import save as _save
+from jaxlc.paper import grid as paper_grid
+from jaxlc.study.rundir import RunDir
 
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.animation import PillowWriter  # noqa: E402, F401  (plots_scenes draws with them)
-from matplotlib.patches import Rectangle  # noqa: E402, F401
-from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator  # noqa: E402
-
-from jaxlc.evaluation import heldout, stats  # noqa: E402
-from jaxlc.evaluation.convergence import moving  # noqa: E402
-from jaxlc.evaluation.numbers import number  # noqa: E402
-from jaxlc.paper import grid as paper_grid  # noqa: E402
-from jaxlc.study.rundir import RunDir  # noqa: E402
-
-SCENE_BEHIND, SCENE_AHEAD = 90.0, 30.0  # m of road shown behind and ahead of the ego
 BAND_POINTS = 300  # bootstrap a training curve's band at this many points, not every episode
 
 
@@ -65,17 +62,6 @@ def _colour(model: Mapping[str, Any], i: int) -> str:
     """The paper's colour for its nine models (``model``: a cell, model or row with ``k`` and
     ``memory``, tagged by ``paper.grid.tag_of``), else cycle."""
     return paper_grid.COLOURS.get(paper_grid.tag_of(model) or "", f"C{i % 10}")
-
-
-_npz = RunDir.load_npz
-
-
-def _eval(run_dir: Path) -> tuple[dict[str, Any], dict, dict] | None:
-    path = RunDir(run_dir).eval_json
-    traces, cases = _npz(RunDir(run_dir).traces), _npz(RunDir(run_dir).cases)
-    if not path.is_file() or traces is None or cases is None:
-        return None
-    return json.loads(path.read_text()), traces, cases
 
 
 def _window(n: int) -> int:
@@ -110,13 +96,6 @@ def _return_axis(ax: Any) -> None:
         # Decades alone leave one or two labelled ticks over -2000..-100; add 2x and 5x.
         ax.yaxis.set_major_locator(SymmetricalLogLocator(linthresh=10, base=10, subs=[1, 2, 5]))
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-
-
-def _save(fig: Any, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
 
 
 # --------------------------------------------------------------------------- training
@@ -338,8 +317,6 @@ def heldout_norms(run_dir: Path) -> Path | None:
 
 def make_all(run_dir: Path) -> list[Path]:
     """Every figure whose data the run directory holds; returns the files written."""
-    from jaxlc.evaluation import plots_scenes as scenes  # it imports this module's helpers
-
     run_dir = Path(run_dir)
     makers = (
         fig3_returns,

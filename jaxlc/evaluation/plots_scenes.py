@@ -2,7 +2,7 @@
 scenes at chosen checkpoints, Fig. 7 trajectories, the speeds and gaps of the drawn cases,
 ``learning.gif`` (lane changes across checkpoints) and ``draw_scene`` (one frame, also the
 validation's replay); drawn on the road's bend where the case had one. The rest of the
-figures, and the helpers they share: ``jaxlc.evaluation.plots``."""
+figures: ``jaxlc.evaluation.plots``; what they share: ``jaxlc.evaluation.plots_io``."""
 
 from __future__ import annotations
 
@@ -11,15 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from jaxlc.evaluation.plots import (
-    SCENE_AHEAD,
-    SCENE_BEHIND,
-    PillowWriter,
-    Rectangle,
-    _eval,
-    _save,
-    plt,
-)
+from jaxlc.evaluation.plots_io import SCENE_AHEAD, SCENE_BEHIND, PillowWriter, Rectangle, plt
+from jaxlc.evaluation.plots_io import eval_files as _eval
+from jaxlc.evaluation.plots_io import save as _save
 from jaxlc.evaluation.results import OUTCOMES, rank_models
 from jaxlc.sim.render import road_to_world
 from jaxlc.sim.road import origin_lane, reference_y
