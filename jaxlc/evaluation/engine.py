@@ -225,10 +225,19 @@ def make_rollout(
             live = ~done  # (policies, r); only live cases are in the RL phase
             watch, (lat_jerk, long_jerk, counted) = safety.observe(watch, new, base)
             s = Step(
-                new, info["reason"], info["episode_steps"], r, info, side[:, rows],
-                performed[:, rows], lat_jerk, long_jerk, counted,
-                info.get("log_w", 0.0), info.get("tilt", 0.0),
-            )  # fmt: skip
+                state=new,
+                reason=info["reason"],
+                steps=info["episode_steps"],
+                reward=r,
+                info=info,
+                side=side[:, rows],
+                performed=performed[:, rows],
+                lat_jerk=lat_jerk,
+                long_jerk=long_jerk,
+                counted=counted,
+                log_w=info.get("log_w", 0.0),
+                tilt=info.get("tilt", 0.0),
+            )
             out = measures.fold(ms, out, s, live, base)
             done = done | (live & ((info["reason"] != 0) | (new.time >= max_steps)))
             # Finished cases freeze, so their last frame is where the manoeuvre ended.
@@ -241,11 +250,22 @@ def make_rollout(
 
         watch, counted = safety.watch(state, base)
         zero = jnp.zeros((n_pol, n), jnp.float32)
+        # The manoeuvre's start as step 0: the case's reason, its approach's log weight and
+        # statistics (a proposal's), no reward or jerk yet.
         start = Step(
-            state, bcast(cs.reason), jnp.zeros((n_pol, n), jnp.int32), zero, {}, side,
-            performed, zero, zero, counted,
-            bcast(jnp.broadcast_to(jnp.asarray(cs.log_w, jnp.float32), (n,))), bcast(_tilt_of(cs)),
-        )  # fmt: skip
+            state=state,
+            reason=bcast(cs.reason),
+            steps=jnp.zeros((n_pol, n), jnp.int32),
+            reward=zero,
+            info={},
+            side=side,
+            performed=performed,
+            lat_jerk=zero,
+            long_jerk=zero,
+            counted=counted,
+            log_w=bcast(jnp.broadcast_to(jnp.asarray(cs.log_w, jnp.float32), (n,))),
+            tilt=bcast(_tilt_of(cs)),
+        )
         cases = (state, obs, ~performed, measures.start(ms, start, base), watch)
         c = spill(
             body,
