@@ -27,6 +27,7 @@ from benchmarks import sim_throughput
 from benchmarks.csvfile import write_csv
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
+from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation.cases import columns, make_start_cases
 from jaxlc.sim.env import EnvParams
 from jaxlc.study import machine
@@ -44,7 +45,7 @@ def mc_chunk(traffic: str, chunk: int, repeats: int) -> dict:
     pol, nom = validation.policies(cfg, None, 1), proposal.nominal(base)
     times, lcs, steps = [], [], []
     for r in range(repeats + 1):
-        keys = validation.validate_keys(r, validation.VALIDATE_TAG, 0, chunk)
+        keys = streams.stream(r, streams.VALIDATE, range(chunk))
         t0 = time.perf_counter()
         out = columns(jax.device_get(run(nom, pol, keys)[0]))
         times.append(time.perf_counter() - t0)

@@ -37,6 +37,7 @@ import numpy as np
 import jaxlc
 from jaxlc import config
 from jaxlc.evaluation import cases, results, stats
+from jaxlc.evaluation import keys as streams
 from jaxlc.study import machine
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,7 +98,7 @@ def evaluate(
     max_steps, n = cases.PROTOCOL.max_steps, len(policies)
     start, _ = cases.programs(cfg, max_steps)  # the checkpoints' own (cached) case program
     rollout = jax.jit(cases.make_rollout(jaxlc.make(cfg)[1], greedy(name, algo), max_steps))
-    cs = start(cases.case_keys(0, n_cases))
+    cs = start(streams.stream(0, streams.PROTOCOL, range(n_cases)))
     pol = cases.Policies(
         actor=jax.tree.map(lambda *xs: jnp.stack(xs), *policies),
         k=jnp.ones(n, jnp.int32),

@@ -10,14 +10,12 @@ from pathlib import Path
 from jaxlc.evaluation.plots import (  # the names the command's users and tests know it by
     fig3_returns,
     fig4_steps_loss,
-    fig5_scenes,
     fig6_checkpoints,
-    fig7_trajectories,
     heldout_norms,
-    learning_gif,
     make_all,
     profiles,
 )
+from jaxlc.evaluation.plots_scenes import fig5_scenes, fig7_trajectories, learning_gif
 
 __all__ = ["fig3_returns", "fig4_steps_loss", "fig5_scenes", "fig6_checkpoints"]
 __all__ += ["fig7_trajectories", "heldout_norms", "learning_gif", "main", "make_all", "profiles"]

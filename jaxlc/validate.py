@@ -34,6 +34,7 @@ from tqdm import tqdm
 
 from jaxlc import config
 from jaxlc.evaluation import heldout, mixture, proposal, validation
+from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation.cases import columns
 from jaxlc.evaluation.mixture import Mixture
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
@@ -179,7 +180,7 @@ def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
     t1 = time.perf_counter()
     try:
         while tally.lane_changes < args.lane_changes:
-            keys = validation.validate_keys(args.seed, validation.VALIDATE_TAG, lo, args.chunk)
+            keys = streams.stream(args.seed, streams.VALIDATE, range(lo, lo + args.chunk))
             q, k, drawn = chunk_proposal(fitted, base, lo // args.chunk, args, tally.components)
             out = columns(jax.device_get(run(q, pol, keys))[0])
             before = tally.lane_changes

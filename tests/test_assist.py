@@ -13,6 +13,7 @@ import pytest
 import jaxlc
 from jaxlc import config
 from jaxlc.evaluation import cases
+from jaxlc.evaluation import keys as streams
 from jaxlc.sim.controller import (
     FIT_GO_AFTER,
     baseline_action,
@@ -118,7 +119,7 @@ def test_the_assist_drives_as_the_controller_does_under_a_zero_policy() -> None:
     controller acting itself with the manoeuvre time observed: the same ends, steps and the
     manoeuvre's start, on held-out cases."""
     assisted, timed = _cfg(assist="fitting"), _cfg(terminal_timeout=True)
-    keys = cases.heldout_keys(0, 24)
+    keys = streams.stream(0, streams.HELDOUT, range(24))
     p = _params(terminal_timeout=True)
     zero = cases.evaluate_act(assisted, lambda o: jnp.zeros(o.shape[:-1] + (2,)), keys=keys)
     itself = cases.evaluate_act(timed, lambda o: fitting_action(o, p), keys=keys)

@@ -179,7 +179,8 @@ def test_program_hashes_tell_the_traffics_apart_and_repeat():
     program, the same on a second lowering, different between the traffics."""
     first = program_hashes.hashes(envs=2)
     assert sorted(first) == ["hazards reset", "hazards step", "paper reset", "paper step"]
-    again = program_hashes._programs((), jax.random.split(jax.random.PRNGKey(0), 2))  # paper traffic
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    again = program_hashes._programs((), keys)  # the paper traffic
     assert again == {"step": first["paper step"], "reset": first["paper reset"]}
     assert first["paper step"] != first["hazards step"]
     assert len(set(first.values())) == 4

@@ -8,6 +8,7 @@ programs compile once.
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -18,7 +19,8 @@ import numpy as np
 import pytest
 
 from jaxlc import config, evaluate
-from jaxlc.evaluation import cases, heldout, results, safety
+from jaxlc.evaluation import cases, engine, heldout, results, safety
+from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation.report_text import FIGURES
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.learn.networks import make_networks
@@ -202,6 +204,49 @@ def test_manoeuvres_keep_their_final_state(run) -> None:
     assert result["success_box"]["offset_m"] == e.success_offset
 
 
+def test_a_measure_declared_once_reaches_heldout_csv_and_the_report(run, tmp_path: Path) -> None:
+    """One ``measures.register`` call, nothing else: the measure is folded over every
+    manoeuvre (its reducer, a max here), kept per case in ``heldout_cases.npz``, summarised
+    per model in ``heldout.csv`` and ``heldout.json`` (the mean over the successful lane
+    changes) and shown in the report's held-out table; every built-in column stays as it was."""
+    from jaxlc.evaluation import measures, report
+    from jaxlc.evaluation.protocol import evaluate_heldout
+
+    run_dir, cfg, _ = run
+    out = tmp_path / "run"
+    shutil.copytree(run_dir, out)
+    top = measures.Measure("top_speed", "max", lambda s, p: s.state.ego.v, heldout="mean")
+    measures.register(top)
+    try:
+        doc = evaluate_heldout(out, lane_changes=LANE_CHANGES, chunk=CHUNK)
+        report.write_report(out)
+    finally:
+        measures.unregister("top_speed")
+    header = (out / "eval" / "heldout.csv").read_text().splitlines()[0].split(",")
+    assert header == [*heldout.HELDOUT_FIELDS, "top_speed"]
+    assert header[:-1] == (run_dir / "eval" / "heldout.csv").read_text().splitlines()[0].split(",")
+    per_case = np.load(out / "eval" / "heldout_cases.npz")
+    before = np.load(run_dir / "eval" / "heldout_cases.npz")
+    # the outcome's columns, the new one after the built-ins, then the ids and case info
+    assert [f for f in per_case.files if f != "top_speed"] == before.files
+    assert per_case.files.index("top_speed") == before.files.index("tilt") + 1
+    for name in ("reason", "steps", "min_ttc", "partner", "log_w"):  # the built-ins unchanged
+        np.testing.assert_array_equal(per_case[name], before[name], err_msg=name)
+    top_v, perf = per_case["top_speed"], per_case["performed"]
+    assert np.all(top_v[:, perf] > 0.0) and np.all(top_v[:, ~perf] == 0.0)  # fill: no steps
+    success = per_case["reason"] == OUTCOMES.index("success")
+    assert doc["measures"] == ["top_speed"]
+    for p, row in enumerate(doc["rows"]):
+        ok = perf & success[p]
+        want = float(np.mean(top_v[p][ok])) if ok.any() else math.nan  # undefined: no success
+        assert row["top_speed"] == pytest.approx(want, nan_ok=True), row["label"]
+    assert doc["rows"][0]["model"] is None and success[0][perf].any()  # the scripted succeeds
+    text = (out / "report.md").read_text()
+    assert " top_speed |" in text
+    names = [m.name for m in measures.of(EnvParams.from_config(cfg.env))]
+    assert "top_speed" not in names and not measures.registered()  # unregistered again
+
+
 def test_seed_statistics_are_written_and_say_one_seed_is_not_enough(run) -> None:
     run_dir, _, result = run
     doc = json.loads((run_dir / "eval" / "cells.json").read_text())
@@ -273,7 +318,7 @@ def test_a_batch_of_case_starts_is_each_case_started_alone() -> None:
     and the batch's approach lengths differ (so both stages ran)."""
     base = EnvParams.from_config(config.load(SMOKE).env)
     n = cases.SPILL_MIN_BATCH
-    keys = cases.heldout_keys(0, n)
+    keys = streams.stream(0, streams.HELDOUT, range(n))
     plain = jax.jit(jax.vmap(cases.make_start_case(base, 600)))(keys)
     batched = jax.jit(cases.make_start_cases(base, 600))(keys)
     for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(batched), strict=True):
@@ -291,7 +336,7 @@ def test_a_rollout_of_a_batch_is_each_case_rolled_out_alone(monkeypatch) -> None
     cfg = config.load(SMOKE)
     base = EnvParams.from_config(cfg.env)
     n = cases.SPILL_MIN_BATCH
-    cs = jax.jit(cases.make_start_cases(base, 600))(cases.heldout_keys(0, n))
+    cs = jax.jit(cases.make_start_cases(base, 600))(streams.stream(0, streams.HELDOUT, range(n)))
     actor = cases.init_actor(cfg, jax.random.PRNGKey(1))
     pol = cases.Policies(
         actor=jax.tree.map(lambda a: np.stack([a, a]), actor),
@@ -301,11 +346,11 @@ def test_a_rollout_of_a_batch_is_each_case_rolled_out_alone(monkeypatch) -> None
     traced = np.asarray(cases.pick_traced(cs, 3))
     apply = make_networks(cfg.ddpg, 1)[0].apply
     batched = jax.jit(cases.make_rollout(base, apply, 600))(pol, cs, traced)
-    monkeypatch.setattr(cases, "SPILL_MIN_BATCH", n + 1)  # the plain loop
+    monkeypatch.setattr(engine, "SPILL_MIN_BATCH", n + 1)  # the plain loop (engine.spill's)
     plain = jax.jit(cases.make_rollout(base, apply, 600))(pol, cs, traced)
     for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(batched), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    steps = np.asarray(plain[0].steps).max(axis=0)  # (cases,) the longest of the policies'
+    steps = np.asarray(plain[0]["steps"]).max(axis=0)  # (cases,) the longest of the policies'
     assert np.asarray(cs.performed).sum() > n // cases.SPILL
     assert steps.max() > np.sort(steps)[-(n // cases.SPILL) - 1], steps
 
@@ -319,7 +364,7 @@ def test_the_traffic_only_warm_up_gives_the_full_warm_ups_traffic(traffic) -> No
     over = [*traffic, "env.braking_rate=3600", "env.mobil_rate=2"] if traffic else []
     base = EnvParams.from_config(config.load(SMOKE, over).env)
     env = LaneChangeEnv()
-    keys = cases.heldout_keys(1, 128)
+    keys = streams.stream(1, streams.HELDOUT, range(128))
     full = jax.jit(jax.vmap(lambda k: env.reset(k, base)[1]))(keys)
     fast = jax.jit(jax.vmap(lambda k: env.reset(k, base, traffic_only=True)[1]))(keys)
     assert np.asarray(full.traffic.active).sum() > 128 * 3  # a filled road

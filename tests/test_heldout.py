@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jaxlc import config
-from jaxlc.evaluation import cases, heldout, safety
+from jaxlc.evaluation import cases, heldout, keys, safety
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.sim.env import EnvParams, LaneChangeEnv
 
@@ -117,11 +117,68 @@ def test_cells_below_five_seeds_use_the_seeds_range() -> None:
 
 
 def test_heldout_keys_are_a_stream_apart_from_the_protocols() -> None:
-    held = {tuple(k) for k in np.asarray(cases.heldout_keys(0, 2000)).tolist()}
+    def stream(seed: int, purpose: str) -> set:
+        return {tuple(k) for k in np.asarray(keys.stream(seed, purpose, range(2000))).tolist()}
+
+    held = stream(0, keys.HELDOUT)
     for seed in range(3):
-        protocol = {tuple(k) for k in np.asarray(cases.case_keys(seed, 2000)).tolist()}
+        protocol = stream(seed, keys.PROTOCOL)
         assert not held & protocol
-    assert held != {tuple(k) for k in np.asarray(cases.heldout_keys(1, 2000)).tolist()}
+    assert held != stream(1, keys.HELDOUT)
+
+
+def test_every_key_stream_is_the_one_committed_files_name() -> None:
+    """``keys.stream`` gives the keys of the four functions it replaced, written out here as
+    they were: ``case_keys`` (no tag), ``heldout_keys`` ("HELD"), ``validate_keys`` and
+    ``keys_at`` ("VALD", "PILT"): committed results name those streams."""
+
+    def old(seed: int, tag: int | None, indices: jax.Array) -> np.ndarray:
+        root = jax.random.PRNGKey(seed)
+        root = root if tag is None else jax.random.fold_in(root, tag)
+        return np.asarray(jax.vmap(lambda i: jax.random.fold_in(root, i))(indices))
+
+    tags = {keys.PROTOCOL: None, keys.HELDOUT: 0x48454C44}
+    tags |= {keys.VALIDATE: 0x56414C44, keys.PILOT: 0x50494C54}
+    for purpose, tag in tags.items():
+        for seed in (0, 3):
+            want = old(seed, tag, jnp.arange(7, 47))
+            np.testing.assert_array_equal(
+                np.asarray(keys.stream(seed, purpose, range(7, 47))), want
+            )
+        saved = [3, 99, 5]  # a saved case's indices (validate/cases.json), as keys_at took them
+        want = old(1, tag, jnp.asarray(saved))
+        np.testing.assert_array_equal(np.asarray(keys.stream(1, purpose, saved)), want)
+
+
+def test_each_reducer_folds_the_live_steps_alone() -> None:
+    """``measures.fold`` over three steps of two cases, the second live at the first step
+    alone: sum, max, min, the last value and the first other than ``fill``; an ``at_end``
+    measure waits for ``finish``; ``from_start`` starts from the start step's value."""
+    from jaxlc.evaluation import measures
+
+    fills = {"sum": 0.0, "max": -jnp.inf, "min": jnp.inf, "last": jnp.nan, "first": -1.0}
+    ms = [measures.Measure(r, r, lambda s, p: s.reward, f) for r, f in fills.items()]
+    ms += [measures.Measure("end", "last", lambda s, p: 10 * s.reward, 0.0, at_end=True)]
+    ms += [measures.Measure("from0", "sum", lambda s, p: s.reward, from_start=True)]
+    ms = tuple(ms)
+
+    def step(v: list[float]) -> measures.Step:
+        r = jnp.asarray([v], jnp.float32)  # (policies 1, cases 2)
+        zero = jnp.zeros_like(r)
+        return measures.Step(None, zero, zero, r, {}, zero, zero, zero, zero, zero, 0.0, 0.0)
+
+    out = measures.start(ms, step([5.0, 7.0]), None)
+    for i, v in enumerate(([3.0, 4.0], [1.0, 9.0], [2.0, 8.0])):
+        out = measures.fold(ms, out, step(v), jnp.asarray([[True, i == 0]]), None)
+    out = measures.finish(ms, out, step([0.5, 0.25]), None)
+    got = {k: np.asarray(v)[0].tolist() for k, v in out.columns().items()}
+    assert got["sum"] == [6.0, 4.0] and got["max"] == [3.0, 4.0] and got["min"] == [1.0, 4.0]
+    assert got["last"] == [2.0, 4.0] and got["first"] == [3.0, 4.0]
+    assert got["end"] == [5.0, 2.5] and got["from0"] == [11.0, 11.0]
+    with pytest.raises(ValueError, match="only a 'last'"):
+        measures.register(measures.Measure("bad", "max", lambda s, p: s.reward, at_end=True))
+    with pytest.raises(ValueError, match="registered already"):
+        measures.register(measures.Measure("steps", "last", lambda s, p: s.steps))
 
 
 @pytest.fixture(scope="module")
@@ -131,16 +188,19 @@ def smoke_cfg() -> config.Config:
 
 @pytest.mark.slow
 def test_keys_for_lane_changes_hold_exactly_that_many(smoke_cfg: config.Config) -> None:
-    keys, started = cases.cases_for_lane_changes(smoke_cfg, 25, seed=3, batch=16)
+    found, started = cases.cases_for_lane_changes(smoke_cfg, 25, seed=3, batch=16)
     start, _ = cases.programs(smoke_cfg, 1500)
-    alone = start(keys)
+    alone = start(found)
     performed = np.asarray(alone.performed)
     assert performed.sum() == 25 and performed[-1]  # the last case is the 25th lane change
     # the cases handed on are those of the keys started afresh, bit for bit, whatever the batch
     for a, b in zip(jax.tree.leaves(started), jax.tree.leaves(alone), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    other = cases.keys_for_lane_changes(smoke_cfg, 25, seed=3, batch=8)
-    np.testing.assert_array_equal(np.asarray(other), np.asarray(keys))
+    other, _ = cases.cases_for_lane_changes(smoke_cfg, 25, seed=3, batch=8)
+    np.testing.assert_array_equal(np.asarray(other), np.asarray(found))
+    # they are the held-out stream's first keys
+    first = keys.stream(3, keys.HELDOUT, range(len(found)))
+    np.testing.assert_array_equal(np.asarray(first), np.asarray(found))
 
 
 @pytest.mark.slow
@@ -149,10 +209,10 @@ def test_rollout_jerk_and_ttc_match_a_replay_by_hand(smoke_cfg: config.Config) -
     rollout's peak windowed jerks (lateral and longitudinal), peak longitudinal acceleration,
     minimum lag TTC and UN R79's manoeuvre (the step the body first reaches into the target
     lane, the first after it with no corner left in the origin lane) equal the replay's."""
-    keys = cases.keys_for_lane_changes(smoke_cfg, 3, seed=0, batch=8)
-    out = cases.evaluate_act(smoke_cfg, lambda obs: jnp.ones((obs.shape[0], 1)), keys=keys)
+    found, _ = cases.cases_for_lane_changes(smoke_cfg, 3, seed=0, batch=8)
+    out = cases.evaluate_act(smoke_cfg, lambda obs: jnp.ones((obs.shape[0], 1)), keys=found)
     start, _ = cases.programs(smoke_cfg, 1500)
-    cs = start(keys)
+    cs = start(found)
     c = int(np.nonzero(np.asarray(cs.performed))[0][0])
     p = EnvParams.from_config(smoke_cfg.env, gamma=smoke_cfg.ddpg.gamma)
     env, state = LaneChangeEnv(), jax.tree.map(lambda a: a[c], cs.state)

@@ -152,7 +152,7 @@ def test_the_import_graph_sees_every_form_of_import():
     assert "jaxlc.sim.reward" in graph["jaxlc.sim.env"]  # from jaxlc.sim import reward
     assert "jaxlc.config" in graph["jaxlc.sim.env"]  # from jaxlc import config (in a function)
     assert "jaxlc.sim.env" in graph["jaxlc.learn.train"]
-    assert "jaxlc.learn.tree" in graph["jaxlc.evaluation.cases"]
+    assert "jaxlc.learn.tree" in graph["jaxlc.evaluation.engine"]  # from jaxlc.learn import tree
     assert "jaxlc.evaluation.report" in graph["jaxlc.evaluate"]  # deferred, in a function
     assert "jaxlc" in graph["jaxlc.study.checkpoint"]  # import jaxlc
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from jaxlc import config
+from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation import rare
 
 
@@ -131,7 +132,7 @@ def test_nominal_proposal_weights_are_one(smoke_run):
     base = EnvParams.from_config(cfg.env)
     # the validated fixture's program (``validate``'s default step cap): loaded, not compiled
     run = validation.program(cfg, config.EvalConfig().max_steps, True)
-    keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, CHUNK)
+    keys = streams.stream(0, streams.VALIDATE, range(CHUNK))
     trials = []
     for start in range(len(proposal.TILT_FROM)):
         nom = proposal.nominal(base).replace(tilt_from=jnp.float32(start))
@@ -161,7 +162,7 @@ def test_a_nominal_chunk_drives_the_traffics_own_draws_weighed_against_the_propo
     cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
     base = EnvParams.from_config(cfg.env)
     run = validation.program(cfg, config.EvalConfig().max_steps, True)  # the fixture's
-    keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, CHUNK)
+    keys = streams.stream(0, streams.VALIDATE, range(CHUNK))
     nom, p, q = proposal.nominal(base), float(start_probability(base)), 0.02
     tilt = nom.replace(brake=nom.brake.at[proposal.ROLES.index("lead")].set(q))
     props = {"nominal": nom, "own": tilt.replace(drawn_nominal=jnp.float32(1.0)), "tilt": tilt}
@@ -211,7 +212,7 @@ def test_a_mixture_component_weighs_from_its_statistics_as_the_program_does(smok
     cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
     base = EnvParams.from_config(cfg.env)
     run = validation.program(cfg, config.EvalConfig().max_steps, True)  # the fixture's
-    keys = validation.validate_keys(0, validation.VALIDATE_TAG, 0, CHUNK)
+    keys = streams.stream(0, streams.VALIDATE, range(CHUNK))
     pol = validation.policies(cfg, None, 1)
     start = mixture.start(base, 0.2, "entry", 60)
     p = start.p_fire

@@ -2,8 +2,10 @@
 
 In: checkpoints and the run directory (``jaxlc.study``), the actor network (``jaxlc.learn``),
 the simulator and its reason codes (``jaxlc.sim``), the ``Config`` (``jaxlc.config``).
-Out: the evaluation protocol of a run (``protocol``), the fixed cases and the program that
-runs every policy on them (``cases``), result rows,
+Out: the evaluation protocol of a run (``protocol``), the fixed cases and every policy run on
+them (``cases``) by the rollout engine (``engine``: a case's start and its manoeuvre on one
+scheduler), the measures of a lane change, each declared once (``measures``), every key
+stream (``keys``), the drawn cases' frames (``trace``), result rows,
 outcomes and ranking (``results``), statistics over seeds (``stats``), the safety and
 comfort measures of a lane change (``safety``), the held-out evaluation's bounds
 (``heldout``), learning speed from the training curves (``convergence``), ``report.md``

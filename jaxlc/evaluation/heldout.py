@@ -5,8 +5,8 @@ and cases, and claim (d) as a bound.
 Seventy protocol lane changes cannot see a failure rate below ~4% (0 of 70 is consistent with
 4.2% at 95%), so ``python -m jaxlc.evaluate`` also drives each final checkpoint through
 ``--lane-changes`` (1,000 by default) held-out lane changes
-(``jaxlc.evaluation.cases.heldout_keys``, a key stream apart from the protocol's and the
-sweep's). Pure numpy/scipy, like
+(``jaxlc.evaluation.keys.stream(seed, HELDOUT, ...)``, a key stream apart from the protocol's
+and the sweep's). Pure numpy/scipy, like
 ``jaxlc.evaluation.stats``.
 
 Intervals:
@@ -32,6 +32,7 @@ import numpy as np
 import scipy.stats
 
 from jaxlc import config
+from jaxlc.evaluation import measures
 from jaxlc.evaluation.numbers import TERMINAL_DASH, percent
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.evaluation.safety import HAZARDS, NORMS, PARTNERS, VEHICLES
@@ -61,6 +62,22 @@ HELDOUT_FIELDS = (
     + CRIT_KEYS
     + HAZARD_KEYS
 )
+
+
+def fields() -> tuple[str, ...]:
+    """``heldout.csv``'s columns: ``HELDOUT_FIELDS``, then each measure registered with a
+    held-out summary (``measures.register``), by its name."""
+    return HELDOUT_FIELDS + tuple(m.name for m in measures.registered() if m.heldout)
+
+
+def _summary(m: measures.Measure, values: np.ndarray, ok: np.ndarray) -> float:
+    """A registered measure's held-out column from its values on the lane changes
+    ``(lane changes,)`` (``ok``: the successful ones)."""
+    if m.heldout == "mean":
+        return _mean(values[ok])
+    return _p5(values) if m.heldout == "p5" else float(values.sum())
+
+
 COLLISION_FIELDS = (
     "label",
     "model",
@@ -127,7 +144,7 @@ def _mean(x: np.ndarray) -> float:
 
 
 def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, dt: float) -> dict:
-    """Policy ``p``'s held-out row (``HELDOUT_FIELDS`` less the identity)."""
+    """Policy ``p``'s held-out row (``fields()`` less the identity)."""
     perf = info["performed"]
     reason = out["reason"][p][perf]
     n = int(perf.sum())
@@ -135,6 +152,7 @@ def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, d
     ok = reason == OUTCOMES.index("success")
     m = {k: v[perf] for k, v in lane_change_measures(out, p, dt).items()}
     fails, hits = n - counts["success"], counts["collision"]
+    own = [me for me in measures.registered() if me.heldout]  # measures of your own
     crit = {}
     for name in ("ttc", "thw"):
         bound = BOUNDS[f"min_{name}_s"]
@@ -165,6 +183,7 @@ def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, d
         "met_cut_in": int((out["cut_ins"][p][perf] > 0).sum()),
         "brakes_near": int(out["brakes_near"][p][perf].sum()),
         "met_braking": int((out["brakes_near"][p][perf] > 0).sum()),
+        **{me.name: _summary(me, out[me.name][p][perf], ok) for me in own},  # after the rest
     }
 
 

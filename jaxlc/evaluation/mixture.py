@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation import validation
 from jaxlc.evaluation.cases import Policies, columns
 from jaxlc.evaluation.proposal import COND, EVENTS, ROLES, TILT_FROM, TRIALS, Proposal, nominal
@@ -181,7 +182,7 @@ def fit_mixture(
     log: Callable = print,
 ) -> tuple[Mixture, list[dict[str, Any]]]:
     """Pilot rounds from ``start``: each draws one chunk per component (the CE's key stream,
-    ``validation.PILOT_TAG``); after it, each role's horizon is the most braking trials of the
+    ``keys.PILOT``); after it, each role's horizon is the most braking trials of the
     role a pilot lane change held so far (a path with more, no event of the role's, is one its
     component cannot draw), and the shares are ``fitted_shares`` of the pooled lane changes of
     ``kind``, each weighed by ``p / q`` of its round's draw (every component equally likely).
@@ -192,9 +193,8 @@ def fit_mixture(
     for r in range(rounds):
         failures = lane_changes = 0
         for k in range(n_comp):
-            keys = validation.validate_keys(
-                seed, validation.PILOT_TAG, (r * n_comp + k) * chunk, chunk
-            )
+            lo = (r * n_comp + k) * chunk
+            keys = streams.stream(seed, streams.PILOT, range(lo, lo + chunk))
             out = columns(jax.device_get(run(mix.component(p, k), pol, keys)[0]))
             perf = out["performed"][0]
             st = out["tilt"][0].astype(np.float64)

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from jaxlc import config
-from jaxlc.evaluation import convergence, heldout, stats
+from jaxlc.evaluation import convergence, heldout, measures, stats
 from jaxlc.evaluation.cases import (
     PROTOCOL,
     cases_for_lane_changes,
@@ -195,6 +195,8 @@ def evaluate_heldout(
     result = {
         "config_hash": cfg.hash(),
         "seed": seed,
+        # the stream's name as every committed heldout.json gives it (keys.stream(seed,
+        # HELDOUT, range(n)) since; jaxlc.evaluation.keys says so), so the files stay alike
         "key_stream": f"jaxlc.evaluation.cases.heldout_keys({seed}, {len(keys)})",
         "cases": len(keys),
         "lane_changes": int(info["performed"].sum()),
@@ -209,8 +211,11 @@ def evaluate_heldout(
         "claim_d": heldout.claim_d(cells),
         "collisions": heldout.collisions(out, info, metas, dt),
     }
+    extra = [m.name for m in measures.registered() if m.heldout]
+    if extra:  # measures of your own: the report's table shows them (none: the files as ever)
+        result["measures"] = extra
     _write_json(out_dir / rd.heldout_json.name, result)
-    _write_table(out_dir / "heldout.csv", rows, heldout.HELDOUT_FIELDS)
+    _write_table(out_dir / "heldout.csv", rows, heldout.fields())
     _write_table(out_dir / "heldout_cells.csv", cells)
     _write_table(out_dir / "collisions.csv", result["collisions"], heldout.COLLISION_FIELDS)
     ids = _policy_ids(metas)
@@ -369,9 +374,9 @@ def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
     out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
     out.mkdir(parents=True, exist_ok=True)
     _write_table(out / "compare.csv", table)
-    from jaxlc.evaluation import plots, report
+    from jaxlc.evaluation import plots, report_seeds
 
     plots.fig_compare(table, run_a.name, run_b.name, out / "compare.png")
-    text = report.compare_markdown(table, run_a, run_b)
+    text = report_seeds.compare_markdown(table, run_a, run_b)
     checkpoint.write_text_atomic(out / "compare.md", text)
     return out

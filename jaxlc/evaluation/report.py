@@ -16,12 +16,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from jaxlc.evaluation import report_heldout, report_seeds
 from jaxlc.evaluation import report_text as text
-from jaxlc.evaluation import stats
-from jaxlc.evaluation.numbers import defined, fixed, interval, percent
-from jaxlc.evaluation.report_text import EVERY_STEP  # benchmarks/publish.py reads it here
+from jaxlc.evaluation.numbers import defined, fixed, percent
+from jaxlc.evaluation.report_text import EVERY_STEP  # noqa: F401  (benchmarks/publish.py reads it here)
 from jaxlc.evaluation.results import OUTCOMES, EvalError, rank_key, rank_models
 from jaxlc.evaluation.stats import final_rows
 from jaxlc.paper.claims import CLAIM_D, COMPARISONS
@@ -31,7 +29,6 @@ from jaxlc.study.rundir import RunDir
 
 HUMAN_DURATION = (3.0, 8.0)  # s, the human range docs/results.md compares with
 BEST_LABEL = f"{BEST_TAG} (k={BEST[0]}, D={BEST[1]})"  # the model the paper finds best
-COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
 MEASURE_NAMES = ("converged", "success95", "steps_rise", "auc", "plateau")
 
 
@@ -140,78 +137,6 @@ def rank_cells(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return sorted(cells, key=rank_key, reverse=True)
 
 
-def _seed_section(rows: list[dict[str, Any]]) -> list[str]:
-    """Each cell's success and return at its last evaluated checkpoint over seeds (means and
-    IQMs with intervals), and the probability that each cell improves on each other."""
-    cells = stats.cells_of(rows)
-    if not cells:
-        return []
-    n = stats.fewest_seeds(cells)
-    note = stats.seeds_note(cells)
-    lines = [
-        "## Success over seeds",
-        "",
-        text.SEEDS.format(cells=len(cells), n=n, s="s" * (n != 1)),
-    ]
-    if note:
-        lines += ["", text.SEEDS_NOTE.format(note=note)]
-    lines += [
-        "",
-        "| cell | seeds | success rate, mean | success rate, IQM | avg return, mean | "
-        "avg return, IQM |",
-        "|---|---|---|---|---|---|",
-    ]
-    for r in stats.final_table(cells):
-        s, ret = (
-            [(r[f"{m}_{q}"], r[f"{m}_{q}_lo"], r[f"{m}_{q}_hi"]) for q in ("mean", "iqm")]
-            for m in ("success", "return")
-        )
-        lines.append(
-            f"| {r['label']} | {r['seeds']} | {interval(*s[0], '.1f', 100)}% | "
-            f"{interval(*s[1], '.1f', 100)}% | {interval(*ret[0], '.1f')} | "
-            f"{interval(*ret[1], '.1f')} |"
-        )
-    if len(cells) > 1:
-        p = {(r["x"], r["y"]): r for r in stats.improvement_table(cells)}
-        tags = [c.label.split()[0] for c in cells]
-        lines += [
-            "",
-            text.IMPROVEMENT,
-            "",
-            "| | " + " | ".join(tags) + " |",
-            "|---" * (len(cells) + 1) + "|",
-        ]
-        for x, tx in zip(cells, tags, strict=True):
-            vals = ["–" if x is y else f"{p[x.label, y.label]['p']:.2f}" for y in cells]
-            lines.append(f"| {tx} | " + " | ".join(vals) + " |")
-    return lines + [""]
-
-
-def compare_markdown(table: list[dict[str, Any]], run_a: Path, run_b: Path) -> str:
-    """The ``--compare`` table: per cell at the last common checkpoint, mean success rates
-    of both runs and B - A with its interval."""
-    last = max(r["episode"] for r in table)
-    lines = [
-        f"# {run_b.name} against {run_a.name}",
-        "",
-        text.COMPARE.format(last=last, run_a=run_a, run_b=run_b),
-        "",
-        "| cell | seeds A | seeds B | success A | success B | B − A (points) |",
-        "|---|---|---|---|---|---|",
-    ]
-    for r in table:
-        if r["episode"] == last:
-            diff = interval(r["diff"], r["diff_lo"], r["diff_hi"], "+.1f", 100)
-            lines.append(
-                f"| {r['label']} | {r['seeds_a']} | {r['seeds_b']} | {percent(r['success_a'])} | "
-                f"{percent(r['success_b'])} | {diff} |"
-            )
-    if min(min(r["seeds_a"], r["seeds_b"]) for r in table) < 2:
-        lines += ["", text.COMPARE_NOTE.format(note=stats.SEEDS_NOTE)]
-    lines += ["", "![B − A per cell](compare.png)", ""]
-    return "\n".join(lines)
-
-
 def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
     rows = result["rows"]
     finals = final_rows(rows)
@@ -275,123 +200,6 @@ def _claims(result: dict[str, Any], best: dict[str, Any] | None) -> list[str]:
         text.CLAIM_DURATION.format(ours=ours, scripted=ref, agrees="yes" if in_range else "no")
     )
     return lines
-
-
-def _heldout_tables(doc: dict[str, Any]) -> list[str]:
-    """Per cell and per model: outcomes with intervals, then the norms."""
-    lines = [
-        "| cell | seeds | lane changes | success, mean [interval] | failures | failure "
-        "< (95%) | collisions | collision rate | inside every norm |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for c in doc["cells"]:
-        ci = (
-            f"{percent(c['success_mean'])} [{percent(c['success_lo'])}, {percent(c['success_hi'])}]"
-        )
-        lines.append(
-            f"| {c['label']} | {c['seeds']} | {c['lane_changes']} | {ci} | {c['failures']} | "
-            f"{fixed(100 * c['failure_bound'])}% | {c['collisions']} | "
-            f"{fixed(100 * c['collision_rate'], '.2f')}% | {percent(c['norm_all'])} |"
-        )
-    how = sorted({c["interval"] for c in doc["cells"]})
-    lines += ["", f"Cell intervals: {'; '.join(how)}.", ""]
-    norms = [n["measure"] for n in doc["norms"]]
-    lines += [
-        "| model | seed | success [95% CP] | out of bounds | collision | timeout | "
-        "duration s | R79 manoeuvre s | peak lat. acc. m/s² | peak lat. jerk m/s³ | "
-        "peak long. acc. m/s² | peak long. jerk m/s³ | min TTC s, 5th pct. | "
-        "min THW s, 5th pct. | " + " | ".join(f"{m} ok" for m in norms) + " | all norms |",
-        "|---" * (15 + len(norms)) + "|",
-    ]
-    for r in doc["rows"]:
-        lines.append(
-            f"| {r['label']} | {'' if r['seed'] is None else r['seed']} | "
-            f"{percent(r['success_rate'])} "
-            f"[{percent(r['success_lo'])}, {percent(r['success_hi'])}] "
-            f"| {r['out_of_bounds']} | {r['collision']} | {r['timeout']} | "
-            f"{fixed(r['duration_s'])} | {fixed(r.get('lcm_s'))} | {fixed(r['peak_lat_acc'])} | "
-            f"{fixed(r['peak_lat_jerk'])} | {fixed(r.get('peak_long_acc'))} | "
-            f"{fixed(r.get('peak_long_jerk'))} | "
-            f"{_tail(r, 'min_ttc_s')} | {_tail(r, 'min_thw_s')} | "
-            + " | ".join(percent(r[f"norm_{m}"]) for m in norms)
-            + f" | {percent(r['norm_all'])} |"
-        )
-    return lines
-
-
-def _tail(r: dict[str, Any], key: str) -> str:
-    """A TTC or headway percentile; JSON holds an infinite one (no closing) as null."""
-    return "∞" if r[key] is None and r["lane_changes"] else fixed(r[key])
-
-
-def _collision_tally(doc: dict[str, Any]) -> list[str]:
-    hits = doc["collisions"]
-    if not hits:
-        return [text.NO_COLLISIONS, ""]
-    hazards = any("hazard" in h for h in hits)  # evaluated where the traffic has hazards
-    groups: dict[tuple[str, str, bool], list[dict[str, Any]]] = {}
-    for h in hits:
-        groups.setdefault((h["partner"], h.get("hazard", ""), h["yielding"]), []).append(h)
-    lines = [
-        text.COLLISIONS.format(n=len(hits), doing=text.COLLISIONS_DOING if hazards else ""),
-        "",
-        "| vehicle hit |"
-        + (" it was |" if hazards else "")
-        + " lag yields | collisions | ego speed m/s | time into manoeuvre s | "
-        "lag gap at acceptance m | lag speed at acceptance m/s | ego speed at acceptance m/s |",
-        "|---|---|---|---|---|---|---|---|" + ("---|" if hazards else ""),
-    ]
-    for (who, hz, ylds), hs in sorted(groups.items(), key=lambda kv: -len(kv[1])):
-        med = {k: _median([h[k] for h in hs]) for k in COLLISION_MEDIANS}
-        lines.append(
-            f"| {who.replace('_', ' ')} | "
-            + (f"{hz.replace('_', ' ')} | " if hazards else "")
-            + f"{'yes' if ylds else 'no'} | {len(hs)} | "
-            + " | ".join(fixed(med[k], ".1f") for k in COLLISION_MEDIANS)
-            + " |"
-        )
-    return lines + ["", text.COLLISIONS_FOOTNOTE, ""]
-
-
-def _median(values: list[Any]) -> float:
-    """Median of the defined values (a record holds None where there was no such vehicle);
-    NaN, printed as a dash, when none is."""
-    kept = [float(v) for v in values if defined(v)]
-    return float(np.median(kept)) if kept else math.nan
-
-
-def _heldout_section(doc: dict[str, Any] | None, tag: str = "") -> list[str]:
-    """``eval/heldout.json``'s content (``doc``; None: the run has no held-out evaluation),
-    or that of ``eval/heldout_TAG/heldout.json``, driven in another traffic."""
-    if doc is None:
-        return []
-    norms = "; ".join(n["source"] for n in doc["norms"])
-    d = doc["claim_d"]
-    where = f" in another traffic (`{tag}`)" if tag else ""
-    overrides = ", ".join(f"`{o}`" for o in doc.get("traffic_overrides", []))
-    return [
-        f"## Held-out lane changes{where}",
-        "",
-        f"Measured in {doc.get('traffic', 'the training traffic')}"
-        + (f" (overrides {overrides})." if overrides else ".")
-        + (text.HELDOUT_HAZARDS if overrides else ""),
-        "",
-        text.HELDOUT.format(
-            lane_changes=doc["lane_changes"],
-            cases=doc["cases"],
-            key_stream=doc["key_stream"],
-            norms=norms,
-            counted=doc.get("conflicts_counted", EVERY_STEP),
-        ),
-        "",
-        text.CLAIM_D.format(**d),
-        "",
-        *_heldout_tables(doc),
-        "",
-        "### Collisions",
-        "",
-        *_collision_tally(doc),
-    ]
 
 
 def _claim_d(held: dict[str, Any] | None) -> dict[str, str]:
@@ -478,14 +286,14 @@ def build_report(run_dir: Path) -> str:
         *_timeout_line(result, best),
         "",
         *_claims_section(run_dir, held),
-        *_heldout_section(held),
+        *report_heldout.section(held),
         *[
             line
             for path in sorted(RunDir(run_dir).eval.glob("heldout_*/heldout.json"))
-            for line in _heldout_section(json.loads(path.read_text()), path.parent.name[8:])
+            for line in report_heldout.section(json.loads(path.read_text()), path.parent.name[8:])
         ],
         *_validation_section(run_dir),
-        *_seed_section(rows),
+        *report_seeds.section(rows),
         "## The paper's other figures beside this run",
         "",
         *_claims(result, best),

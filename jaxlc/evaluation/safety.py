@@ -35,6 +35,7 @@ target lane or not) and whether its centre is ahead of the ego's.
 
 from __future__ import annotations
 
+import flax.struct
 import jax.numpy as jnp
 from jax import Array
 
@@ -138,6 +139,34 @@ def windowed_jerk(history: Array, a_y: Array, dt: float) -> tuple[Array, Array]:
     n = history.shape[-1]
     jerk = (a_y - history[..., 0]) / (n * dt)
     return jerk, jnp.concatenate([history[..., 1:], a_y[..., None]], axis=-1)
+
+
+@flax.struct.dataclass
+class Watch:
+    """What the measures carry from one RL step to the next; leaves ``(policies, cases, ...)``."""
+
+    lat: Array  # (..., window) the last 0.5 s of lateral acceleration, oldest first, m/s^2
+    long: Array  # (..., window) of longitudinal acceleration
+    entered: Array  # bool: the ego's body has overlapped the target lane by this step
+
+
+def watch(state, p) -> tuple[Watch, Array]:
+    """``(watch, counted)`` at the manoeuvre's start: each acceleration held at its start value
+    (the ego drove straight before; its jerk before the start is not known), and whose
+    headway and TTC count there (``counted``)."""
+    a0 = lateral_acc(state)
+    window = a0.shape + (jerk_window(p),)
+    lat, long = (jnp.broadcast_to(a[..., None], window) for a in (a0, state.ego.accel))
+    mask, entered = counted(state, p, jnp.zeros(a0.shape, bool))
+    return Watch(lat, long, entered), mask
+
+
+def observe(w: Watch, state, p) -> tuple[Watch, tuple[Array, Array, Array]]:
+    """``(watch, (lateral jerk, longitudinal jerk, counted))`` after a step to ``state``."""
+    lat_jerk, lat = windowed_jerk(w.lat, lateral_acc(state), p.dt)
+    long_jerk, long = windowed_jerk(w.long, state.ego.accel, p.dt)
+    mask, entered = counted(state, p, w.entered)
+    return Watch(lat, long, entered), (lat_jerk, long_jerk, mask)
 
 
 def partner(overlap: Array, traffic, ego, p) -> Array:

@@ -3,7 +3,7 @@
 
 A lane change is a held-out case (``jaxlc.evaluation.cases``: reset, the approach, then the
 manoeuvre; its warm-up steps the traffic alone, ``env.reset``'s ``traffic_only``), drawn from
-a key stream of its own (``validate_keys``), in chunks of ``chunk``
+a key stream of its own (``keys.stream(seed, VALIDATE, ...)``), in chunks of ``chunk``
 cases: one jitted program (``program``) starts and rolls out a chunk under a ``Proposal``
 (``jaxlc.evaluation.proposal``; crude MC runs the simulator's own draws, no proposal), and
 ``kinds`` reads each lane change's failures from the held-out outcome: any failure, each
@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxlc import config
+from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation import rare
 from jaxlc.evaluation.cases import Policies, columns, init_actor, make_rollout, make_start_cases
 from jaxlc.evaluation.heldout import lane_change_measures
@@ -50,25 +51,11 @@ from jaxlc.sim.env import EnvParams, action_dim
 
 ENDS = ("collision", "out_of_bounds", "timeout", "unfinished")
 KINDS = ("failure", *ENDS, *(f"norm_{name}" for name, *_ in NORMS))
-VALIDATE_TAG = 0x56414C44  # "VALD": the estimate's key stream
-PILOT_TAG = 0x50494C54  # "PILT": the CE's pilot chunks
 CASE_CAP = 1000  # failures kept per model and kind, highest weight first
 DEFENSIVE_SHARE = 0.2  # the estimate's share of chunks drawn from the nominal (docs/decisions.md)
 POOL_STOP = 40  # the CE stops once this many failures of its kind are pooled
 SMOOTH = 0.7  # the CE's step: new = SMOOTH * fitted + (1 - SMOOTH) * old
 BRAKE_MAX = 0.05  # per-step probability of a braking event at most (one in 2 s)
-
-
-def validate_keys(seed: int, tag: int, lo: int, n: int) -> jax.Array:
-    """``(n,)`` case keys ``lo .. lo + n - 1`` of the stream ``tag``."""
-    return keys_at(seed, tag, jnp.arange(lo, lo + n))
-
-
-def keys_at(seed: int, tag: int, indices: Any) -> jax.Array:
-    """``(len(indices),)`` case keys of the stream ``tag`` at ``indices`` (a saved case's
-    ``index``)."""
-    root = jax.random.fold_in(jax.random.PRNGKey(seed), tag)
-    return jax.vmap(lambda i: jax.random.fold_in(root, i))(jnp.asarray(indices))
 
 
 @functools.lru_cache(maxsize=4)
@@ -273,7 +260,7 @@ def fit_proposal(
     p_fire = float(start_probability(p))
     pool: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for r in range(rounds):
-        keys = validate_keys(seed, PILOT_TAG, r * chunk, chunk)
+        keys = streams.stream(seed, streams.PILOT, range(r * chunk, (r + 1) * chunk))
         out = columns(jax.device_get(run(prop, pol, keys)[0]))
         perf = out["performed"][0]
         failed = kinds(out, p.dt)[perf, col]

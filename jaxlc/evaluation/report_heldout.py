@@ -1,0 +1,138 @@
+"""``report.md``'s held-out sections: per cell and per model against the norms (a measure
+registered with a held-out summary adds its column), and every collision tallied by the
+vehicle hit (``eval/heldout.json``, ``jaxlc.evaluation.heldout``)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from jaxlc.evaluation import report_text as text
+from jaxlc.evaluation.numbers import defined, fixed, percent
+from jaxlc.evaluation.report_text import EVERY_STEP
+
+COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
+
+
+def _heldout_tables(doc: dict[str, Any]) -> list[str]:
+    """Per cell and per model: outcomes with intervals, then the norms."""
+    lines = [
+        "| cell | seeds | lane changes | success, mean [interval] | failures | failure "
+        "< (95%) | collisions | collision rate | inside every norm |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for c in doc["cells"]:
+        ci = (
+            f"{percent(c['success_mean'])} [{percent(c['success_lo'])}, {percent(c['success_hi'])}]"
+        )
+        lines.append(
+            f"| {c['label']} | {c['seeds']} | {c['lane_changes']} | {ci} | {c['failures']} | "
+            f"{fixed(100 * c['failure_bound'])}% | {c['collisions']} | "
+            f"{fixed(100 * c['collision_rate'], '.2f')}% | {percent(c['norm_all'])} |"
+        )
+    how = sorted({c["interval"] for c in doc["cells"]})
+    lines += ["", f"Cell intervals: {'; '.join(how)}.", ""]
+    norms = [n["measure"] for n in doc["norms"]]
+    extra = doc.get("measures", [])  # measures registered with a held-out summary
+    lines += [
+        "| model | seed | success [95% CP] | out of bounds | collision | timeout | "
+        "duration s | R79 manoeuvre s | peak lat. acc. m/s² | peak lat. jerk m/s³ | "
+        "peak long. acc. m/s² | peak long. jerk m/s³ | min TTC s, 5th pct. | "
+        "min THW s, 5th pct. | "
+        + " | ".join(f"{m} ok" for m in norms)
+        + " | all norms |"
+        + "".join(f" {m} |" for m in extra),
+        "|---" * (15 + len(norms) + len(extra)) + "|",
+    ]
+    for r in doc["rows"]:
+        lines.append(
+            f"| {r['label']} | {'' if r['seed'] is None else r['seed']} | "
+            f"{percent(r['success_rate'])} "
+            f"[{percent(r['success_lo'])}, {percent(r['success_hi'])}] "
+            f"| {r['out_of_bounds']} | {r['collision']} | {r['timeout']} | "
+            f"{fixed(r['duration_s'])} | {fixed(r.get('lcm_s'))} | {fixed(r['peak_lat_acc'])} | "
+            f"{fixed(r['peak_lat_jerk'])} | {fixed(r.get('peak_long_acc'))} | "
+            f"{fixed(r.get('peak_long_jerk'))} | "
+            f"{_tail(r, 'min_ttc_s')} | {_tail(r, 'min_thw_s')} | "
+            + " | ".join(percent(r[f"norm_{m}"]) for m in norms)
+            + f" | {percent(r['norm_all'])} |"
+            + "".join(f" {fixed(r.get(m))} |" for m in extra)
+        )
+    return lines
+
+
+def _tail(r: dict[str, Any], key: str) -> str:
+    """A TTC or headway percentile; JSON holds an infinite one (no closing) as null."""
+    return "∞" if r[key] is None and r["lane_changes"] else fixed(r[key])
+
+
+def collision_tally(doc: dict[str, Any]) -> list[str]:
+    hits = doc["collisions"]
+    if not hits:
+        return [text.NO_COLLISIONS, ""]
+    hazards = any("hazard" in h for h in hits)  # evaluated where the traffic has hazards
+    groups: dict[tuple[str, str, bool], list[dict[str, Any]]] = {}
+    for h in hits:
+        groups.setdefault((h["partner"], h.get("hazard", ""), h["yielding"]), []).append(h)
+    lines = [
+        text.COLLISIONS.format(n=len(hits), doing=text.COLLISIONS_DOING if hazards else ""),
+        "",
+        "| vehicle hit |"
+        + (" it was |" if hazards else "")
+        + " lag yields | collisions | ego speed m/s | time into manoeuvre s | "
+        "lag gap at acceptance m | lag speed at acceptance m/s | ego speed at acceptance m/s |",
+        "|---|---|---|---|---|---|---|---|" + ("---|" if hazards else ""),
+    ]
+    for (who, hz, ylds), hs in sorted(groups.items(), key=lambda kv: -len(kv[1])):
+        med = {k: _median([h[k] for h in hs]) for k in COLLISION_MEDIANS}
+        lines.append(
+            f"| {who.replace('_', ' ')} | "
+            + (f"{hz.replace('_', ' ')} | " if hazards else "")
+            + f"{'yes' if ylds else 'no'} | {len(hs)} | "
+            + " | ".join(fixed(med[k], ".1f") for k in COLLISION_MEDIANS)
+            + " |"
+        )
+    return lines + ["", text.COLLISIONS_FOOTNOTE, ""]
+
+
+def _median(values: list[Any]) -> float:
+    """Median of the defined values (a record holds None where there was no such vehicle);
+    NaN, printed as a dash, when none is."""
+    kept = [float(v) for v in values if defined(v)]
+    return float(np.median(kept)) if kept else math.nan
+
+
+def section(doc: dict[str, Any] | None, tag: str = "") -> list[str]:
+    """``eval/heldout.json``'s content (``doc``; None: the run has no held-out evaluation),
+    or that of ``eval/heldout_TAG/heldout.json``, driven in another traffic."""
+    if doc is None:
+        return []
+    norms = "; ".join(n["source"] for n in doc["norms"])
+    d = doc["claim_d"]
+    where = f" in another traffic (`{tag}`)" if tag else ""
+    overrides = ", ".join(f"`{o}`" for o in doc.get("traffic_overrides", []))
+    return [
+        f"## Held-out lane changes{where}",
+        "",
+        f"Measured in {doc.get('traffic', 'the training traffic')}"
+        + (f" (overrides {overrides})." if overrides else ".")
+        + (text.HELDOUT_HAZARDS if overrides else ""),
+        "",
+        text.HELDOUT.format(
+            lane_changes=doc["lane_changes"],
+            cases=doc["cases"],
+            key_stream=doc["key_stream"],
+            norms=norms,
+            counted=doc.get("conflicts_counted", EVERY_STEP),
+        ),
+        "",
+        text.CLAIM_D.format(**d),
+        "",
+        *_heldout_tables(doc),
+        "",
+        "### Collisions",
+        "",
+        *collision_tally(doc),
+    ]

@@ -1,0 +1,84 @@
+"""``report.md``'s section over seeds (each cell's success and return with intervals, the
+probability that one cell improves on another) and ``compare.md``, two runs side by side
+(the statistics: ``jaxlc.evaluation.stats``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from jaxlc.evaluation import report_text as text
+from jaxlc.evaluation import stats
+from jaxlc.evaluation.numbers import interval, percent
+
+
+def section(rows: list[dict[str, Any]]) -> list[str]:
+    """Each cell's success and return at its last evaluated checkpoint over seeds (means and
+    IQMs with intervals), and the probability that each cell improves on each other."""
+    cells = stats.cells_of(rows)
+    if not cells:
+        return []
+    n = stats.fewest_seeds(cells)
+    note = stats.seeds_note(cells)
+    lines = [
+        "## Success over seeds",
+        "",
+        text.SEEDS.format(cells=len(cells), n=n, s="s" * (n != 1)),
+    ]
+    if note:
+        lines += ["", text.SEEDS_NOTE.format(note=note)]
+    lines += [
+        "",
+        "| cell | seeds | success rate, mean | success rate, IQM | avg return, mean | "
+        "avg return, IQM |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in stats.final_table(cells):
+        s, ret = (
+            [(r[f"{m}_{q}"], r[f"{m}_{q}_lo"], r[f"{m}_{q}_hi"]) for q in ("mean", "iqm")]
+            for m in ("success", "return")
+        )
+        lines.append(
+            f"| {r['label']} | {r['seeds']} | {interval(*s[0], '.1f', 100)}% | "
+            f"{interval(*s[1], '.1f', 100)}% | {interval(*ret[0], '.1f')} | "
+            f"{interval(*ret[1], '.1f')} |"
+        )
+    if len(cells) > 1:
+        p = {(r["x"], r["y"]): r for r in stats.improvement_table(cells)}
+        tags = [c.label.split()[0] for c in cells]
+        lines += [
+            "",
+            text.IMPROVEMENT,
+            "",
+            "| | " + " | ".join(tags) + " |",
+            "|---" * (len(cells) + 1) + "|",
+        ]
+        for x, tx in zip(cells, tags, strict=True):
+            vals = ["–" if x is y else f"{p[x.label, y.label]['p']:.2f}" for y in cells]
+            lines.append(f"| {tx} | " + " | ".join(vals) + " |")
+    return lines + [""]
+
+
+def compare_markdown(table: list[dict[str, Any]], run_a: Path, run_b: Path) -> str:
+    """The ``--compare`` table: per cell at the last common checkpoint, mean success rates
+    of both runs and B - A with its interval."""
+    last = max(r["episode"] for r in table)
+    lines = [
+        f"# {run_b.name} against {run_a.name}",
+        "",
+        text.COMPARE.format(last=last, run_a=run_a, run_b=run_b),
+        "",
+        "| cell | seeds A | seeds B | success A | success B | B − A (points) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in table:
+        if r["episode"] == last:
+            diff = interval(r["diff"], r["diff_lo"], r["diff_hi"], "+.1f", 100)
+            lines.append(
+                f"| {r['label']} | {r['seeds_a']} | {r['seeds_b']} | {percent(r['success_a'])} | "
+                f"{percent(r['success_b'])} | {diff} |"
+            )
+    if min(min(r["seeds_a"], r["seeds_b"]) for r in table) < 2:
+        lines += ["", text.COMPARE_NOTE.format(note=stats.SEEDS_NOTE)]
+    lines += ["", "![B − A per cell](compare.png)", ""]
+    return "\n".join(lines)
