@@ -62,12 +62,14 @@ def moved_table() -> str:
     """What moved the learning: per GPU setting its sweep's wall time, the mean evaluated
     success of its 72 models and the difference from the first row with its 95% interval
     (``jaxlc.evaluation.stats.difference``), the cells whose own difference interval
-    (``compare/``) lies above / below zero, and the models and one-seed studies at >= 99%."""
+    (``compare.csv``) lies above / below zero, and the models and one-seed studies at >= 99%."""
 
     def signed(x: float) -> str:
         return f"{100 * x:+.1f}".replace("-", "−")
 
     base, _ = _final_success(GPU_STUDY / "default")
+    walls = (GPU_STUDY / "walls.txt").read_text()  # each sweep.log's closing line
+    compare = csv_rows(GPU_STUDY / "compare.csv")  # python -m jaxlc.evaluate --compare, per setting
     lines = [
         f"| setting | sweep wall | success at 5000, mean of {base.size} | difference [95% CI] | "
         "cells up / down | models ≥ 99% | one-seed studies with a ≥ 99% model |",
@@ -75,14 +77,14 @@ def moved_table() -> str:
     ]
     for name, label in GPU_SETTINGS:
         folder = GPU_STUDY / name
-        wall = re.search(r"Wall time (\d+) s", (folder / "sweep.log").read_text())[1]
+        wall = re.search(rf"^{name}: Wall time (\d+) s", walls, re.M)[1]
         success, seeds = _final_success(folder)
         studies = "{} of {}".format(*_studies_at(success, seeds))
         diff = cells = "–"
         if name != "default":
             d, lo, hi = stats.difference(base, success)
             diff = f"{signed(d)} [{signed(lo)}, {signed(hi)}]"
-            rows = csv_rows(GPU_STUDY / "compare" / f"default_vs_{name}" / "compare.csv")
+            rows = [r for r in compare if r["setting"] == name]
             up = sum(float(r["diff_lo"]) > 0 for r in rows)
             cells = f"{up} / {sum(float(r['diff_hi']) < 0 for r in rows)}"
         lines.append(

@@ -180,7 +180,8 @@ def actors_table() -> str:
 
 
 def devices_table() -> str:
-    """``benchmarks/devices_throughput.py``, one process per device count, both grids."""
+    """``benchmarks/devices_throughput.py``, one process per device count, both grids
+    (``devices.csv``: the six runs' CSVs, one ``grid`` and ``n`` column apart)."""
     counts = (1, 2, 3)
     lines = [
         "| grid | " + " | ".join(f"N = {n}" for n in counts) + " |",
@@ -191,7 +192,7 @@ def devices_table() -> str:
         ("paper", "paper (9 models, 300/600, batch 64)"),
         ("smoke", "smoke (4 models, 32/32, batch 16)"),
     ):
-        rows = {n: bench(f"devices_{grid}_n{n}.csv")[0] for n in counts}
+        rows = {int(r["n"]): r for r in bench("devices.csv") if r["grid"] == grid}
         best = max(counts, key=lambda n: float(rows[n]["grid_updates_per_s"]))
         for key, unit in (
             ("grid_updates_per_s", "grid-updates/s"),
