@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from benchmarks import (
+    ams_toy,
     failed_cases,
     scripted_under_noise,
     sim_throughput,
@@ -166,3 +167,20 @@ def test_sweep_timing_keeps_the_timing_and_counts_the_models(smoke_run, smoke_cf
     assert 0 < first < light["env_steps"]
     expected = (light["env_steps"] - first) / (light["wall_s"] - light["first_chunk_s"])
     assert gpu.sweep_steady(light) == pytest.approx(expected)
+
+
+def test_ams_toy_tiny(tmp_path, capsys):
+    """Three intervals of two AMS runs on a 20-step walk: a row per interval, each interval
+    around its mean, the coverage counted from the rows."""
+    args = ["--repeats", "3", "--runs", "2", "--particles", "16", "--steps", "20"]
+    summary = ams_toy.main([*args, "--level", "10", "--out", str(tmp_path)])
+    with (tmp_path / "repeats.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 3 and summary["truth"] == ams_toy.truth(20, 10)
+    for r in rows:
+        assert float(r["lo"]) <= float(r["estimate"]) <= float(r["hi"])
+        covers = float(r["lo"]) <= summary["truth"] <= float(r["hi"])
+        assert int(r["covers"]) == covers
+    assert summary["covered"] == sum(int(r["covers"]) for r in rows)
+    assert json.loads((tmp_path / "summary.json").read_text())["repeats"] == 3
+    assert "covered:" in capsys.readouterr().out
