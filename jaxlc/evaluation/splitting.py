@@ -33,6 +33,7 @@ and a non-ideal score is needed (checked on a toy: benchmarks/ams_toy.py).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 
@@ -106,6 +107,54 @@ def clone(chains: Chain, paths: Array, parent: Array, level: Array, fresh: Array
     return Chain(steps, keys.astype(par.keys.dtype))
 
 
+def _round(
+    run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Array, s: dict
+) -> dict:
+    """One round on the loop state ``s`` (``splitting``'s dict): the level, the kills,
+    the clones and their re-runs; a no-op that sets ``stopped`` when the level is at the
+    target or all N tie (extinction)."""
+    n = s["paths"].shape[0]
+    j, chains, paths = s["rounds"], s["chains"], s["paths"]
+    scores = paths.max(axis=1)  # (N,)
+    level = jnp.sort(scores)[k - 1]  # Z_j: the k-th smallest
+    killed = scores <= level  # all ties go: the generalised AMS
+    n_killed = killed.sum()
+    stop = level >= target  # nothing left to kill below the target
+    apply = ~stop & (n_killed < n)  # K_j = N: extinction, the share at the end is 0
+    killed = killed & apply
+    order = jnp.argsort(~killed, stable=True)  # (N,) killed first, then survivors
+    kp, kf = jax.random.split(jax.random.fold_in(rounds_key, j))
+    pick = jax.random.randint(kp, (n,), 0, jnp.maximum(n - n_killed, 1))
+    parent = order[jnp.minimum(n_killed + pick, n - 1)]  # (N,) a survivor, uniform
+    fresh = jax.random.key_data(jax.random.split(kf, n))  # (N, 2)
+    clones = clone(chains, paths, parent, level, fresh)
+    chains = jax.tree.map(
+        lambda c, o: jnp.where(killed.reshape((n,) + (1,) * (c.ndim - 1)), c, o),
+        clones,
+        chains,
+    )
+    # re-run only the killed, k at a time (a fixed shape; ties make K_j > k)
+    chunks = jnp.where(apply, (n_killed + k - 1) // k, 0)
+
+    def rerun(c, paths):
+        slot = c * k + jnp.arange(k)  # (k,) positions in ``order``
+        idx = order[jnp.minimum(slot, n - 1)]
+        new = jax.vmap(run)(jax.tree.map(lambda x: x[idx], chains)).astype(jnp.float32)
+        return paths.at[jnp.where(slot < n_killed, idx, n)].set(new, mode="drop")
+
+    paths = jax.lax.fori_loop(0, chunks, rerun, paths)
+    return dict(
+        rounds=j + apply,
+        stopped=~apply,
+        chains=chains,
+        paths=paths,
+        levels=s["levels"].at[j].set(jnp.where(apply, level, s["levels"][j])),
+        kills=s["kills"].at[j].set(jnp.where(apply, n_killed, 0)),
+        log_weight=s["log_weight"] + jnp.where(apply, jnp.log1p(-n_killed / n), 0.0),
+        trajectories=s["trajectories"] + chunks * k,
+    )
+
+
 def splitting(
     run: Callable[[Chain], Array],
     key: Array,
@@ -135,47 +184,6 @@ def splitting(
     def cond(s):
         return ~s["stopped"] & (s["rounds"] < max_rounds)
 
-    def body(s):
-        j, chains, paths = s["rounds"], s["chains"], s["paths"]
-        scores = paths.max(axis=1)  # (N,)
-        level = jnp.sort(scores)[k - 1]  # Z_j: the k-th smallest
-        killed = scores <= level  # all ties go: the generalised AMS
-        n_killed = killed.sum()
-        stop = level >= target  # nothing left to kill below the target
-        apply = ~stop & (n_killed < n)  # K_j = N: extinction, the share at the end is 0
-        killed = killed & apply
-        order = jnp.argsort(~killed, stable=True)  # (N,) killed first, then survivors
-        kp, kf = jax.random.split(jax.random.fold_in(rounds_key, j))
-        pick = jax.random.randint(kp, (n,), 0, jnp.maximum(n - n_killed, 1))
-        parent = order[jnp.minimum(n_killed + pick, n - 1)]  # (N,) a survivor, uniform
-        fresh = jax.random.key_data(jax.random.split(kf, n))  # (N, 2)
-        clones = clone(chains, paths, parent, level, fresh)
-        chains = jax.tree.map(
-            lambda c, o: jnp.where(killed.reshape((n,) + (1,) * (c.ndim - 1)), c, o),
-            clones,
-            chains,
-        )
-        # re-run only the killed, k at a time (a fixed shape; ties make K_j > k)
-        chunks = jnp.where(apply, (n_killed + k - 1) // k, 0)
-
-        def rerun(c, paths):
-            slot = c * k + jnp.arange(k)  # (k,) positions in ``order``
-            idx = order[jnp.minimum(slot, n - 1)]
-            new = jax.vmap(run)(jax.tree.map(lambda x: x[idx], chains)).astype(jnp.float32)
-            return paths.at[jnp.where(slot < n_killed, idx, n)].set(new, mode="drop")
-
-        paths = jax.lax.fori_loop(0, chunks, rerun, paths)
-        return dict(
-            rounds=j + apply,
-            stopped=~apply,
-            chains=chains,
-            paths=paths,
-            levels=s["levels"].at[j].set(jnp.where(apply, level, s["levels"][j])),
-            kills=s["kills"].at[j].set(jnp.where(apply, n_killed, 0)),
-            log_weight=s["log_weight"] + jnp.where(apply, jnp.log1p(-n_killed / n), 0.0),
-            trajectories=s["trajectories"] + chunks * k,
-        )
-
     s = dict(
         rounds=jnp.int32(0),
         stopped=jnp.bool_(False),
@@ -186,7 +194,7 @@ def splitting(
         log_weight=jnp.float32(0.0),
         trajectories=jnp.int32(n),
     )
-    s = jax.lax.while_loop(cond, body, s)
+    s = jax.lax.while_loop(cond, functools.partial(_round, run, k, target, rounds_key), s)
     scores = s["paths"].max(axis=1)
     reached = jnp.mean(scores >= target)
     return Splitting(
