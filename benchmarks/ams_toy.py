@@ -11,9 +11,11 @@ the distance to the level in standard deviations of the steps left, target 0 (>=
 when S_t >= a, so the same event); ``max`` is S_t itself, target a, the plain running
 maximum, which ignores how many steps are left. Both are integer-based and tie often.
 
-Each repeat is one interval: ``--runs`` independent AMS runs and Student's t over their
-estimates (``jaxlc.evaluation.splitting.interval``). Writes ``summary.json`` and
-``repeats.csv`` (one row per repeat) under ``--out``; prints the summary.
+Each repeat is one interval from ``--runs`` independent AMS runs
+(``jaxlc.evaluation.splitting.interval``): ``--interval log`` (default) is Cox's lognormal
+interval, ``t`` Student's t; both are computed and counted on the same runs. Writes
+``summary.json``, ``repeats.csv`` (one row per repeat) and ``estimates.npy`` ((repeats,
+runs) float32, every run's estimate) under ``--out``; prints the summary.
 
     python -m benchmarks.ams_toy --repeats 100 --out benchmarks/results/ams_toy
 """
@@ -87,6 +89,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--steps", type=int, default=STEPS, help="walk length T")
     p.add_argument("--level", type=int, default=LEVEL, help="level a of the running max")
     p.add_argument("--score", choices=("scaled", "max"), default="scaled")
+    p.add_argument("--interval", choices=("log", "t"), default="log", help="the one reported")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/ams_toy"))
     a = p.parse_args(argv)
@@ -111,7 +114,8 @@ def main(argv: list[str] | None = None) -> dict:
     for i in range(a.repeats):
         keys = jax.random.split(jax.random.fold_in(jax.random.key(a.seed), i), a.runs)
         r = jax.device_get(f(keys, goal))
-        mean, lo, hi = ams.interval(r.estimate)
+        mean, lo, hi = ams.interval(r.estimate, log=a.interval == "log")
+        _, t_lo, t_hi = ams.interval(r.estimate, log=a.interval != "log")  # the other one
         kills = np.asarray(r.kills)
         rows.append(
             dict(
@@ -120,6 +124,7 @@ def main(argv: list[str] | None = None) -> dict:
                 lo=lo,
                 hi=hi,
                 covers=int(lo <= p <= hi),
+                other_covers=int(t_lo <= p <= t_hi),
                 rounds_mean=float(np.mean(r.rounds)),
                 tie_rounds=int(np.sum(kills > k)),  # rounds that killed more than k
                 unstopped=int(np.sum(~np.asarray(r.stopped))),
@@ -139,8 +144,11 @@ def main(argv: list[str] | None = None) -> dict:
         particles=a.particles,
         kill_fraction=a.kill_fraction,
         runs_per_interval=a.runs,
+        interval=a.interval,
         repeats=a.repeats,
         covered=sum(r["covers"] for r in rows),
+        missed_low=sum(r["hi"] < p for r in rows),
+        other_interval_covered=sum(r["other_covers"] for r in rows),
         mean_estimate=float(e.mean()),
         mean_over_truth=float(e.mean() / p),
         mean_rel_se=float(e.std(ddof=1) / math.sqrt(e.size) / p),
@@ -158,6 +166,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     a.out.mkdir(parents=True, exist_ok=True)
     write_csv(a.out / "repeats.csv", rows)
+    np.save(a.out / "estimates.npy", np.stack(estimates).astype(np.float32))
     (a.out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     for key, value in summary.items():
         print(f"{key}: {value:.4g}" if isinstance(value, float) else f"{key}: {value}")
