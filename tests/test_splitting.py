@@ -105,6 +105,7 @@ def test_the_interval_is_students_t_over_the_runs():
     assert mean == 2.5 and hi - mean == pytest.approx(3.182446 * math.sqrt(5 / 3) / 2, rel=1e-6)
     assert lo == pytest.approx(2.5 - (hi - 2.5))
     assert ams.interval(np.array([1e-9, 1e-6]))[1] == 0.0  # clipped at 0
+    assert all(type(v) is float for v in ams.interval(np.arange(3.0)))  # for summary.json
 
 
 def test_the_exceedance_curve_ends_at_the_estimate(programs):
