@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from benchmarks import (
+    ams_toy,
     failed_cases,
     program_hashes,
     scripted_under_noise,
@@ -203,3 +204,21 @@ def test_every_script_is_a_command_with_help(name):
         timeout=HANG_GUARD_S,
     )
     assert done.returncode == 0 and done.stdout.startswith("usage:"), done.stderr[-2000:]
+
+
+def test_ams_toy_tiny(tmp_path, capsys):
+    """Three intervals of two AMS runs on a 20-step walk: a row per interval (Cox's, above
+    0), every run's estimate kept, the coverage counted from the rows."""
+    args = ["--repeats", "3", "--runs", "2", "--particles", "16", "--steps", "20"]
+    summary = ams_toy.main([*args, "--level", "10", "--out", str(tmp_path)])
+    with (tmp_path / "repeats.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 3 and summary["truth"] == ams_toy.truth(20, 10)
+    for r in rows:
+        assert 0 < float(r["lo"]) <= float(r["hi"])
+        covers = float(r["lo"]) <= summary["truth"] <= float(r["hi"])
+        assert int(r["covers"]) == covers
+    assert summary["covered"] == sum(int(r["covers"]) for r in rows)
+    assert json.loads((tmp_path / "summary.json").read_text())["repeats"] == 3
+    assert np.load(tmp_path / "estimates.npy").shape == (3, 2)
+    assert "covered:" in capsys.readouterr().out

@@ -1,0 +1,133 @@
+"""Adaptive multilevel splitting (``jaxlc.evaluation.splitting``) on the +-1 random walk of
+``benchmarks/ams_toy.py``, small: particles replay from their key chains, zero rounds is
+crude MC on the same keys, a clone follows its parent to the branch, and the mean of many
+cheap runs matches the closed form."""
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from benchmarks import ams_toy
+from jaxlc.evaluation import splitting as ams
+
+STEPS, LEVEL = 20, 14  # P(max S_t >= 14 in 20 steps) = 1.49e-3
+N, FRACTION, ROUNDS = 32, 0.25, 100
+walk = functools.partial(ams_toy.walk, steps=STEPS)
+
+
+@pytest.fixture(scope="module")
+def programs():
+    """The jitted programs every test shares: AMS (batched over keys) at ROUNDS and at 0
+    rounds, and the walk of a batch of chains."""
+    run = functools.partial(ams.splitting, walk, particles=N, kill_fraction=FRACTION)
+    many = jax.jit(jax.vmap(functools.partial(run, max_rounds=ROUNDS), in_axes=(0, None)))
+    none = jax.jit(functools.partial(run, max_rounds=0))
+    return many, none, jax.jit(jax.vmap(walk))
+
+
+def test_the_closed_form_is_the_walks_exact_probability():
+    """Reflection principle against all 2^12 paths of a 12-step walk, at every level."""
+    ups = (np.arange(2**12)[:, None] >> np.arange(12)) & 1  # (4096, 12) every path
+    top = np.cumsum(2 * ups - 1, axis=1).max(axis=1)
+    for a in range(1, 13):
+        assert ams_toy.truth(12, a) == pytest.approx(np.mean(top >= a), rel=1e-12)
+    assert ams_toy.truth(ams_toy.STEPS, ams_toy.LEVEL) == pytest.approx(1.8046e-9, rel=1e-4)
+
+
+def test_a_final_particle_replays_bit_for_bit_from_its_chain(programs):
+    many, _, walks = programs
+    r = jax.device_get(many(jax.random.split(jax.random.key(3), 2), float(LEVEL)))
+    assert (r.rounds > 0).all() and (r.chains.steps[..., 1:] < ams.UNUSED).any()  # clones
+    for i in range(2):
+        chains = jax.tree.map(lambda x, i=i: x[i], r.chains)
+        again = np.asarray(walks(chains), np.float32)  # (N, T) from the chains alone
+        np.testing.assert_array_equal(again, r.paths[i])
+        np.testing.assert_array_equal(again.max(axis=1), r.scores[i])
+
+
+def test_zero_rounds_is_crude_mc_on_the_same_first_keys(programs):
+    """Nothing killed, nothing cloned: the estimate is the share of the initial particles
+    at the target, and those are crude MC's walks on split(split(key)[0], N)."""
+    _, none, _ = programs
+    key = jax.random.key(7)
+    level = 6.0  # low enough that some of 32 walks reach it
+    r = none(key, level)
+    first = jax.random.split(jax.random.split(key)[0], N)
+
+    def crude(k):  # the walk written out again, step t keyed fold_in(k, t)
+        up = jax.vmap(lambda t: jax.random.bernoulli(jax.random.fold_in(k, t)))(jnp.arange(STEPS))
+        return jnp.cumsum(2 * up.astype(jnp.int32) - 1).max()
+
+    hits = np.asarray(jax.vmap(crude)(first)) >= level
+    assert 0 < hits.sum() < N
+    assert int(r.rounds) == 0 and int(r.trajectories) == N
+    assert float(r.estimate) == pytest.approx(hits.mean(), abs=1e-7)
+
+
+def test_a_clone_follows_its_parent_to_the_branch_and_not_after(programs):
+    _, _, walks = programs
+    chains = ams.initial_chains(jax.random.key(11), 64, 4)
+    paths = np.asarray(walks(chains), np.float32)  # (64, T)
+    level = 1.0
+    parent = np.flatnonzero(paths.max(axis=1) > level)[:8]  # (P,) above the level somewhere
+    fresh = jax.random.key_data(jax.random.split(jax.random.key(12), parent.size))
+    clones = ams.clone(chains, jnp.asarray(paths), jnp.asarray(parent), level, fresh)
+    got = np.asarray(walks(clones))  # (P, T)
+    for p, path in zip(parent, got, strict=True):
+        tau = int(np.argmax(paths[p] > level))  # the parent's first step above the level
+        np.testing.assert_array_equal(path[: tau + 1], paths[p, : tau + 1])
+        assert tau + 1 < STEPS and (path[tau + 1 :] != paths[p, tau + 1 :]).any()
+
+
+@pytest.mark.parametrize("rounds", [ROUNDS, 3])
+def test_the_mean_of_many_cheap_runs_is_the_closed_form(programs, rounds):
+    """Unbiased at 1.5e-3, and still when max_rounds stops it early (the martingale): the
+    mean of 2000 runs of 32 particles within 4 standard errors of the truth."""
+    many, _, _ = programs
+    if rounds != ROUNDS:
+        run = functools.partial(ams.splitting, walk, particles=N, kill_fraction=FRACTION)
+        many = jax.jit(jax.vmap(functools.partial(run, max_rounds=rounds), in_axes=(0, None)))
+    r = many(jax.random.split(jax.random.key(rounds), 2000), float(LEVEL))
+    e = np.asarray(r.estimate, float)
+    assert np.asarray(r.stopped).all() == (rounds == ROUNDS)
+    p = ams_toy.truth(STEPS, LEVEL)
+    se = e.std(ddof=1) / math.sqrt(e.size)
+    assert se < 0.1 * p  # the check can tell a biased estimator at 10%
+    assert abs(e.mean() - p) < 4 * se, (e.mean(), p, se)
+
+
+def test_the_interval_is_students_t_over_the_runs():
+    mean, lo, hi = ams.interval(np.array([1.0, 2.0, 3.0, 4.0]))
+    assert mean == 2.5 and hi - mean == pytest.approx(3.182446 * math.sqrt(5 / 3) / 2, rel=1e-6)
+    assert lo == pytest.approx(2.5 - (hi - 2.5))
+    assert ams.interval(np.array([1e-9, 1e-6]))[1] == 0.0  # clipped at 0
+    assert all(type(v) is float for v in ams.interval(np.arange(3.0)))  # for summary.json
+
+
+def test_the_exceedance_curve_ends_at_the_estimate(programs):
+    """One run's curve P(score > Z_j) falls with the level, and its last value times the
+    share at the target is the estimate."""
+    many, _, _ = programs
+    r = jax.device_get(many(jax.random.split(jax.random.key(5), 1), float(LEVEL)))
+    one = jax.tree.map(lambda x: x[0], r)
+    levels, probs = ams.exceedance(one, N)
+    assert levels.size == one.rounds > 0 and (np.diff(levels) > 0).all()  # ties all killed
+    assert (np.diff(probs) < 0).all() and levels[-1] < LEVEL
+    assert probs[-1] * one.reached == pytest.approx(float(one.estimate), rel=1e-5)
+
+
+def test_the_log_interval_covers_a_skewed_mean_where_t_misses_low():
+    """4000 samples of 10 lognormal draws (sigma 0.6, the skew of a product of many
+    factors): Cox's interval covers the mean about 95%, Student's t about 91%."""
+    x = np.random.default_rng(0).lognormal(0.0, 0.6, (4000, 10))
+    mu = math.exp(0.6**2 / 2)
+    cover = {
+        log: np.mean([lo <= mu <= hi for _, lo, hi in (ams.interval(r, log=log) for r in x)])
+        for log in (False, True)
+    }
+    assert cover[True] == pytest.approx(0.95, abs=0.01) and cover[False] < 0.93, cover
+    assert ams.interval(np.array([0.0, 1.0, 2.0]), log=True) == ams.interval(np.arange(3.0))
