@@ -191,6 +191,29 @@ def _tilt_of(cs: Cases) -> Array:
     return jnp.zeros(cs.reason.shape + (0,)) if cs.tilt is None else cs.tilt
 
 
+def _start_step(
+    cs: Cases, state: EnvState, side: Array, performed: Array, counted: Array, bcast: Callable
+) -> Step:
+    """The manoeuvre's start as step 0 (``(policies, cases)`` leaves): the case's reason, its
+    approach's log weight and statistics (a proposal's), no reward or jerk yet."""
+    zero = jnp.zeros(performed.shape, jnp.float32)
+    log_w = jnp.broadcast_to(jnp.asarray(cs.log_w, jnp.float32), cs.reason.shape)  # (cases,)
+    return Step(
+        state=state,
+        reason=bcast(cs.reason),
+        steps=jnp.zeros(performed.shape, jnp.int32),
+        reward=zero,
+        info={},
+        side=side,
+        performed=performed,
+        lat_jerk=zero,
+        long_jerk=zero,
+        counted=counted,
+        log_w=bcast(log_w),
+        tilt=bcast(_tilt_of(cs)),
+    )
+
+
 def make_rollout(
     base: EnvParams, actor_apply: Callable, max_steps: int, env: LaneChangeEnv | None = None
 ) -> Callable:
@@ -249,23 +272,7 @@ def make_rollout(
             return i + 1, (state, obs, done, out, watch), trace
 
         watch, counted = safety.watch(state, base)
-        zero = jnp.zeros((n_pol, n), jnp.float32)
-        # The manoeuvre's start as step 0: the case's reason, its approach's log weight and
-        # statistics (a proposal's), no reward or jerk yet.
-        start = Step(
-            state=state,
-            reason=bcast(cs.reason),
-            steps=jnp.zeros((n_pol, n), jnp.int32),
-            reward=zero,
-            info={},
-            side=side,
-            performed=performed,
-            lat_jerk=zero,
-            long_jerk=zero,
-            counted=counted,
-            log_w=bcast(jnp.broadcast_to(jnp.asarray(cs.log_w, jnp.float32), (n,))),
-            tilt=bcast(_tilt_of(cs)),
-        )
+        start = _start_step(cs, state, side, performed, counted, bcast)
         cases = (state, obs, ~performed, measures.start(ms, start, base), watch)
         c = spill(
             body,
