@@ -16,7 +16,6 @@ ones no longer wait on the slowest.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from functools import partial
 from typing import Any
@@ -227,7 +226,7 @@ def make_rollout(
 
     def rollout(pol: Policies, cs: Cases, traced: Array) -> tuple[Outcome, Trace]:
         n_pol, n = pol.k.shape[0], cs.reason.shape[0]
-        bcast = functools.partial(jax.tree.map, lambda a: jnp.broadcast_to(a, (n_pol,) + a.shape))
+        bcast = partial(jax.tree.map, lambda a: jnp.broadcast_to(a, (n_pol,) + a.shape))
         state, obs, side = bcast(cs.state), bcast(cs.obs), bcast(cs.side).astype(jnp.float32)
         case_keys, performed = bcast(cs.key), bcast(cs.performed)  # (policies, cases, ...)
         trace = traces.empty(n_pol, traced.shape[0], limit + 2, base)
