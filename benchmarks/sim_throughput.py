@@ -8,15 +8,23 @@ time of all the process's threads. ``--traffic`` names the traffics measured sid
 (``env.mobil`` and ``env.braking`` on, at their defaults), and ``braking`` or ``mobil`` (one
 of the two alone: which one costs what).
 
+``--hashes`` measures nothing: it prints the hashes of the simulator's programs, the lowered
+(StableHLO) text of a vmapped ``env.step`` and ``env.reset`` over 8 envs, source locations
+stripped, in the paper and the hazard traffic. Two commits whose hashes agree run the same
+programs: the same rollouts and the same speed, whatever the machine's load.
+
     python -m benchmarks.sim_throughput                       # N = 1, 64, 1024, 4096, 16384
     python -m benchmarks.sim_throughput --envs 1 64 --steps 200 --repeats 2
     python -m benchmarks.sim_throughput --envs 4096 --traffic paper hazards
+    python -m benchmarks.sim_throughput --hashes
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import platform
+import re
 import statistics
 import time
 from datetime import date
@@ -37,6 +45,28 @@ TRAFFIC = {
     "mobil": ("env.mobil=true",),
     "hazards": ("env.mobil=true", "env.braking=true"),
 }
+
+
+def _digest(f, *args) -> str:
+    text = jax.jit(f).lower(*args).as_text(debug_info=False)
+    return hashlib.sha256(re.sub(r"loc\([^)]*\)", "", text).encode()).hexdigest()[:16]
+
+
+def programs(traffic: str, keys: jax.Array) -> dict[str, str]:
+    """``{"step" | "reset": sha256 prefix}`` of a traffic's programs over ``keys`` (envs,)."""
+    env, p = jaxlc.make(config.load(overrides=TRAFFIC[traffic]))
+    _, s = jax.vmap(lambda k: env.reset(k, p, traffic_only=True))(keys)
+    step = jax.vmap(lambda k, st: env.step(k, st, jnp.zeros(1), p))
+    return {
+        "step": _digest(step, keys, s),
+        "reset": _digest(jax.vmap(lambda k: env.reset(k, p)), keys),
+    }
+
+
+def hashes(envs: int = 8) -> dict[str, str]:
+    """``{"<traffic> <program>": sha256 prefix}`` in the paper and the hazard traffic."""
+    keys = jax.random.split(jax.random.PRNGKey(0), envs)
+    return {f"{t} {k}": v for t in ("paper", "hazards") for k, v in programs(t, keys).items()}
 
 
 def make_runner(env, params, n_envs: int, steps: int):
@@ -93,7 +123,12 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--traffic", nargs="+", choices=list(TRAFFIC), default=["paper"])
     ap.add_argument("--csv", type=Path, default=RESULTS / "sim_throughput.csv")
+    ap.add_argument("--hashes", action="store_true", help="print the programs' hashes, only")
     args = ap.parse_args(argv)
+    if args.hashes:
+        for k, v in hashes().items():
+            print(k, v)
+        return []
 
     print(
         f"jaxlc simulator throughput | {platform.processor() or platform.machine()} | "

@@ -15,7 +15,6 @@ import pytest
 from benchmarks import (
     ams_toy,
     failed_cases,
-    program_hashes,
     scripted_under_noise,
     sim_throughput,
     study_summary,
@@ -178,10 +177,10 @@ def test_sweep_timing_keeps_the_timing_and_counts_the_models(smoke_run, smoke_cf
 def test_program_hashes_tell_the_traffics_apart_and_repeat():
     """The programs' hashes that show two commits run the same simulator: one per traffic and
     program, the same on a second lowering, different between the traffics."""
-    first = program_hashes.hashes(envs=2)
+    first = sim_throughput.hashes(envs=2)
     assert sorted(first) == ["hazards reset", "hazards step", "paper reset", "paper step"]
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
-    again = program_hashes._programs((), keys)  # the paper traffic
+    again = sim_throughput.programs("paper", keys)
     assert again == {"step": first["paper step"], "reset": first["paper reset"]}
     assert first["paper step"] != first["hazards step"]
     assert len(set(first.values())) == 4
