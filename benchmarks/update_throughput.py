@@ -27,9 +27,6 @@ applies to all of them.
 
 Usage: ``python -m benchmarks.update_throughput [--models 9 --batch 64 --repeats 5]``;
 ``--tiny`` shrinks everything for tests. Writes ``benchmarks/results/update_throughput.csv``.
-
-Its ``actors`` mode (the plain, odd and paired actors side by side with a sweep each, which
-chose ``ddpg.mirror_pairs``) is retired; it reads as it was at commit b98c04d.
 """
 
 from __future__ import annotations
@@ -253,7 +250,7 @@ def grid_update_call(
     return lambda: run(learners, memory, hyper, keys)
 
 
-def main(argv: Sequence[str] | None = None) -> dict[str, float]:
+def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--models", type=int, default=9)
     p.add_argument("--batch", type=int, default=64)
@@ -266,7 +263,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
         "--stream-n",
         type=int,
         default=0,
-        help="floats per streamed array (default: 4.5 per parameter, the Adam pass's footprint)",
+        help="floats per streamed array (0: 4.5 per parameter, the Adam pass's footprint)",
     )
     p.add_argument("--out", type=Path, default=RESULTS / "update_throughput.csv")
     p.add_argument(
@@ -281,48 +278,68 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
         args.models, args.batch, args.hidden, args.memories = 3, 8, [16, 32], [64, 96, 128]
         args.updates, args.repeats, args.matmul_n, args.stream_n = 5, 2, 128, 1 << 12
     if args.devices > len(jax.devices()) or args.models % args.devices:
-        raise SystemExit(
+        p.error(
             f"--devices {args.devices}: must divide --models ({args.models}) and be at most the "
             f"{len(jax.devices())} device(s) JAX sees (on a CPU, run with "
             f"XLA_FLAGS=--xla_force_host_platform_device_count={args.devices})"
         )
+    return args
 
+
+def main(argv: Sequence[str] | None = None) -> dict[str, float]:
+    """Measure, write the CSV row, print it; return the figures unrounded."""
+    args = _parse(argv)
     cfg = dataclasses.replace(DDPGConfig(), hidden=tuple(args.hidden), batch_size=args.batch)
-    time_dot = _timed(matmul_call(args.matmul_n))
-    time_grid = _timed(
-        grid_update_call(cfg, args.models, args.memories, args.updates, args.devices)
-    )
     products = update_products(OBS_DIM, cfg.hidden, cfg.batch_size, 1, cfg.symmetric_actor)
-    time_kernels = _timed(kernels_call(products, args.models, args.updates))
-    time_optimizer = _timed(optimizer_call(cfg, args.models, args.updates))
     shapes = jax.eval_shape(lambda k: ddpg.init_learner(k, OBS_DIM, cfg), jax.random.key(0))
     params = args.models * sum(x.size for x in jax.tree.leaves((shapes.actor, shapes.critic)))
     stream_n = args.stream_n or int(4.5 * params)  # two arrays of 36 bytes per parameter
-    time_stream = _timed(stream_call(stream_n, args.updates))
-    dot_s, grid_s, kernels_s, optimizer_s, stream_s = [], [], [], [], []
+    timers = {
+        "dot": _timed(matmul_call(args.matmul_n)),
+        "grid": _timed(
+            grid_update_call(cfg, args.models, args.memories, args.updates, args.devices)
+        ),
+        "kernels": _timed(kernels_call(products, args.models, args.updates)),
+        "optimizer": _timed(optimizer_call(cfg, args.models, args.updates)),
+        "stream": _timed(stream_call(stream_n, args.updates)),
+    }
+    times: dict[str, list[float]] = {k: [] for k in timers}
     for _ in range(args.repeats):  # alternate, so all see the same load from other processes
-        dot_s.append(time_dot())
-        grid_s.append(time_grid())
-        kernels_s.append(time_kernels())
-        optimizer_s.append(time_optimizer())
-        stream_s.append(time_stream())
-    peak = 2 * args.matmul_n**3 / statistics.median(dot_s) / 1e9
-    rate = args.updates / statistics.median(grid_s)
+        for k, once in timers.items():
+            times[k].append(once())
+    med = {k: statistics.median(v) for k, v in times.items()}
+    peak = 2 * args.matmul_n**3 / med["dot"] / 1e9
+    rate = args.updates / med["grid"]
     flops = matmul_flops(products)
-    achieved = rate * args.models * flops / 1e9
     # the decomposition of one grid update's time, ms: its products alone (the ceiling of the
     # share with these kernels), its Adam/target pass alone, and what remains
-    update_ms = 1e3 / rate
-    kernels_ms = 1e3 * statistics.median(kernels_s) / args.updates
-    optimizer_ms = 1e3 * statistics.median(optimizer_s) / args.updates
-    kernels_share = args.models * flops / (kernels_ms / 1e3) / 1e9 / peak
-    optimizer_gbps = 36 * params / (optimizer_ms / 1e3) / 1e9
-    stream_gbps = 12 * stream_n * args.updates / statistics.median(stream_s) / 1e9
+    kernels_ms = 1e3 * med["kernels"] / args.updates
+    optimizer_ms = 1e3 * med["optimizer"] / args.updates
+    stream_gbps = 12 * stream_n * args.updates / med["stream"] / 1e9
     # the share if an update were only its products at their speed alone plus an Adam/target
     # pass that moves its minimum 36 bytes per parameter at the streamed bandwidth
     floor_ms = kernels_ms + 36 * params / stream_gbps / 1e6
-    ceiling = args.models * flops / (floor_ms / 1e3) / 1e9 / peak
-    best = args.updates / min(grid_s) * args.models * flops / (2 * args.matmul_n**3 / min(dot_s))
+    best_peak = 2 * args.matmul_n**3 / min(times["dot"])
+    figures = {
+        "peak_gflops": peak,
+        "grid_updates_per_s": rate,
+        "mflop_per_model_update": flops / 1e6,
+        "achieved_gflops": rate * args.models * flops / 1e9,
+        "share_of_peak": rate * args.models * flops / 1e9 / peak,
+        "share_of_peak_best_of": args.updates
+        / min(times["grid"])
+        * args.models
+        * flops
+        / best_peak,
+        "update_ms": 1e3 / rate,
+        "products_alone_ms": kernels_ms,
+        "products_alone_share_of_peak": args.models * flops / (kernels_ms / 1e3) / 1e9 / peak,
+        "optimizer_alone_ms": optimizer_ms,
+        "optimizer_alone_gbps": 36 * params / (optimizer_ms / 1e3) / 1e9,
+        "stream_gbps": stream_gbps,
+        "share_ceiling": args.models * flops / (floor_ms / 1e3) / 1e9 / peak,
+        "rest_ms": 1e3 / rate - kernels_ms - optimizer_ms,
+    }
     row = {
         "backend": jax.default_backend(),
         "models": args.models,
@@ -333,20 +350,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
         "updates_per_scan": args.updates,
         "repeats": args.repeats,
         "matmul_n": args.matmul_n,
-        "peak_gflops": round(peak, 2),
-        "grid_updates_per_s": round(rate, 2),
-        "mflop_per_model_update": round(flops / 1e6, 3),
-        "achieved_gflops": round(achieved, 2),
-        "share_of_peak": round(achieved / peak, 4),
-        "share_of_peak_best_of": round(best, 4),
-        "update_ms": round(update_ms, 3),
-        "products_alone_ms": round(kernels_ms, 3),
-        "products_alone_share_of_peak": round(kernels_share, 4),
-        "optimizer_alone_ms": round(optimizer_ms, 3),
-        "optimizer_alone_gbps": round(optimizer_gbps, 2),
-        "stream_gbps": round(stream_gbps, 2),
-        "share_ceiling": round(ceiling, 4),
-        "rest_ms": round(update_ms - kernels_ms - optimizer_ms, 3),
+        **{k: round(v, 4 if "share" in k else 3) for k, v in figures.items()},
         "loadavg_1min": round(os.getloadavg()[0], 2),
     }
     write_csv(args.out, [row])
@@ -354,20 +358,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     for k, v in row.items():
         print(f"{k:<{width}}  {v}")
     print(f"wrote {args.out}")
-    return {
-        "peak_gflops": peak,
-        "grid_updates_per_s": rate,
-        "achieved_gflops": achieved,
-        "share_of_peak": achieved / peak,
-        "share_of_peak_best_of": best,
-        "update_ms": update_ms,
-        "products_alone_ms": kernels_ms,
-        "products_alone_share_of_peak": kernels_share,
-        "optimizer_alone_ms": optimizer_ms,
-        "optimizer_alone_gbps": optimizer_gbps,
-        "stream_gbps": stream_gbps,
-        "share_ceiling": ceiling,
-    }
+    return figures
 
 
 if __name__ == "__main__":

@@ -12,14 +12,18 @@ GPU_BENCH = BENCHMARKS / "bench_gpu_2026-11-27"  # gpu/ and cpu/: one session ea
 SIDES = ("gpu", "cpu")
 
 
-def _rows(side: str, name: str) -> tuple[dict[str, str], ...]:
+def _read(side: str, name: str):
+    """A side's CSV rows or JSON document; None where that side did not run it."""
     path = GPU_BENCH / side / name
-    return csv_rows(path) if path.exists() else ()
+    if not path.exists():
+        return None
+    return csv_rows(path) if path.suffix == ".csv" else json.loads(path.read_text())
 
 
-def _json(side: str, name: str) -> dict | None:
-    path = GPU_BENCH / side / name
-    return json.loads(path.read_text()) if path.exists() else None
+def _pair(name: str) -> list:
+    """Both sides' ``name``: a JSON document, or a CSV's first row; None where it did not run."""
+    both = [_read(s, name) for s in SIDES]
+    return [next(iter(x), None) if isinstance(x, tuple) else x for x in both]
 
 
 def _machine(side: str) -> str:
@@ -39,7 +43,7 @@ def _row(
 
 
 def _sim_rows(name: str, traffic: str) -> list[str]:
-    sim = {s: {int(r["envs"]): r for r in _rows(s, name)} for s in SIDES}
+    sim = {s: {int(r["envs"]): r for r in _read(s, name) or ()} for s in SIDES}
     return [
         _row(
             f"simulator env-steps/s ({traffic})",
@@ -52,27 +56,17 @@ def _sim_rows(name: str, traffic: str) -> list[str]:
     ]
 
 
-def _update_rows() -> list[str]:
-    def text(r: dict) -> str:
-        return (
+def _update_row(models: int, pair: list) -> str:
+    return _row(
+        "DDPG grid-updates/s (achieved; the matmul peak in the same process)",
+        f"{models} models",
+        pair,
+        lambda r: float(r["grid_updates_per_s"]),
+        lambda r: (
             f"{float(r['grid_updates_per_s']):,.1f} ({float(r['achieved_gflops']):,.0f} GFLOP/s; "
             f"the 2048² matmul {float(r['peak_gflops']):,.0f})"
-        )
-
-    cells = {
-        m: [next(iter(_rows(s, f"update_{m}.csv")), None) for s in SIDES] for m in (9, 90, 900)
-    }
-    return [
-        _row(
-            "DDPG grid-updates/s (achieved; the matmul peak in the same process)",
-            f"{models} models",
-            pair,
-            lambda r: float(r["grid_updates_per_s"]),
-            text,
-        )
-        for models, pair in cells.items()
-        if any(pair)
-    ]
+        ),
+    )
 
 
 def sweep_steady(d: dict) -> float:
@@ -81,36 +75,25 @@ def sweep_steady(d: dict) -> float:
     return (d["env_steps"] - first) / (d["wall_s"] - d["first_chunk_s"])
 
 
-def _sweep_rows() -> list[str]:
-    def text(d: dict) -> str:
-        return (
+def _sweep_row(seeds: int, cells: list) -> str:
+    eps = next(d["episodes_per_model"] for d in cells if d)
+    return _row(
+        f"default sweep, {eps} episodes per model: wall (its first chunk, compiling)",
+        f"{seeds} seed{'s' * (seeds > 1)} per cell ({9 * seeds} models)",
+        cells,
+        lambda d: 1 / d["wall_s"],
+        lambda d: (
             f"{d['wall_s']:,.1f} s (first chunk {d['first_chunk_s']:,.1f} s); "
             f"{sweep_steady(d):,.0f} env-steps/s after it"
-        )
-
-    rows = []
-    for seeds in (1, 10, 100):
-        cells = [_json(s, f"sweep_s{seeds}.json") for s in SIDES]
-        if not any(cells):
-            continue
-        eps = next(d["episodes_per_model"] for d in cells if d)
-        rows.append(
-            _row(
-                f"default sweep, {eps} episodes per model: wall (its first chunk, compiling)",
-                f"{seeds} seed{'s' * (seeds > 1)} per cell ({9 * seeds} models)",
-                cells,
-                lambda d: 1 / d["wall_s"],
-                text,
-            )
-        )
-    return rows
+        ),
+    )
 
 
 def _heldout_row() -> str:
     def rate(r: dict) -> float:
         return int(r["policies"]) * int(r["lane_changes"]) / float(r["rollouts_s"])
 
-    cells = [next(iter(_rows(s, "cost.csv")), None) for s in SIDES]
+    cells = _pair("cost.csv")
     size = next(f"{r['policies']} policies × {int(r['lane_changes']):,}" for r in cells if r)
     return _row(
         "held-out evaluation: policy-lane-changes/s, compilation included (drawing the cases, s)",
@@ -122,19 +105,13 @@ def _heldout_row() -> str:
 
 
 def _validate_row() -> str:
-    def model(d: dict) -> dict:
-        return d["models"][0]
-
-    cells = [_json(s, "validate_keys0/validate.json") for s in SIDES]
+    cells = [d and d["models"][0] for d in _pair("validate_keys0/validate.json")]
     return _row(
         "validation, crude Monte Carlo: lane changes/s, compilation included (lane changes, s)",
         "④, the paper's traffic",
         cells,
-        lambda d: model(d)["lane_changes_per_s"],
-        lambda d: (
-            f"{model(d)['lane_changes_per_s']:,.0f} ({model(d)['lane_changes']:,} in "
-            f"{model(d)['wall_s']:,.1f} s)"
-        ),
+        lambda m: m["lane_changes_per_s"],
+        lambda m: f"{m['lane_changes_per_s']:,.0f} ({m['lane_changes']:,} in {m['wall_s']:,.1f} s)",
     )
 
 
@@ -146,8 +123,8 @@ def gpu_table() -> str:
         "|---|---|---|---|---|",
         *_sim_rows("sim_paper.csv", "the paper's traffic"),
         *_sim_rows("sim_hazards.csv", "MOBIL lane changes and braking events"),
-        *_update_rows(),
-        *_sweep_rows(),
+        *(_update_row(m, p) for m in (9, 90, 900) if any(p := _pair(f"update_{m}.csv"))),
+        *(_sweep_row(n, p) for n in (1, 10, 100) if any(p := _pair(f"sweep_s{n}.json"))),
         _heldout_row(),
         _validate_row(),
     ]
