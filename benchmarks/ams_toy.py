@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.stats
 
-from benchmarks.csvfile import write_csv
+from benchmarks import write_csv
 from jaxlc.evaluation import splitting as ams
 
 STEPS, LEVEL = 200, 84

@@ -49,7 +49,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
 
     import jax
 
-    from benchmarks.csvfile import write_csv
+    from benchmarks import write_csv
     from jaxlc import config
     from jaxlc.learn import train
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.csvfile import write_csv
+from benchmarks import write_csv
 from jaxlc.sim.reward import REASONS
 
 FAILED = ("out_of_bounds", "collision", "timeout")

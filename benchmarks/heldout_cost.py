@@ -21,7 +21,7 @@ from pathlib import Path
 
 import jax
 
-from benchmarks.csvfile import write_csv
+from benchmarks import write_csv
 from jaxlc.evaluation.cases import cases_for_lane_changes, evaluate_policies
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.sim.env import action_dim

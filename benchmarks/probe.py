@@ -19,7 +19,7 @@ import dataclasses
 import time
 from pathlib import Path
 
-from benchmarks.csvfile import write_csv
+from benchmarks import write_csv
 from jaxlc import config
 from jaxlc.evaluation import heldout
 from jaxlc.evaluation.cases import cases_for_lane_changes, evaluate_policies

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.csvfile import write_csv
+from benchmarks import write_csv
 from benchmarks.sim_throughput import RESULTS
 from jaxlc import config
 from jaxlc.learn.ddpg import explore

@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxlc
-from benchmarks.csvfile import write_csv
+from benchmarks import write_csv
 from jaxlc import config
 
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -38,7 +38,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()  # the user's clock: compile time counts
 
-    from benchmarks.csvfile import write_csv
+    from benchmarks import write_csv
     from jaxlc import config
     from jaxlc.learn import train
     from jaxlc.study import machine

@@ -45,7 +45,7 @@ import numpy as np
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-from benchmarks.csvfile import write_csv
+from benchmarks import write_csv
 from jaxlc.config import DDPGConfig
 from jaxlc.learn import ddpg, replay
 from jaxlc.sim.env import OBS_DIM

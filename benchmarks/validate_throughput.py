@@ -23,8 +23,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from benchmarks import sim_throughput
-from benchmarks.csvfile import write_csv
+from benchmarks import sim_throughput, write_csv
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
 from jaxlc.evaluation import keys as streams
@@ -32,9 +31,7 @@ from jaxlc.evaluation.cases import columns, make_start_cases
 from jaxlc.sim.env import EnvParams
 from jaxlc.study import machine
 
-HERE = Path(__file__).resolve().parent
-SIM = sim_throughput  # the simulator benchmark
-TRAFFIC = SIM.TRAFFIC  # the traffics by name: the simulator benchmark's
+TRAFFIC = sim_throughput.TRAFFIC  # the traffics by name: the simulator benchmark's
 
 
 def mc_chunk(traffic: str, chunk: int, repeats: int) -> dict:
@@ -70,13 +67,13 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--steps", type=int, default=200, help="sim_throughput's scan length")
     ap.add_argument("--traffic", nargs="+", default=["paper", "braking"], choices=TRAFFIC)
-    ap.add_argument("--out", type=Path, default=HERE / "results")
+    ap.add_argument("--out", type=Path, default=sim_throughput.RESULTS)
     args = ap.parse_args()
     peak0 = machine.matmul_peak_gflops()
     rows = []
     for t in args.traffic:
         mc = mc_chunk(t, args.chunk, args.repeats)
-        s = SIM.measure(args.chunk, args.steps, args.repeats, t)
+        s = sim_throughput.measure(args.chunk, args.steps, args.repeats, t)
         mc["sim_env_steps_per_s"] = round(s["env_steps_per_s"])
         mc["share_of_sim"] = round(mc["env_steps_per_s"] / s["env_steps_per_s"], 3)
         rows.append(mc)

@@ -174,7 +174,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     args = ap.parse_args(argv)
     if args.tiny:
         args.seeds, args.timesteps = 1, 16_384
-    from benchmarks.csvfile import write_csv
+    from benchmarks import write_csv
 
     cfg = config.load()
     peak = machine.matmul_peak_gflops()

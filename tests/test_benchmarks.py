@@ -186,9 +186,7 @@ def test_program_hashes_tell_the_traffics_apart_and_repeat():
     assert len(set(first.values())) == 4
 
 
-COMMANDS = sorted(
-    p.stem for p in (ROOT / "benchmarks").glob("*.py") if p.stem not in {"__init__", "csvfile"}
-)
+COMMANDS = sorted(p.stem for p in (ROOT / "benchmarks").glob("*.py") if p.stem != "__init__")
 
 
 @pytest.mark.slow

@@ -26,6 +26,17 @@ def _pair(name: str) -> list:
     return [next(iter(x), None) if isinstance(x, tuple) else x for x in both]
 
 
+def _by(name: str, column: str | None = None) -> dict[int, list]:
+    """Both sides' entries of a file that holds several runs (a CSV's rows by ``column``, a
+    JSON's by key), by that size in ascending order; None where a side did not run it."""
+    sides = [_read(s, name) or {} for s in SIDES]
+    runs = [
+        {int(r[column]): r for r in x} if column else {int(k): v for k, v in x.items()}
+        for x in sides
+    ]
+    return {n: [r.get(n) for r in runs] for n in sorted(runs[0].keys() | runs[1].keys())}
+
+
 def _machine(side: str) -> str:
     """The device line of a side's ``machine.txt`` (its second line)."""
     return (GPU_BENCH / side / "machine.txt").read_text().splitlines()[1].split(",")[0]
@@ -43,16 +54,15 @@ def _row(
 
 
 def _sim_rows(name: str, traffic: str) -> list[str]:
-    sim = {s: {int(r["envs"]): r for r in _read(s, name) or ()} for s in SIDES}
     return [
         _row(
             f"simulator env-steps/s ({traffic})",
             f"{n:,} envs",
-            [sim[s].get(n) for s in SIDES],
+            pair,
             lambda r: float(r["env_steps_per_s"]),
             lambda r: f"{float(r['env_steps_per_s']):,.0f}",
         )
-        for n in sorted(sim["gpu"].keys() | sim["cpu"].keys())
+        for n, pair in _by(name, "envs").items()
     ]
 
 
@@ -123,8 +133,8 @@ def gpu_table() -> str:
         "|---|---|---|---|---|",
         *_sim_rows("sim_paper.csv", "the paper's traffic"),
         *_sim_rows("sim_hazards.csv", "MOBIL lane changes and braking events"),
-        *(_update_row(m, p) for m in (9, 90, 900) if any(p := _pair(f"update_{m}.csv"))),
-        *(_sweep_row(n, p) for n in (1, 10, 100) if any(p := _pair(f"sweep_s{n}.json"))),
+        *(_update_row(m, p) for m, p in _by("update.csv", "models").items()),
+        *(_sweep_row(n, p) for n, p in _by("sweeps.json").items()),
         _heldout_row(),
         _validate_row(),
     ]

@@ -211,7 +211,7 @@ def rejax_table() -> str:
         f"included) | – | {peak:.0f} GFLOP/s"
     ]
     names = {"ppo": "Rejax PPO (`normalize_rewards`)", "td3": "Rejax TD3", "sac": "Rejax SAC"}
-    for r in csv_rows(REJAX / "vs_rejax_ppo.csv") + csv_rows(REJAX / "vs_rejax_offpolicy.csv"):
+    for r in csv_rows(REJAX / "vs_rejax.csv"):
         body.append(
             f"{names[r['learner'].removeprefix('rejax ')]} | "
             f"{int(r['decisions_per_seed']) // 1000} k | "
