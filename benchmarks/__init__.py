@@ -4,7 +4,8 @@ as ``python -m benchmarks.NAME`` (``--help`` says what it measures and writes).
 The dated folders beside them are the evidence the published tables are written from
 (``python -m benchmarks.publish``); ``tables/`` holds one writer module per subject.
 
-``write_csv`` below is the scripts' one CSV writer.
+``write_csv`` below is the scripts' one CSV writer; ``RESULTS`` their default output folder
+(git ignores it).
 """
 
 from __future__ import annotations
@@ -12,6 +13,8 @@ from __future__ import annotations
 import csv
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def write_csv(

@@ -21,11 +21,17 @@ import argparse
 import os
 import platform
 import statistics
-import sys
 import time
 from collections.abc import Sequence
 from datetime import date
 from pathlib import Path
+
+import jax
+
+from benchmarks import RESULTS, write_csv
+from jaxlc import config
+from jaxlc.learn import train
+from jaxlc.study import machine
 
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -41,18 +47,7 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
     args = _parse(argv)
-    if "jax" not in sys.modules and "--xla_force_host_platform_device_count" not in os.environ.get(
-        "XLA_FLAGS", ""
-    ):
-        flag = f"--xla_force_host_platform_device_count={max(args.devices)}"
-        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip()
-
-    import jax
-
-    from benchmarks import write_csv
-    from jaxlc import config
-    from jaxlc.learn import train
-
+    machine.use_host_devices(max(args.devices))  # before JAX starts its backends
     cfg = config.load(
         config.CONFIG_DIR / "smoke.toml" if args.tiny and args.config is None else args.config
     )
@@ -95,9 +90,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
             f"{first:>14.1f}",
             flush=True,
         )
-    write_csv(
-        args.csv or Path(__file__).resolve().parent / "results" / "devices_throughput.csv", rows
-    )
+    write_csv(args.csv or RESULTS / "devices_throughput.csv", rows)
     return rows
 
 

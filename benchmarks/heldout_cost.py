@@ -21,7 +21,7 @@ from pathlib import Path
 
 import jax
 
-from benchmarks import write_csv
+from benchmarks import RESULTS, write_csv
 from jaxlc.evaluation.cases import cases_for_lane_changes, evaluate_policies
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.sim.env import action_dim
@@ -36,8 +36,7 @@ def main() -> None:
     ap.add_argument("--policies", type=int, default=72)
     ap.add_argument("--lane-changes", type=int, default=1000)
     ap.add_argument("--chunk", type=int, default=32)
-    here = Path(__file__).resolve().parent / "results"
-    ap.add_argument("--out", type=Path, default=here)
+    ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     cfg = RunDir(args.run_dir).load_config()
     # The host devices python -m jaxlc.evaluate would take for a chunk (before JAX starts).

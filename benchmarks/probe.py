@@ -26,19 +26,9 @@ from jaxlc.evaluation.cases import cases_for_lane_changes, evaluate_policies
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.study import machine
 
-FIELDS = (
-    "label",
-    "seed",
-    "cases",
-    "lane_changes",
-    "performed_share",
-    "success",
-    "collision",
-    "out_of_bounds",
-    "timeout",
-    "norm_all",
-    "norm_min_ttc_s",
-    "norm_min_thw_s",
+FIELDS = tuple(
+    "label seed cases lane_changes performed_share success collision out_of_bounds timeout "
+    "norm_all norm_min_ttc_s norm_min_thw_s".split()
 )
 
 

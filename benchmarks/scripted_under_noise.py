@@ -20,8 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks import write_csv
-from benchmarks.sim_throughput import RESULTS
+from benchmarks import RESULTS, write_csv
 from jaxlc import config
 from jaxlc.learn.ddpg import explore
 from jaxlc.sim.controller import scripted_action

@@ -34,10 +34,9 @@ import jax
 import jax.numpy as jnp
 
 import jaxlc
-from benchmarks import write_csv
+from benchmarks import RESULTS, write_csv
 from jaxlc import config
 
-RESULTS = Path(__file__).resolve().parent / "results"
 # The traffics by name: the config overrides that make each.
 TRAFFIC = {
     "paper": (),

@@ -22,8 +22,6 @@ from collections.abc import Sequence
 from datetime import date
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def main(argv: Sequence[str] | None = None) -> dict[str, object]:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
@@ -38,7 +36,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()  # the user's clock: compile time counts
 
-    from benchmarks import write_csv
+    from benchmarks import RESULTS, write_csv
     from jaxlc import config
     from jaxlc.learn import train
     from jaxlc.study import machine
@@ -101,7 +99,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
         f"{row['device']} device(s), {env_steps:,} env-steps | float32 matmul peak "
         f"{peak:.0f} GFLOP/s | jax {jax.__version__} | {row['date']}"
     )
-    write_csv(args.csv or ROOT / "benchmarks" / "results" / "time_to_solution.csv", [row])
+    write_csv(args.csv or RESULTS / "time_to_solution.csv", [row])
     return row
 
 

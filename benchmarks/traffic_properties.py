@@ -26,10 +26,10 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.stats
 
 import jaxlc
 from jaxlc import config
+from jaxlc.evaluation.heldout import clopper_pearson
 from jaxlc.sim.controller import scripted_action
 from jaxlc.sim.idm import idm_with_params
 from jaxlc.sim.leaders import changing, occupancy, vehicle_y
@@ -99,14 +99,6 @@ def make_run(env, p, n_envs: int, steps: int):
     return run
 
 
-def interval(k: int, n: int, level: float = 0.999) -> tuple[float, float]:
-    """Two-sided Clopper-Pearson interval of a rate from ``k`` of ``n``."""
-    a = (1.0 - level) / 2
-    lo = 0.0 if k == 0 else float(scipy.stats.beta.ppf(a, k, n - k + 1))
-    hi = 1.0 if k == n else float(scipy.stats.beta.ppf(1 - a, k + 1, n - k))
-    return lo, hi
-
-
 def check(
     n_envs: int, steps: int, overrides: tuple[str, ...] = HIGHEST, chunk: int = 500, seed: int = 0
 ) -> dict:
@@ -130,7 +122,7 @@ def check(
         "braking": ("brake_started", "brake_eligible", float(p.braking_rate)),
     }
     for name, (k, n, rate) in rates.items():
-        lo, hi = interval(totals[k], totals[n])
+        lo, hi = clopper_pearson(totals[k], totals[n], 0.999)
         totals[f"{name}_p"] = totals[k] / max(totals[n], 1)
         totals[f"{name}_expected"] = float(-np.expm1(-rate * float(p.dt)))
         totals[f"{name}_interval"] = (lo, hi)

@@ -45,15 +45,11 @@ import numpy as np
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
-from benchmarks import write_csv
+from benchmarks import RESULTS, write_csv
 from jaxlc.config import DDPGConfig
 from jaxlc.learn import ddpg, replay
 from jaxlc.sim.env import OBS_DIM
 from jaxlc.sim.observation import MIRROR_SIGNS
-
-ROOT = Path(__file__).resolve().parents[1]
-
-RESULTS = ROOT / "benchmarks" / "results"
 
 
 def update_products(
@@ -182,24 +178,19 @@ def _learners(cfg: DDPGConfig, models: int, key: jax.Array) -> ddpg.Learner:
 
 
 def optimizer_call(cfg: DDPGConfig, models: int, steps: int) -> Callable[[], object]:
-    """``ddpg.optimizer_step`` (Adam and the soft target update) of the actor and the critic
+    """``ddpg.apply_gradients`` (Adam and the soft target update) of the actor and the critic
     of ``models`` models, vmapped, with fixed gradients, ``steps`` times: the update's
     elementwise pass over every parameter, alone. It moves at least 36 bytes per parameter:
     params, gradient, both Adam moments and the target read, and all but the gradient
     written."""
     lrn = _learners(cfg, models, jax.random.key(4))
     grads = jax.tree.map(lambda x: jnp.full_like(x, 1e-3), (lrn.critic, lrn.actor))
+    hyper = ddpg.Hyper.from_config(cfg)
 
-    def one(lrn: ddpg.Learner, grads: tuple[ddpg.Params, ddpg.Params]) -> ddpg.Learner:
-        c, c_opt, c_t = ddpg.optimizer_step(
-            lrn.critic, grads[0], lrn.critic_opt, cfg.critic_lr, lrn.critic_target, cfg.tau
-        )
-        a, a_opt, a_t = ddpg.optimizer_step(
-            lrn.actor, grads[1], lrn.actor_opt, cfg.actor_lr, lrn.actor_target, cfg.tau
-        )
-        return ddpg.Learner(a, c, a_t, c_t, a_opt, c_opt, lrn.step + 1)
+    def many(lrn: ddpg.Learner, grads: tuple[ddpg.Params, ddpg.Params]) -> ddpg.Learner:
+        return jax.vmap(lambda one, g: ddpg.apply_gradients(one, *g, hyper, cfg.tau))(lrn, grads)
 
-    return _scanned(lambda lrn, grads: jax.vmap(one)(lrn, grads), lrn, steps, grads)
+    return _scanned(many, lrn, steps, grads)
 
 
 def grid_update_call(

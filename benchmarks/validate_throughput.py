@@ -23,7 +23,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from benchmarks import sim_throughput, write_csv
+from benchmarks import RESULTS, sim_throughput, write_csv
 from jaxlc import config
 from jaxlc.evaluation import heldout, proposal, validation
 from jaxlc.evaluation import keys as streams
@@ -67,7 +67,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--steps", type=int, default=200, help="sim_throughput's scan length")
     ap.add_argument("--traffic", nargs="+", default=["paper", "braking"], choices=TRAFFIC)
-    ap.add_argument("--out", type=Path, default=sim_throughput.RESULTS)
+    ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     peak0 = machine.matmul_peak_gflops()
     rows = []

@@ -35,12 +35,11 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxlc
+from benchmarks import RESULTS, write_csv
 from jaxlc import config
 from jaxlc.evaluation import cases, results, stats
 from jaxlc.evaluation import keys as streams
 from jaxlc.study import machine
-
-ROOT = Path(__file__).resolve().parents[1]
 
 # Beyond Rejax's defaults: the task's discount (set in run), PPO's reward normalisation
 # (returns reach -2,000 here), and batch sizes for a 14-d task.
@@ -57,28 +56,24 @@ HYPER: dict[str, dict[str, Any]] = {
 }
 
 
+# Each learner's deterministic action from its actor module ``m`` on observations ``o``.
+HEADS: dict[str, Callable[[Any, jax.Array], jax.Array]] = {
+    "td3": lambda m, o: m(o),
+    "ppo": lambda m, o: jnp.clip(m.action_mean(m.features(o)), *m.action_range),
+    "sac": lambda m, o: m.action_loc + jnp.tanh(m.action_mean(m.features(o))) * m.action_scale,
+}
+
+
 def greedy(name: str, algo: Any) -> Callable[[Any, jax.Array], jax.Array]:
     """``(policy, obs (n, 14)) -> action (n, 1)``: the policy without exploration, where
     ``policy`` is ``policy_of`` a train state (params are an argument, not constants, so one
     compiled rollout serves every seed and the untrained policy)."""
-    if name == "td3":
-
-        def head(m: Any, o: jax.Array) -> jax.Array:
-            return m(o)
-    elif name == "ppo":
-
-        def head(m: Any, o: jax.Array) -> jax.Array:
-            return jnp.clip(m.action_mean(m.features(o)), *m.action_range)
-    else:  # sac: the squashed mean
-
-        def head(m: Any, o: jax.Array) -> jax.Array:
-            return m.action_loc + jnp.tanh(m.action_mean(m.features(o))) * m.action_scale
 
     def act(policy: Any, obs: jax.Array) -> jax.Array:
         params, obs_rms = policy
         if obs_rms is not None:
             obs = algo.normalize_obs(obs_rms, obs)
-        return jnp.reshape(algo.actor.apply(params, obs, method=head), (obs.shape[0], 1))
+        return jnp.reshape(algo.actor.apply(params, obs, method=HEADS[name]), (obs.shape[0], 1))
 
     return act
 
@@ -169,13 +164,11 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--timesteps", type=int, default=1_000_000, help="RL decisions per seed")
     ap.add_argument("--cases", type=int, default=cases.PROTOCOL.cases, help="fixed cases")
-    ap.add_argument("--csv", type=Path, default=ROOT / "benchmarks" / "results" / "vs_rejax.csv")
+    ap.add_argument("--csv", type=Path, default=RESULTS / "vs_rejax.csv")
     ap.add_argument("--tiny", action="store_true", help="16k decisions, one seed (tests)")
     args = ap.parse_args(argv)
     if args.tiny:
         args.seeds, args.timesteps = 1, 16_384
-    from benchmarks import write_csv
-
     cfg = config.load()
     peak = machine.matmul_peak_gflops()
     rows = []
