@@ -2,9 +2,8 @@
 "done when"): does AMS's 95% interval cover the truth in >= 93 of 100 independent repeats?
 
 The toy: a simple +-1 random walk S_t (S_0 = 0, T steps, each up with probability 1/2) and
-the event that its running maximum reaches the level a. By the reflection principle
-P(max_{t<=T} S_t >= a) = P(S_T >= a) + P(S_T > a), exact from the binomial (``truth``);
-T = 200, a = 84 give 1.80e-9, reached through 84 net up-steps of size 1.
+the event that its running maximum reaches the level a, exact by the reflection principle
+(``truth``): T = 200, a = 84 give 1.80e-9, reached through 84 net up-steps of size 1.
 
 AMS reads the score (S_t - a) / sqrt(T - t + 1), the distance to the level in standard
 deviations of the steps left, target 0 (>= 0 exactly when S_t >= a, so the same event). Each

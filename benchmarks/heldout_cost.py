@@ -5,10 +5,10 @@
 The policies are the run's final checkpoints, repeated until there are N (each row is a real
 rollout: the same params on the same cases cost the same as different ones), plus the
 scripted controller, exactly as ``python -m jaxlc.evaluate`` runs them
-(``evaluate_policies`` over the held-out keys, in chunks of ``--chunk``, on the host
-devices the command would take). Times the drawing
-of the cases (``cases_for_lane_changes``) and the rollouts apart, the first call including
-compilation; writes ``OUT/cost.csv`` with the machine's float32 matmul peak and the date.
+(``evaluate_policies`` over the held-out keys, in chunks of ``--chunk``, on the host devices
+the command would take). Times the drawing of the cases (``cases_for_lane_changes``) and the
+rollouts apart, the first call including compilation; writes ``OUT/cost.csv`` with the
+machine's float32 matmul peak and the date.
 """
 
 from __future__ import annotations

@@ -1,32 +1,26 @@
-"""Throughput of the vmapped DDPG update against this machine's float32 matmul peak.
+"""Throughput of the vmapped DDPG update against this machine's float32 matmul peak, measured
+in one run so that all figures see the same machine state:
 
-Measured in one run, so that both figures see the same machine state:
+- ``peak_gflops``: a jitted ``(n, n) @ (n, n)`` float32 product (``matmul_call``);
+- ``grid_updates_per_s``: ``--models`` models' sample + ``ddpg.update`` steps, vmapped, in one
+  ``lax.scan`` (``grid_update_call``); ``achieved_gflops`` counts only their matrix products
+  (``update_products``), so ``share_of_peak`` is below 1 by the elementwise work, Adam and the
+  sampling gather;
+- where one grid update's time goes (one device): its products alone at their shapes
+  (``kernels_call``: their share of the peak bounds the update's with these kernels), its
+  Adam + soft-target pass alone (``optimizer_call``), the rest (negative when the parts
+  overlap), beside a plain streamed ``a + 1e-3 b`` over the Adam pass's memory (``stream_call``);
+  ``share_ceiling`` is the share of an update made of its products at their speed alone and an
+  Adam pass moving its minimum 36 bytes per parameter at the streamed bandwidth.
 
-1. peak: a jitted ``jnp.dot`` of two ``(n, n)`` float32 matrices, median of ``--repeats``
-   timed calls, as GFLOP/s (``2 n^3`` FLOPs per call);
-2. grid-updates/s: ``jax.jit(jax.vmap(step))`` over ``--models`` models, where ``step`` samples
-   a batch from the model's replay memory (capacities cycle through ``--memories`` under a
-   cap_max of their maximum) and runs ``ddpg.update``; ``--updates`` steps run in one
-   ``lax.scan``; median over ``--repeats`` calls after a compiling call;
-3. achieved GFLOP/s of the update = grid-updates/s x models x ``matmul_flops`` and its share of
-   the peak. Only matmul FLOPs count (see ``update_products``); elementwise work, Adam and the
-   sampling gather are the overhead that keeps the share below 100 %;
-4. where one grid update's time goes: its matrix products timed alone at their own shapes
-   (``products_alone``: their share of the peak is the ceiling of (3) with these kernels),
-   its Adam + soft-target pass alone (``optimizer_alone``), and the rest (sampling, ReLU,
-   tanh, losses; negative when the parts overlap inside the update), beside the bandwidth
-   of a plain streamed ``a + 1e-3 b`` over as much memory as the Adam pass (``stream``);
-5. ``share_ceiling``: the share that an update made of nothing but its products (at their
-   speed alone) and an Adam/target pass moving its minimum 36 bytes per parameter at the
-   streamed bandwidth would reach. (4) and (5) run on one device.
-
-Timed calls of (1), (2) and (4) alternate so that all see the same load from other processes; the
-share is also given from the fastest call of each ("best_of"), and the 1-minute load average is
-recorded, because a shared machine makes single figures noisy. ``XLA_FLAGS`` in the environment
-applies to all of them.
+Each figure is the median of ``--repeats`` calls after a compiling one, the calls of all
+alternating so that all see the same load from other processes (``share_of_peak_best_of``
+takes the fastest of each; the 1-minute load average is recorded). ``XLA_FLAGS`` applies.
 
 Usage: ``python -m benchmarks.update_throughput [--models 9 --batch 64 --repeats 5]``;
-``--tiny`` shrinks everything for tests. Writes ``benchmarks/results/update_throughput.csv``.
+``--devices N`` lays the models over N devices (on a CPU, N host devices it asks XLA for
+unless ``XLA_FLAGS`` sets their number); ``--tiny`` shrinks everything for tests. Writes
+``benchmarks/results/update_throughput.csv``.
 """
 
 from __future__ import annotations
@@ -50,6 +44,7 @@ from jaxlc.config import DDPGConfig
 from jaxlc.learn import ddpg, replay
 from jaxlc.sim.env import OBS_DIM
 from jaxlc.sim.observation import MIRROR_SIGNS
+from jaxlc.study import machine
 
 
 def update_products(
@@ -250,30 +245,17 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--updates", type=int, default=200, help="updates per timed scan")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--matmul-n", type=int, default=2048)
-    p.add_argument(
-        "--stream-n",
-        type=int,
-        default=0,
-        help="floats per streamed array (0: 4.5 per parameter, the Adam pass's footprint)",
-    )
+    p.add_argument("--stream-n", type=int, default=0, help="floats streamed (0: as Adam)")
     p.add_argument("--out", type=Path, default=RESULTS / "update_throughput.csv")
-    p.add_argument(
-        "--devices",
-        type=int,
-        default=1,
-        help="lay the models over this many devices (on a CPU: host devices, made here)",
-    )
+    p.add_argument("--devices", type=int, default=1, help="devices the models are laid over")
     p.add_argument("--tiny", action="store_true", help="small sizes, for tests")
     args = p.parse_args(argv)
     if args.tiny:
         args.models, args.batch, args.hidden, args.memories = 3, 8, [16, 32], [64, 96, 128]
         args.updates, args.repeats, args.matmul_n, args.stream_n = 5, 2, 128, 1 << 12
+    machine.use_host_devices(args.devices)  # on a CPU, as many host devices (before JAX starts)
     if args.devices > len(jax.devices()) or args.models % args.devices:
-        p.error(
-            f"--devices {args.devices}: must divide --models ({args.models}) and be at most the "
-            f"{len(jax.devices())} device(s) JAX sees (on a CPU, run with "
-            f"XLA_FLAGS=--xla_force_host_platform_device_count={args.devices})"
-        )
+        p.error(f"--devices {args.devices} must divide --models and be at most {jax.devices()}")
     return args
 
 
@@ -302,13 +284,11 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
     peak = 2 * args.matmul_n**3 / med["dot"] / 1e9
     rate = args.updates / med["grid"]
     flops = matmul_flops(products)
-    # the decomposition of one grid update's time, ms: its products alone (the ceiling of the
-    # share with these kernels), its Adam/target pass alone, and what remains
+    # one grid update's time, ms, in parts (module docstring)
     kernels_ms = 1e3 * med["kernels"] / args.updates
     optimizer_ms = 1e3 * med["optimizer"] / args.updates
     stream_gbps = 12 * stream_n * args.updates / med["stream"] / 1e9
-    # the share if an update were only its products at their speed alone plus an Adam/target
-    # pass that moves its minimum 36 bytes per parameter at the streamed bandwidth
+    # an update of its products at their speed alone and Adam's 36 bytes/param streamed
     floor_ms = kernels_ms + 36 * params / stream_gbps / 1e6
     best_peak = 2 * args.matmul_n**3 / min(times["dot"])
     figures = {

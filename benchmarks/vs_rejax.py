@@ -1,17 +1,17 @@
 """Rejax's learners, unmodified, on the lane-change task (``jaxlc.make_gymnax``), beside
 jaxlc's DDPG: evaluated success on the fixed cases, wall time, decisions/s, seeds.
 
-Each algorithm is ``rejax.get_algo(name).create(env=FiveValueAdapter(env), env_params=params,
-...)`` (Rejax 0.1.3 unpacks gymnax 0.0.x's five step values; ``jaxlc.gymnax_env``) with
-Rejax's defaults except ``gamma = 0.98`` (the task's), ``--timesteps`` RL decisions per seed
-and the settings in ``HYPER``; its ``train`` runs vmapped over ``--seeds`` seeds in one jitted
-call, compiled ahead so that the compile time is reported apart. Every seed's final policy
-then drives the first ``--cases`` fixed cases (the protocol's 100), as jaxlc's checkpoints do
-(``jaxlc.evaluation.cases.evaluate_act``), with its deterministic action (the Gaussian's
-mean, squashed for SAC; TD3's actor as it is), beside the untrained policies of the same
-learner (each seed's initial one; the mean over seeds is reported). Success is over the
-cases that reached a
-lane change; the interval is a 95% bootstrap over seeds (``jaxlc.evaluation.stats.describe``).
+Each algorithm is ``rejax.get_algo(name).create(env=FiveValueAdapter(env),
+env_params=params, ...)`` (Rejax 0.1.3 unpacks gymnax 0.0.x's five step values;
+``jaxlc.gymnax_env``) with Rejax's defaults except ``gamma = 0.98`` (the task's),
+``--timesteps`` RL decisions per seed and the settings in ``HYPER``; its ``train`` runs
+vmapped over ``--seeds`` seeds in one jitted call, compiled ahead so that the compile time
+is reported apart. Every seed's final policy then drives the first ``--cases`` fixed cases
+(the protocol's 100), as jaxlc's checkpoints do (``jaxlc.evaluation.cases.evaluate_act``),
+with its deterministic action (the Gaussian's mean, squashed for SAC; TD3's actor as it is),
+beside the untrained policies of the same learner (each seed's initial one; the mean over
+seeds is reported). Success is over the cases that reached a lane change; the interval is a
+95% bootstrap over seeds (``jaxlc.evaluation.stats.describe``).
 
     python -m benchmarks.vs_rejax                          # ppo sac td3, 3 seeds, 1M
     python -m benchmarks.vs_rejax --algos ppo --seeds 5 --timesteps 2000000

@@ -20,12 +20,6 @@ def _read(side: str, name: str):
     return csv_rows(path) if path.suffix == ".csv" else json.loads(path.read_text())
 
 
-def _pair(name: str) -> list:
-    """Both sides' ``name``: a JSON document, or a CSV's first row; None where it did not run."""
-    both = [_read(s, name) for s in SIDES]
-    return [next(iter(x), None) if isinstance(x, tuple) else x for x in both]
-
-
 def _by(name: str, column: str | None = None) -> dict[int, list]:
     """Both sides' entries of a file that holds several runs (a CSV's rows by ``column``, a
     JSON's by key), by that size in ascending order; None where a side did not run it."""
@@ -99,15 +93,14 @@ def _sweep_row(seeds: int, cells: list) -> str:
     )
 
 
-def _heldout_row() -> str:
+def _heldout_row(policies: int, cells: list) -> str:
     def rate(r: dict) -> float:
         return int(r["policies"]) * int(r["lane_changes"]) / float(r["rollouts_s"])
 
-    cells = _pair("cost.csv")
-    size = next(f"{r['policies']} policies × {int(r['lane_changes']):,}" for r in cells if r)
+    lane_changes = next(int(r["lane_changes"]) for r in cells if r)
     return _row(
         "held-out evaluation: policy-lane-changes/s, compilation included (drawing the cases, s)",
-        size,
+        f"{policies} policies × {lane_changes:,}",
         cells,
         rate,
         lambda r: f"{rate(r):,.0f} ({float(r['cases_s']):,.1f} s)",
@@ -115,7 +108,9 @@ def _heldout_row() -> str:
 
 
 def _validate_row() -> str:
-    cells = [d and d["models"][0] for d in _pair("validate_keys0/validate.json")]
+    cells = [
+        (_read(s, "validate_keys0/validate.json") or {"models": [None]})["models"][0] for s in SIDES
+    ]
     return _row(
         "validation, crude Monte Carlo: lane changes/s, compilation included (lane changes, s)",
         "④, the paper's traffic",
@@ -135,7 +130,7 @@ def gpu_table() -> str:
         *_sim_rows("sim_hazards.csv", "MOBIL lane changes and braking events"),
         *(_update_row(m, p) for m, p in _by("update.csv", "models").items()),
         *(_sweep_row(n, p) for n, p in _by("sweeps.json").items()),
-        _heldout_row(),
+        *(_heldout_row(n, p) for n, p in _by("cost.csv", "policies").items()),
         _validate_row(),
     ]
     return "\n".join(lines)
