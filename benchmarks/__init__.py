@@ -1,11 +1,6 @@
-"""jaxlc's maintained benchmark and study scripts, each a command run from the repository root
-as ``python -m benchmarks.NAME`` (``--help`` says what it measures and writes).
-
-The dated folders beside them are the evidence the published tables are written from
-(``python -m benchmarks.publish``); ``tables/`` holds one writer module per subject.
-
-``write_csv`` below is the scripts' one CSV writer; ``RESULTS`` their default output folder
-(git ignores it).
+"""jaxlc's maintained benchmark and study scripts, each ``python -m benchmarks.NAME`` from the
+repository root (README.md beside them says which, and what the dated folders hold). Here:
+their one CSV writer, and ``RESULTS``, their default output folder (git ignores it).
 """
 
 from __future__ import annotations

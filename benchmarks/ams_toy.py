@@ -57,7 +57,6 @@ def score_path(chain: ams.Chain, steps: int, level: int) -> jax.Array:
     return (walk(chain, steps) - level) / jnp.sqrt(left)
 
 
-@functools.cache
 def program(steps: int, level: int, particles: int, kill: float, rounds: int):
     """One jitted program: (R,) keys -> R independent AMS runs (a batched Splitting)."""
     run = functools.partial(score_path, steps=steps, level=level)

@@ -34,7 +34,7 @@ from jaxlc.learn import train
 from jaxlc.study import machine
 
 
-def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
+def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--devices", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--config", type=Path, default=None, help="TOML (default: paper)")
@@ -42,11 +42,7 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--csv", type=Path, default=None)
     ap.add_argument("--tiny", action="store_true", help="smoke config, few steps (tests)")
-    return ap.parse_args(argv)
-
-
-def main(argv: Sequence[str] | None = None) -> list[dict[str, object]]:
-    args = _parse(argv)
+    args = ap.parse_args(argv)
     machine.use_host_devices(max(args.devices))  # before JAX starts its backends
     cfg = config.load(
         config.CONFIG_DIR / "smoke.toml" if args.tiny and args.config is None else args.config

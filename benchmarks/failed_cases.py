@@ -5,8 +5,7 @@ too large to commit for every study; this writes the failed cases alone (out of 
 collision or timeout; cases with no lane change are not failures) with where the ego ended,
 so that what a study says of its failures can be recomputed from a small committed file.
 
-Usage: ``python -m benchmarks.failed_cases RUN/eval``; writes
-``RUN/eval/failed_cases.csv``.
+Usage: ``python -m benchmarks.failed_cases RUN/eval``; writes ``RUN/eval/failed_cases.csv``.
 """
 
 from __future__ import annotations

@@ -51,21 +51,19 @@ def _digest(f, *args) -> str:
     return hashlib.sha256(re.sub(r"loc\([^)]*\)", "", text).encode()).hexdigest()[:16]
 
 
-def programs(traffic: str, keys: jax.Array) -> dict[str, str]:
+def _programs(traffic: str, keys: jax.Array) -> dict[str, str]:
     """``{"step" | "reset": sha256 prefix}`` of a traffic's programs over ``keys`` (envs,)."""
     env, p = jaxlc.make(config.load(overrides=TRAFFIC[traffic]))
     _, s = jax.vmap(lambda k: env.reset(k, p, traffic_only=True))(keys)
     step = jax.vmap(lambda k, st: env.step(k, st, jnp.zeros(1), p))
-    return {
-        "step": _digest(step, keys, s),
-        "reset": _digest(jax.vmap(lambda k: env.reset(k, p)), keys),
-    }
+    reset = jax.vmap(lambda k: env.reset(k, p))
+    return {"step": _digest(step, keys, s), "reset": _digest(reset, keys)}
 
 
 def hashes(envs: int = 8) -> dict[str, str]:
     """``{"<traffic> <program>": sha256 prefix}`` in the paper and the hazard traffic."""
     keys = jax.random.split(jax.random.PRNGKey(0), envs)
-    return {f"{t} {k}": v for t in ("paper", "hazards") for k, v in programs(t, keys).items()}
+    return {f"{t} {k}": v for t in ("paper", "hazards") for k, v in _programs(t, keys).items()}
 
 
 def make_runner(env, params, n_envs: int, steps: int):

@@ -52,11 +52,10 @@ def summary(rows: list[dict[str, object]], solved: float = 0.99) -> str:
             f"{_num(r['duration_s']):.1f} | {_num(r['peak_lat_acc']):.2f} | "
             f"{_num(r['overshoot_m']):.2f} |"
         )
-    for key in sorted(by_cell, key=lambda c: (c[0], c[1])):
+    for key in sorted(by_cell):  # (k, memory)
         eps = by_cell[key]
         final = np.array([_num(r["success_rate"]) for r in eps[last_ep]])
         d = stats.describe(final)
-        lo, hi = d["mean_lo"], d["mean_hi"]
         means = {e: np.mean([_num(r["success_rate"]) for r in rs]) for e, rs in eps.items()}
         best_ep = max(means, key=lambda e: (means[e], e))
         measure = {
@@ -66,7 +65,7 @@ def summary(rows: list[dict[str, object]], solved: float = 0.99) -> str:
         tag = PAPER_LABELS.get(key, "")
         lines.append(
             f"| {tag} k={key[0]} D={key[1]} | {len(final)} | {final.mean():.1%} "
-            f"[{lo:.1%}, {hi:.1%}] | {means[best_ep]:.1%} ({best_ep}) | "
+            f"[{d['mean_lo']:.1%}, {d['mean_hi']:.1%}] | {means[best_ep]:.1%} ({best_ep}) | "
             f"{means[best_ep] - final.mean():.1%} | {measure['duration_s']:.1f} | "
             f"{measure['peak_lat_acc']:.2f} | {measure['overshoot_m']:.2f} |"
         )

@@ -36,6 +36,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()  # the user's clock: compile time counts
 
+    import jax  # its backends start below, after the host devices are asked for
+    import numpy as np
+
     from benchmarks import RESULTS, write_csv
     from jaxlc import config
     from jaxlc.learn import train
@@ -48,10 +51,6 @@ def main(argv: Sequence[str] | None = None) -> dict[str, object]:
     if args.tiny:
         args.target, args.last = 0.0, 1  # any finished episode: the loop and the log, not RL
     machine.use_host_devices(host_devices(cfg))
-
-    import jax
-    import numpy as np
-
     grid = train.make_grid(cfg)
     init, run = train.make_grid_fns(cfg, grid)
     state = init(train.model_keys(grid))

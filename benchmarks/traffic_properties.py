@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections import Counter
 from datetime import date
 from pathlib import Path
 
@@ -94,7 +95,7 @@ def make_run(env, p, n_envs: int, steps: int):
     @jax.jit
     def run(obs, state, key):
         carry, out = jax.lax.scan(body, (obs, state), jax.random.split(key, steps))
-        return carry, jax.tree.map(lambda a: jnp.sum(a), out)
+        return carry, jax.tree.map(jnp.sum, out)
 
     return run
 
@@ -108,15 +109,11 @@ def check(
     obs, state = jax.jit(jax.vmap(env.reset, (0, None)))(
         jax.random.split(jax.random.PRNGKey(seed), n_envs), p
     )
-    run = make_run(env, p, n_envs, min(chunk, steps))
-    totals: dict[str, int] = {}
-    key, done = jax.random.PRNGKey(seed + 1), 0
-    while done < steps:
-        key, k = jax.random.split(key)
+    chunk, chunks = min(chunk, steps), -(-steps // chunk)  # whole chunks, at least ``steps``
+    run, totals = make_run(env, p, n_envs, chunk), Counter()
+    for k in jax.random.split(jax.random.PRNGKey(seed + 1), chunks):
         (obs, state), out = run(obs, state, k)
-        for name, value in out.items():
-            totals[name] = totals.get(name, 0) + int(value)
-        done += min(chunk, steps)
+        totals.update({name: int(value) for name, value in out.items()})
     rates = {
         "lane_change": ("lc_weighed", "lc_eligible", float(p.mobil_rate)),
         "braking": ("brake_started", "brake_eligible", float(p.braking_rate)),
@@ -126,7 +123,7 @@ def check(
         totals[f"{name}_p"] = totals[k] / max(totals[n], 1)
         totals[f"{name}_expected"] = float(-np.expm1(-rate * float(p.dt)))
         totals[f"{name}_interval"] = (lo, hi)
-    totals["env_steps"] = n_envs * done
+    totals["env_steps"] = n_envs * chunk * chunks
     return totals
 
 

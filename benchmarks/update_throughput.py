@@ -166,8 +166,7 @@ def kernels_call(
 
 
 def _learners(cfg: DDPGConfig, models: int, key: jax.Array) -> ddpg.Learner:
-    """``models`` fresh learners stacked on a leading axis (one jitted init: eager takes
-    seconds)."""
+    """``models`` fresh learners stacked on a leading axis (jitted: eager init is slow)."""
     init = jax.jit(jax.vmap(lambda k: ddpg.init_learner(k, OBS_DIM, cfg)))
     return init(jax.random.split(key, models))
 
@@ -281,34 +280,30 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
         for k, once in timers.items():
             times[k].append(once())
     med = {k: statistics.median(v) for k, v in times.items()}
-    peak = 2 * args.matmul_n**3 / med["dot"] / 1e9
-    rate = args.updates / med["grid"]
-    flops = matmul_flops(products)
+    best = {k: min(v) for k, v in times.items()}  # the fastest calls (a shared machine)
+    dot_gflop, flops = 2 * args.matmul_n**3 / 1e9, matmul_flops(products)
+    peak, rate = dot_gflop / med["dot"], args.updates / med["grid"]
+    work = args.models * flops / 1e9  # GFLOP of matrix products in one grid update
     # one grid update's time, ms, in parts (module docstring)
     kernels_ms = 1e3 * med["kernels"] / args.updates
     optimizer_ms = 1e3 * med["optimizer"] / args.updates
     stream_gbps = 12 * stream_n * args.updates / med["stream"] / 1e9
     # an update of its products at their speed alone and Adam's 36 bytes/param streamed
     floor_ms = kernels_ms + 36 * params / stream_gbps / 1e6
-    best_peak = 2 * args.matmul_n**3 / min(times["dot"])
     figures = {
         "peak_gflops": peak,
         "grid_updates_per_s": rate,
         "mflop_per_model_update": flops / 1e6,
-        "achieved_gflops": rate * args.models * flops / 1e9,
-        "share_of_peak": rate * args.models * flops / 1e9 / peak,
-        "share_of_peak_best_of": args.updates
-        / min(times["grid"])
-        * args.models
-        * flops
-        / best_peak,
+        "achieved_gflops": rate * work,
+        "share_of_peak": rate * work / peak,
+        "share_of_peak_best_of": args.updates / best["grid"] * work / (dot_gflop / best["dot"]),
         "update_ms": 1e3 / rate,
         "products_alone_ms": kernels_ms,
-        "products_alone_share_of_peak": args.models * flops / (kernels_ms / 1e3) / 1e9 / peak,
+        "products_alone_share_of_peak": work / (kernels_ms / 1e3) / peak,
         "optimizer_alone_ms": optimizer_ms,
         "optimizer_alone_gbps": 36 * params / (optimizer_ms / 1e3) / 1e9,
         "stream_gbps": stream_gbps,
-        "share_ceiling": args.models * flops / (floor_ms / 1e3) / 1e9 / peak,
+        "share_ceiling": work / (floor_ms / 1e3) / peak,
         "rest_ms": 1e3 / rate - kernels_ms - optimizer_ms,
     }
     row = {

@@ -79,9 +79,9 @@ def main() -> None:
         rows.append(mc)
         print(mc, flush=True)
     peak1 = machine.matmul_peak_gflops()
+    today = datetime.date.today().isoformat()
     for r in rows:
-        r |= {"matmul_peak_before": round(peak0), "matmul_peak_after": round(peak1)}
-        r["date"] = datetime.date.today().isoformat()
+        r |= {"matmul_peak_before": round(peak0), "matmul_peak_after": round(peak1), "date": today}
     write_csv(args.out / "throughput.csv", rows)
     print("median share of the simulator:", statistics.median([r["share_of_sim"] for r in rows]))
 

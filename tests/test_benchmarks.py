@@ -8,7 +8,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import jax
 import numpy as np
 import pytest
 
@@ -179,9 +178,7 @@ def test_program_hashes_tell_the_traffics_apart_and_repeat():
     program, the same on a second lowering, different between the traffics."""
     first = sim_throughput.hashes(envs=2)
     assert sorted(first) == ["hazards reset", "hazards step", "paper reset", "paper step"]
-    keys = jax.random.split(jax.random.PRNGKey(0), 2)
-    again = sim_throughput.programs("paper", keys)
-    assert again == {"step": first["paper step"], "reset": first["paper reset"]}
+    assert sim_throughput.hashes(envs=2) == first
     assert first["paper step"] != first["hazards step"]
     assert len(set(first.values())) == 4
 
