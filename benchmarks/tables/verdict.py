@@ -10,7 +10,8 @@ from pathlib import Path
 
 from benchmarks.tables.common import BENCHMARKS, load
 from jaxlc import config
-from jaxlc.evaluation import rare, validation, validation_io
+from jaxlc.evaluation import rare, validation
+from jaxlc.evaluation.validation_io import Validation
 from jaxlc.paper import claims
 from jaxlc.paper.grid import is_best
 from jaxlc.study.rundir import RunDir
@@ -147,16 +148,16 @@ def validated_table() -> str:
             f"{rate(est['failure'], ends)} | {' + '.join(walls)} |"
         )
 
-    def wall(m: validation.Result, doc: dict) -> str:  # one call's time, its machine's peak
-        return f"{m.wall_s:,.1f} ({doc['matmul_peak_gflops']:,} GFLOP/s)"
+    def wall(m: validation.Result, doc: Validation) -> str:  # one call's time, its peak
+        return f"{m.wall_s:,.1f} ({doc.matmul_peak_gflops:,} GFLOP/s)"
 
     for folder, trained in VALIDATED.items():
-        doc = json.loads((folder / "validate.json").read_text())
-        for m in validation_io.read_results(doc):
-            lines.append(row(m.meta, trained, doc["traffic"], m.estimates, [wall(m, doc)]))
+        doc = Validation.read(folder / "validate.json")
+        for m in doc.models:
+            lines.append(row(m.meta, trained, doc.traffic, m.estimates, [wall(m, doc)]))
     for trained, folders in POOLED.items():
-        docs = [json.loads((f / "validate.json").read_text()) for f in folders]
-        ms = [validation_io.read_results(d)[0] for d in docs]  # one policy per call
+        docs = [Validation.read(f / "validate.json") for f in folders]
+        ms = [d.models[0] for d in docs]  # one policy per call
         est = {
             k: rare.mc_estimate(
                 sum(m.estimates[k].failures for m in ms),
@@ -165,7 +166,7 @@ def validated_table() -> str:
             for k in ("failure", *validation.ENDS)
         }
         walls = [wall(m, d) for m, d in zip(ms, docs, strict=True)]
-        lines.append(row(ms[0].meta, trained, docs[0]["traffic"], est, walls))
+        lines.append(row(ms[0].meta, trained, docs[0].traffic, est, walls))
     return "\n".join(lines)
 
 

@@ -8,6 +8,7 @@ import dataclasses
 import datetime
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,19 +37,44 @@ def validate_dir(run_dir: Path, out: Path | None = None) -> Path:
     return Path(out) if out is not None else Path(run_dir) / "validate"
 
 
-def result_dict(r: validation.Result) -> dict[str, Any]:
-    """A ``Result`` as ``validate.json`` holds it (its cases apart, in ``cases.json``)."""
-    d = {f.name: getattr(r, f.name) for f in dataclasses.fields(r) if f.name != "cases"}
-    return d | {"estimates": {k: e.to_dict() for k, e in r.estimates.items()}}
+@dataclass
+class Validation:
+    """``validate.json``: the setting and each model's ``validation.Result`` (its cases apart,
+    in ``cases.json``); ``family`` None with crude MC (and in older files)."""
 
+    traffic: str
+    traffic_overrides: list[str]
+    method: str
+    kind: str
+    chunk: int
+    seed: int
+    max_steps: int
+    matmul_peak_gflops: int
+    date: str
+    models: list[validation.Result]
+    family: str | None = None
 
-def read_results(doc: dict[str, Any]) -> list[validation.Result]:
-    """``validate.json``'s models (older files: no ``defensive`` with crude MC)."""
-    est = [{k: rare.Estimate(**e) for k, e in m["estimates"].items()} for m in doc["models"]]
-    return [
-        validation.Result(**{"defensive": 0.0, **m, "estimates": e})
-        for m, e in zip(doc["models"], est, strict=True)
-    ]
+    def to_json(self) -> str:
+        models = [
+            {f.name: getattr(r, f.name) for f in dataclasses.fields(r) if f.name != "cases"}
+            | {"estimates": {k: e.to_dict() for k, e in r.estimates.items()}}
+            for r in self.models
+        ]
+        doc = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        order = ("traffic", "traffic_overrides", "method", "family")  # as written before
+        doc = {k: doc[k] for k in order} | {k: v for k, v in doc.items() if k not in order}
+        return json.dumps(doc | {"models": models}, indent=1, default=str) + "\n"
+
+    @classmethod
+    def read(cls, path: Path) -> Validation:
+        """A ``validate.json`` (older ones: no ``defensive`` with crude MC)."""
+        doc = json.loads(Path(path).read_text())
+        models = [
+            validation.Result(**{"defensive": 0.0, **m, "estimates": {
+                k: rare.Estimate(**e) for k, e in m["estimates"].items()}})
+            for m in doc.pop("models")
+        ]  # fmt: skip
+        return cls(**doc, models=models)
 
 
 def write_outputs(
@@ -58,20 +84,21 @@ def write_outputs(
     figure."""
     out = validate_dir(args.run_dir, args.out)
     out.mkdir(parents=True, exist_ok=True)
-    doc = {
-        "traffic": heldout.traffic_of(cfg.env),
-        "traffic_overrides": list(args.traffic),
-        "method": args.method,
-        "family": args.family if args.method == "is" else None,
-        "kind": args.kind,
-        "chunk": args.chunk,
-        "seed": args.seed,
-        "max_steps": args.max_steps,
-        "matmul_peak_gflops": round(peak),
-        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "models": [result_dict(r) for r in results],
-    }
-    (out / "validate.json").write_text(json.dumps(doc, indent=1, default=str) + "\n")
+    date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    doc = Validation(
+        heldout.traffic_of(cfg.env),
+        list(args.traffic),
+        args.method,
+        args.kind,
+        args.chunk,
+        args.seed,
+        args.max_steps,
+        round(peak),
+        date,
+        results,
+        args.family if args.method == "is" else None,
+    )
+    (out / "validate.json").write_text(doc.to_json())
     more = {"matmul_peak_gflops": round(peak)}
     rows = [
         r.meta | e.to_dict() | {"method": r.method, "kind": kind, "wall_s": r.wall_s}
@@ -118,21 +145,20 @@ def report_section(run_dir: Path, out: Path | None = None) -> list[str]:
     path = validate_dir(run_dir, out) / "validate.json"
     if not path.is_file():
         return []
-    doc = json.loads(path.read_text())
+    doc = Validation.read(path)
     lines = [
         "## How rarely it fails (`python -m jaxlc.validate`)",
         "",
-        f"{doc['method'].upper()}{_FAMILY.get(doc.get('family'), '')} in {doc['traffic']}; "
-        f"{doc['date']}, matmul peak "
-        f"{doc['matmul_peak_gflops']} GFLOP/s. Probability per lane change, 95% interval, "
-        "relative half-width, effective sample size; `validate/validate.json`.",
+        f"{doc.method.upper()}{_FAMILY.get(doc.family, '')} in {doc.traffic}; {doc.date}, "
+        f"matmul peak {doc.matmul_peak_gflops} GFLOP/s. Probability per lane change, 95% "
+        "interval, relative half-width, effective sample size; `validate/validate.json`.",
         "",
         "| policy | kind | estimate | 95% interval | rel. half-width | ESS | lane changes | s |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for m in read_results(doc):
+    for m in doc.models:
         for kind, e in m.estimates.items():
-            if e.failures == 0 and kind != doc["kind"]:
+            if e.failures == 0 and kind != doc.kind:
                 continue
             lines.append(
                 f"| {m.meta['label']} | {kind} | {_sci(e.estimate)} | [{_sci(e.lo)}, "
@@ -143,7 +169,7 @@ def report_section(run_dir: Path, out: Path | None = None) -> list[str]:
 
 
 def scenes_figure(
-    run_dir: Path, out: Path, cfg: config.Config, doc: dict, cases: list[validation.Case]
+    run_dir: Path, out: Path, cfg: config.Config, doc: Validation, cases: list[validation.Case]
 ) -> Path | None:
     """``scenes.png``: per failure kind, its highest-weight saved case replayed, the scene at
     its last step (the ego red, the gap's lead and lag green)."""
@@ -170,15 +196,15 @@ def scenes_figure(
     return _save(fig, out / "scenes.png")
 
 
-def _rerun(run_dir: Path, cfg: config.Config, doc: dict, case: validation.Case) -> tuple:
+def _rerun(run_dir: Path, cfg: config.Config, doc: Validation, case: validation.Case) -> tuple:
     """A saved case run again (the same program, its key in every row of a chunk): the trace
     of its row, and whether its outcome and weight are the saved ones."""
     actor = None
     if case.checkpoint:
         actor = checkpoint.load(Path(run_dir) / case.checkpoint)[0]
-    run = validation.program(cfg, doc["max_steps"], case.method == "is")
+    run = validation.program(cfg, doc.max_steps, case.method == "is")
     pol = validation.policies(cfg, actor, int(case.k))
-    keys = jnp.tile(jnp.asarray(case.key, jnp.uint32)[None], (doc["chunk"], 1))
+    keys = jnp.tile(jnp.asarray(case.key, jnp.uint32)[None], (doc.chunk, 1))
     mix = case.proposal and Mixture.from_dict(case.proposal)
     o, trace = jax.device_get(run(mix and mix.proposal(case.component), pol, keys))
     o, tr = columns(o), columns(trace)
@@ -200,8 +226,8 @@ def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Pat
     cases = read_cases(out)
     if not 0 <= index < len(cases):
         raise EvalError(f"--replay {index}: cases.json holds {len(cases)} cases")
-    doc, case = json.loads((out / "validate.json").read_text()), cases[index]
-    cfg = heldout.in_traffic(RunDir(run_dir).load_config(), doc["traffic_overrides"])
+    doc, case = Validation.read(out / "validate.json"), cases[index]
+    cfg = heldout.in_traffic(RunDir(run_dir).load_config(), doc.traffic_overrides)
     tr, same = _rerun(run_dir, cfg, doc, case)
     return _gif(out / f"case_{index}.gif", tr, cfg, case), same
 
