@@ -39,7 +39,7 @@ from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
 from jaxlc.study.rundir import RunDir
 
-# ``--method``: each a function ``(cfg, actor, k, meta, validation.Settings) ->
+# ``--method``: each a function ``(cfg, actor, k, meta, validation.Settings, model=i) ->
 # validation.Result`` of one policy
 METHODS: dict[str, Callable[..., validation.Result]] = {
     "mc": validation.estimate,
@@ -145,8 +145,8 @@ def main(argv: list[str] | None = None) -> int:
         names = [f.name for f in dataclasses.fields(validation.Settings)]
         settings = validation.Settings(**{n: getattr(args, n) for n in names})
         results = []
-        for row in rows:
-            results.append(METHODS[args.method](cfg, *row, settings))
+        for i, row in enumerate(rows):
+            results.append(METHODS[args.method](cfg, *row, settings, model=i))
             if results[-1].interrupted:
                 break
         out = write_outputs(args, cfg, results, peak)

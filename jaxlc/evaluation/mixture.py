@@ -1,21 +1,13 @@
-"""A fitted proposal: a defensive mixture of ``proposal.Tilt`` components, how its chunks are
+"""A fitted proposal (``Mixture``): its ``proposal.Tilt`` components, how its chunks are
 drawn, the one weighing of every lane change, and the two fits that make it.
 
-The nominal (the traffic's own draws) takes the share ``alpha`` of the estimate's chunks,
-component ``k`` the share ``(1 - alpha) shares[k]``, whole chunks each (``next_component``).
-Every lane change is weighed by the balance heuristic over them all (``log_weights``),
-``1 / (alpha + (1 - alpha) sum_k shares[k] q_k / p)``, at most ``1 / alpha``, from its log
-ratios ``log p / q_k`` to every component, which the program returns (``proposal.Record``),
-at the shares its chunks were drawn in (``drawn``). Two families (docs/decisions.md):
-
-- ``fit_ce``: one proposal (a mixture of one) tilting every role at once, fitted by multilevel
-  cross-entropy (CE) on pilot chunks;
-- ``fit_pilots`` (``--family mixture``): one-role tilts, component ``k`` the traffic's own
-  but for role ``ROLES[k]``'s braking, drawn conditioned on the role's first event within
-  its first ``horizon`` braking trials (``proposal.first_event_hazard``: every such path's
-  ratio ``q_k / p`` is ``1 / (1 - (1 - p)^H)``); pilot rounds set each horizon to the most
-  braking trials of the role a pilot lane change held, and the shares to
-  ``sqrt(reach_k (m_k + SHARE_PRIOR))`` (``fitted_shares``).
+The nominal draws the share ``alpha`` of the chunks, component ``k`` ``(1 - alpha)
+shares[k]`` (``next_component``); a lane change weighs ``1 / (alpha + (1 - alpha) sum_k
+shares[k] q_k / p)`` (``rare.balance``) at the shares its chunks were drawn in (``drawn``).
+``fit_ce``: one proposal (a mixture of one) tilting every role, by multilevel cross-entropy.
+``fit_pilots`` (``--family mixture``): one-role tilts, each drawing its role's first braking
+event conditioned within a horizon (every such path weighs ``1 - (1 - p)^H`` to it), the
+horizons and shares (``fitted_shares``) from pilot rounds (docs/decisions.md).
 """
 
 from __future__ import annotations

@@ -1,28 +1,18 @@
-"""The traffic's random draws around the ego from a proposal, each lane change weighed against
-every component of it (importance sampling: ``jaxlc.evaluation.rare``).
+"""The traffic's draws around the ego from a proposal, weighed against each of its components.
 
-A ``Proposal`` is a mixture of traced components (``Tilt``, each leaf with a leading ``(K,)``
-axis), the traffic's own distribution its defensive component; one of them draws a chunk
-(``drawn``, -1: the traffic's own). It reaches the simulator as the source of the traffic's
-draws (``EnvParams.draws``; ``env.step`` keeps ``(key, state, action, params)``). A tilt
-changes, from the ego phase ``first`` on (``WINDOWS``: the gap's acceptance, or the ego's entry,
-whose proposal also changes which cases become lane changes: ``rare.is_ratio_estimate``):
-
-- whether the target lane's lag yields (``p_yield``): drawn with probability ``yields``, on the
-  step of acceptance;
-- braking events (``env.braking``) of the vehicles around the ego (``ROLES``: the target
-  lane's lead and lag, the own lane's leader, every other vehicle up to ``AHEAD`` ahead):
-  an event starts with probability ``brake[role]`` per step instead of ``1 - exp(-rate dt)``,
-  its deceleration and duration from truncated exponentials of ``brake_acc`` and ``brake_time``;
-  or, for a role whose ``conditional`` is set, from the traffic's own draws conditioned on the
-  role's first event falling within its first ``horizon`` braking trials
-  (``first_event_hazard``), every event after it the traffic's own.
-
-``TiltedEnv.step`` returns in ``info["tilt"]`` the step's ``Record`` (packed): the log ratio
-``log p / q_k`` of the draws the step used to every component (a braking draw counts for a
-vehicle that could start an event, the yielding draw on the step of acceptance) and the
-statistics the fits read; the state carries their sum so far (``EnvState.drawn``), which the
-conditional hazard reads. A tilt equal to the traffic's (``nominal``) weighs exactly 1.
+A ``Proposal`` is a mixture of traced ``Tilt``s (each leaf ``(K, ...)``), the traffic's own
+distribution its defensive component; one draws a chunk (``drawn``, -1: the traffic's own). It
+reaches the simulator as the source of the traffic's draws (``EnvParams.draws``), so
+``env.step`` keeps ``(key, state, action, params)``. From the window's first ego phase
+(``WINDOWS``: the gap's acceptance, or the ego's entry, which also changes which cases become
+lane changes: ``rare.is_ratio_estimate``) a tilt draws the lag's yielding with probability
+``yields`` and the braking events (``env.braking``) of ``ROLES`` (the target lane's lead and
+lag, the own lane's leader, the others up to ``AHEAD`` ahead) at ``brake[role]`` per step,
+their deceleration and duration from truncated exponentials; or, where ``conditional``, the
+traffic's own braking given the role's first event within ``horizon`` trials
+(``first_event_hazard``). ``TiltedEnv.step`` returns the step's ``Record`` in ``info["tilt"]``
+(packed): the log ratio ``log p / q_k`` of the draws it used to every component, and the
+statistics the fits read; the state keeps their sum (``EnvState.drawn``).
 """
 
 from __future__ import annotations

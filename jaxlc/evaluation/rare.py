@@ -1,27 +1,15 @@
 """Rare-event estimators of a failure probability per lane change: crude Monte Carlo and
-importance sampling (IS) with a proposal fitted by the cross-entropy (CE) method.
+importance sampling (IS), and the cross-entropy (CE) updates.
 
-Every random decision of the simulator is a uniform number ``u`` in [0, 1) read in one of two
-ways, so a proposal is a change of those uniforms alone (``jaxlc.evaluation.proposal`` applies
-it to the traffic):
-
-- an event ``u < p`` (a braking event starts, the lag yields): ``tilt_bernoulli`` draws it with
-  probability ``q`` instead; the likelihood ratio of a draw is ``p/q`` where it fires and
-  ``(1-p)/(1-q)`` where not;
-- a value ``lo + u (hi - lo)`` (a deceleration, a duration): ``tilt_exponential`` draws ``u``
-  from the truncated exponential ``theta e^(theta u) / (e^theta - 1)`` on [0, 1), ratio
-  ``1 / density``; ``theta = 0`` is the uniform itself.
-
-A lane change's ratio is the product of the ratios of the draws it used, accumulated as a sum
-of logs; ``q = p`` and ``theta = 0`` give log ratios of exactly 0. A defensive mixture draws a
-share ``alpha`` of the sample from the nominal and the rest from the tilts, each weighted by
-``balance`` (at most ``1 / alpha``; docs/decisions.md, "the defensive mixture"): the toy
-check (``tests/test_validate.py``) picks each sample's component at random, the simulator's
-IS (``jaxlc.evaluation.mixture``) whole chunks in the share ``alpha``. The IS
-estimate ``mean(w * failed)`` is unbiased for any proposal that can draw every failure (no
-self-normalisation), its interval the normal one of the weighted sample, and the mean weight
-``mean(w)``, whose expectation is 1, is its check. Crude MC counts failures, with the
-Clopper-Pearson interval of ``jaxlc.evaluation.heldout``. Pure numpy/scipy except the tilts.
+Every random decision of the simulator is a uniform ``u`` in [0, 1), so a proposal changes
+those alone (``jaxlc.evaluation.proposal``): an event ``u < p`` drawn with probability ``q``
+(``tilt_bernoulli``, ratio ``p/q`` where it fires, ``(1-p)/(1-q)`` where not), a value ``lo + u
+(hi - lo)`` with ``u`` from a truncated exponential (``tilt_exponential``, ratio ``1 /
+density``); ``q = p`` and ``theta = 0`` give log ratios of exactly 0. A lane change's ratio is
+the sum of its draws' logs; ``balance`` weighs it against a defensive mixture (at most ``1 /
+alpha``). The IS estimate ``mean(w * failed)`` is unbiased for any proposal that can draw every
+failure, its interval the normal one of the weighted sample, ``mean(w)`` (expectation 1) its
+check; crude MC counts failures (Clopper-Pearson, ``jaxlc.evaluation.heldout``).
 """
 
 from __future__ import annotations

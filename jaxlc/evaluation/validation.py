@@ -1,19 +1,13 @@
-"""A policy's failure probability per lane change, by crude Monte Carlo or importance sampling
-(``python -m jaxlc.validate`` is its command line): ``estimate``.
+"""A policy's failure probability per lane change, by crude Monte Carlo or importance sampling:
+``estimate`` (``python -m jaxlc.validate`` is its command line).
 
-A lane change is a held-out case (``jaxlc.evaluation.cases``: reset, the approach, then the
-manoeuvre; its warm-up steps the traffic alone, ``env.reset``'s ``traffic_only``), drawn from
-a key stream of its own (``keys.stream(seed, VALIDATE, ...)``), in chunks of ``chunk``
-cases: one jitted program (``program``) starts and rolls out a chunk under a proposal
-(``jaxlc.evaluation.proposal``; crude MC runs the simulator's own draws, no proposal), and
-``kinds`` reads each lane change's failures from the held-out outcome: any failure, each
-failed end (collision, out of bounds, timeout, unfinished) and each norm of
-``jaxlc.evaluation.safety.NORMS`` violated. IS fits a ``mixture.Mixture`` on pilot chunks (a
-key stream apart), then draws each chunk from one of its components or the traffic's own
-distribution; ``Tally`` keeps every lane change's log ratios to the components and its kinds
-(a few bytes each) and the failures with their keys, so the estimate (``jaxlc.evaluation.rare``,
-every weight ``Mixture.log_weights``') and the worst cases can be read at any chunk, Ctrl-C
-included.
+A lane change is a held-out case (reset with the traffic-only warm-up, the approach, the
+manoeuvre) from its own key stream (``keys.VALIDATE``), ``chunk`` cases per jitted ``program``
+under a proposal (``EnvParams.draws``; crude MC: the traffic's own). ``kinds`` reads each lane
+change's failures (any, each failed end, each norm of ``safety.NORMS`` violated). IS fits a
+``mixture.Mixture`` on pilot chunks and draws each chunk from one of its components or the
+traffic; ``Tally`` keeps each lane change's log ratios and kinds and the failures with their
+keys, so the estimate and the worst cases can be read at any chunk, Ctrl-C included.
 """
 
 from __future__ import annotations
@@ -102,12 +96,12 @@ class Case:
     kinds: list[str]
     reason: str
     component: int
-    proposal: dict[str, Any] | None = None
-    model: int = 0  # filled in by ``validation_io.write_outputs``
-    label: str = ""
-    checkpoint: str | None = None
-    k: int = 1
-    method: str = "is"
+    proposal: dict[str, Any] | None  # IS's mixture at the shares its chunks held (to weigh)
+    model: int  # the policy: its index among those validated, label, checkpoint and k
+    label: str
+    checkpoint: str | None
+    k: int
+    method: str
 
 
 @dataclass
@@ -117,6 +111,7 @@ class Tally:
     kinds and whether it performed; each chunk's component; the failures."""
 
     mix: Mixture | None  # None: crude MC
+    who: dict[str, Any]  # ``Case``'s model, label, checkpoint, k, method
     ratio: bool = False
     log_r: list[np.ndarray] = field(default_factory=list)
     kinds: list[np.ndarray] = field(default_factory=list)
@@ -151,7 +146,8 @@ class Tally:
             hit = [n for n, h in zip(KINDS, k[c], strict=True) if h]
             reason = OUTCOMES[int(out["reason"][0][c])]
             key = [int(x) for x in keys[c]]
-            self.cases.append(Case(lo + int(c), key, float(log_w[c]), hit, reason, component, prop))
+            case = Case(lo + int(c), key, float(log_w[c]), hit, reason, component, prop, **self.who)
+            self.cases.append(case)
         self.cases.sort(key=lambda r: -r.log_w)
         del self.cases[CASE_CAP:]
         self.started += perf.size
@@ -227,15 +223,19 @@ def fit(base: EnvParams, run: Callable, pol: Policies, s: Settings) -> tuple[Mix
     return mixture.fit_ce(run, pol, base, start, s.chunk, failed, ce_score, seed=s.seed, log=log)
 
 
-def estimate(cfg: config.Config, actor: Any | None, k: int, meta: dict, s: Settings) -> Result:
-    """One policy's validation (``actor`` None: the scripted controller): the proposal
-    (``is``), then chunks until the lane changes or the relative half-width are reached, or
-    Ctrl-C."""
+def estimate(
+    cfg: config.Config, actor: Any | None, k: int, meta: dict, s: Settings, model: int = 0
+) -> Result:
+    """The validation of policy ``model`` (``actor`` None: the scripted controller): the
+    proposal (``is``), then chunks until the lane changes or the relative half-width are
+    reached, or Ctrl-C."""
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     run, pol = program(cfg, s.max_steps, s.method == "is"), policies(cfg, actor, k)
     t0 = time.perf_counter()
     fitted, history = fit(base, run, pol, s)
-    tally = Tally(fitted, ratio=fitted is not None and s.window != "acceptance")
+    who = {"model": model, "label": meta["label"], "checkpoint": meta.get("checkpoint")}
+    who |= {"k": meta.get("k") or 1, "method": s.method}
+    tally = Tally(fitted, who, ratio=fitted is not None and s.window != "acceptance")
     lo, interrupted = 0, False
     bar = tqdm(total=s.lane_changes, unit="lc", desc=str(meta["label"]), leave=False)
     t1 = time.perf_counter()

@@ -40,11 +40,12 @@ def validate_dir(run_dir: Path, out: Path | None = None) -> Path:
 @dataclass
 class Validation:
     """``validate.json``: the setting and each model's ``validation.Result`` (its cases apart,
-    in ``cases.json``); ``family`` None with crude MC (and in older files)."""
+    in ``cases.json``); ``family`` None with crude MC (and absent from older files)."""
 
     traffic: str
     traffic_overrides: list[str]
     method: str
+    family: str | None
     kind: str
     chunk: int
     seed: int
@@ -52,7 +53,6 @@ class Validation:
     matmul_peak_gflops: int
     date: str
     models: list[validation.Result]
-    family: str | None = None
 
     def to_json(self) -> str:
         models = [
@@ -61,8 +61,6 @@ class Validation:
             for r in self.models
         ]
         doc = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        order = ("traffic", "traffic_overrides", "method", "family")  # as written before
-        doc = {k: doc[k] for k in order} | {k: v for k, v in doc.items() if k not in order}
         return json.dumps(doc | {"models": models}, indent=1, default=str) + "\n"
 
     @classmethod
@@ -74,7 +72,7 @@ class Validation:
                 k: rare.Estimate(**e) for k, e in m["estimates"].items()}})
             for m in doc.pop("models")
         ]  # fmt: skip
-        return cls(**doc, models=models)
+        return cls(**{"family": None, **doc, "models": models})
 
 
 def write_outputs(
@@ -85,19 +83,11 @@ def write_outputs(
     out = validate_dir(args.run_dir, args.out)
     out.mkdir(parents=True, exist_ok=True)
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    family = args.family if args.method == "is" else None
     doc = Validation(
-        heldout.traffic_of(cfg.env),
-        list(args.traffic),
-        args.method,
-        args.kind,
-        args.chunk,
-        args.seed,
-        args.max_steps,
-        round(peak),
-        date,
-        results,
-        args.family if args.method == "is" else None,
-    )
+        heldout.traffic_of(cfg.env), list(args.traffic), args.method, family, args.kind,
+        args.chunk, args.seed, args.max_steps, round(peak), date, results,
+    )  # fmt: skip
     (out / "validate.json").write_text(doc.to_json())
     more = {"matmul_peak_gflops": round(peak)}
     rows = [
@@ -107,18 +97,7 @@ def write_outputs(
         for kind, e in r.estimates.items()
     ]  # fmt: skip
     checkpoint.write_text_atomic(out / "validate.csv", csv_text(rows, FIELDS))
-    cases = [
-        dataclasses.replace(
-            c,
-            model=i,
-            label=r.meta["label"],
-            checkpoint=r.meta.get("checkpoint"),
-            k=r.meta.get("k") or 1,
-            method=r.method,
-        )
-        for i, r in enumerate(results)
-        for c in r.cases
-    ]
+    cases = [c for r in results for c in r.cases]
     (out / "cases.json").write_text(
         json.dumps([dataclasses.asdict(c) for c in cases], indent=1) + "\n"
     )
