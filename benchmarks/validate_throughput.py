@@ -25,7 +25,7 @@ import numpy as np
 
 from benchmarks import RESULTS, sim_throughput, write_csv
 from jaxlc import config
-from jaxlc.evaluation import heldout, proposal, validation
+from jaxlc.evaluation import heldout, validation
 from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation.cases import columns, make_start_cases
 from jaxlc.sim.env import EnvParams
@@ -39,12 +39,12 @@ def mc_chunk(traffic: str, chunk: int, repeats: int) -> dict:
     base = EnvParams.from_config(cfg.env)
     run = validation.program(cfg, config.EvalConfig().max_steps, False)
     start = jax.jit(make_start_cases(base, config.EvalConfig().max_steps, traffic_warmup=True))
-    pol, nom = validation.policies(cfg, None, 1), proposal.nominal(base)
+    pol = validation.policies(cfg, None, 1)
     times, lcs, steps = [], [], []
     for r in range(repeats + 1):
         keys = streams.stream(r, streams.VALIDATE, range(chunk))
         t0 = time.perf_counter()
-        out = columns(jax.device_get(run(nom, pol, keys)[0]))
+        out = columns(jax.device_get(run(None, pol, keys)[0]))
         times.append(time.perf_counter() - t0)
         approach = np.asarray(start(keys).state.time)  # the same cases' approach, untimed
         lcs.append(int(out["performed"][0].sum()))

@@ -22,29 +22,29 @@ estimated so far. A bad argument is one line and exit 2.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 import sys
-import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import jax
-import jax.numpy as jnp
-import numpy as np
-from tqdm import tqdm
-
 from jaxlc import config
 from jaxlc.evaluation import heldout, mixture, proposal, validation
-from jaxlc.evaluation import keys as streams
-from jaxlc.evaluation.cases import columns
-from jaxlc.evaluation.mixture import Mixture
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.evaluation.results import SCRIPTED, EvalError
 from jaxlc.evaluation.validation_io import replay_case, write_outputs
 from jaxlc.paper.grid import tag_of
-from jaxlc.sim.env import EnvParams
 from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
 from jaxlc.study.rundir import RunDir
+
+# ``--method``: each a function ``(cfg, actor, k, meta, validation.Settings, model=i) ->
+# validation.Result`` of one policy
+METHODS: dict[str, Callable[..., validation.Result]] = {
+    "mc": validation.estimate,
+    "is": validation.estimate,
+}
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -55,20 +55,21 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     ap.add_argument("run_dir", type=Path, help="run directory of jaxlc.sweep")
     ap.add_argument("--model", default="④", help="index, label, tag (④), all or scripted")
-    ap.add_argument("--method", choices=("mc", "is"), default="is")
+    ap.add_argument("--method", choices=tuple(METHODS), default="is")
     ap.add_argument("--lane-changes", type=int, default=1_000_000, help="most per model")
     ap.add_argument("--rel-halfwidth", type=float, default=0.0, help="stop at this (0: never)")
     ap.add_argument("--kind", choices=validation.KINDS, default="collision")
     ap.add_argument(
         "--tilt-from",
-        choices=proposal.TILT_FROM,
+        dest="window",
+        choices=tuple(proposal.WINDOWS),
         default="acceptance",
-        help="is: tilt braking from the gap's acceptance (unbiased), from the command on or "
-        "from the ego's entry (ratio estimates)",
+        help="is: tilt braking from the gap's acceptance (unbiased) or from the ego's entry "
+        "(a ratio estimate)",
     )
     ap.add_argument(
         "--family",
-        choices=("single", "mixture"),
+        choices=tuple(mixture.DEFENSIVE_SHARE),
         default="single",
         help="is: one proposal fitted by cross-entropy, or a mixture of one-role braking "
         "tilts, each drawing its role's first braking event within a horizon, the horizons "
@@ -79,8 +80,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         type=float,
         default=None,
         help="is: the share of the estimate's chunks drawn from the traffic's own distribution "
-        "(a defensive mixture: every weight at most 1 / share; 0: none); default "
-        f"{validation.DEFENSIVE_SHARE}, with --family mixture {mixture.DEFENSIVE_SHARE}",
+        "(a defensive mixture: every weight at most 1 / share; 0: none); default by "
+        f"--family, {mixture.DEFENSIVE_SHARE}",
     )
     ap.add_argument("--traffic", nargs="+", default=[], metavar="env.KEY=VALUE")
     ap.add_argument("--chunk", type=int, default=2048, help="lane-change cases per program")
@@ -95,121 +96,31 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if not 0.0 <= args.rel_halfwidth < 1.0:
         ap.error("--rel-halfwidth must be in [0, 1)")
     if args.defensive is None:
-        mixed = args.family == "mixture"
-        args.defensive = mixture.DEFENSIVE_SHARE if mixed else validation.DEFENSIVE_SHARE
+        args.defensive = mixture.DEFENSIVE_SHARE[args.family]
     if not 0.0 <= args.defensive < 1.0:
         ap.error("--defensive must be in [0, 1)")
     return args
 
 
-def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[dict[str, Any]]]:
-    """The run's config and the policies ``which`` names (``{"actor", "k", "meta"}``): a model
+def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[tuple[Any, int, dict]]]:
+    """The run's config and the policies ``which`` names (``(actor, k, meta)``): a model
     index, a label, a paper tag (every seed's), ``all`` or ``scripted``."""
     if not RunDir(run_dir).is_run():
         raise EvalError(f"{run_dir} has no config.toml, so it is not a run directory")
     chosen = final_checkpoints(run_dir)
     if which != "scripted":
+        tags = ("all",)
         chosen = [
             (p, m)
             for p, m in chosen
-            if which in ("all", str(m.get("model")), str(m.get("label")), tag_of(m))
+            if which in (*tags, str(m.get("model")), str(m.get("label")), tag_of(m))
         ]
         if not chosen:
             raise EvalError(f"--model {which}: no final checkpoint of {run_dir} matches it")
     cfg, actors, metas = load_rows(run_dir, chosen)
     if which == "scripted":
-        return cfg, [{"actor": None, "k": 1, "meta": dict(SCRIPTED)}]
-    return cfg, [
-        {"actor": a, "k": int(m["k"] or 1), "meta": m}
-        for a, m in zip(actors, metas[1:], strict=True)
-    ]
-
-
-def fit(
-    base: EnvParams, run: Any, pol: Any, args: argparse.Namespace
-) -> tuple[proposal.Proposal | Mixture, list[dict]]:
-    """The proposal the estimate draws from and the fit's record of each pilot round: the
-    nominal (``mc``), the CE's proposal or mixture (``is``)."""
-    if args.method == "mc":
-        return proposal.nominal(base), []
-    if args.family == "mixture":
-        start = mixture.start(base, args.defensive, args.tilt_from, args.max_steps)
-        return mixture.fit_mixture(
-            run, pol, base, start, args.chunk, kind=args.kind, seed=args.seed, log=tqdm.write
-        )
-    window = float(proposal.TILT_FROM.index(args.tilt_from))
-    start = validation.start_proposal(base).replace(tilt_from=window)
-    return validation.fit_proposal(
-        run, pol, base, start, args.chunk, kind=args.kind, seed=args.seed, log=tqdm.write
-    )
-
-
-def chunk_proposal(
-    fitted: proposal.Proposal | Mixture,
-    base: EnvParams,
-    index: int,
-    args: argparse.Namespace,
-    components: list[int],
-) -> tuple[proposal.Proposal, int, dict[str, Any]]:
-    """The estimate's chunk ``index`` (``components``: the mixture's of the chunks before):
-    the proposal it draws from, its component (-1: the traffic's own distribution) and what
-    its failures record to replay."""
-    if isinstance(fitted, Mixture):
-        k = fitted.next_component(components)
-        q = fitted.component(base, k)
-        return q, k, {"proposal": q.to_dict()}
-    nominal = args.method == "is" and validation.nominal_chunk(index, args.defensive)
-    # the defensive mixture's two components, the flag a float32 array in both: one program
-    return fitted.replace(drawn_nominal=jnp.float32(nominal)), -1 if nominal else 0, {}
-
-
-def estimate(cfg: config.Config, row: dict, args: argparse.Namespace) -> dict:
-    """One policy's validation: the proposal (``is``), then chunks until the lane changes or
-    the relative half-width are reached, or Ctrl-C."""
-    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    tilted = args.method == "is"
-    run = validation.program(cfg, args.max_steps, tilted)
-    pol = validation.policies(cfg, row["actor"], row["k"])
-    t0 = time.perf_counter()
-    fitted, history = fit(base, run, pol, args)
-    mixed = isinstance(fitted, Mixture)
-    ratio = tilted and args.tilt_from != "acceptance"
-    tally = validation.Tally(ratio=ratio, mixture=fitted if mixed else None)
-    lo, interrupted = 0, False
-    bar = tqdm(total=args.lane_changes, unit="lc", desc=str(row["meta"]["label"]), leave=False)
-    t1 = time.perf_counter()
-    try:
-        while tally.lane_changes < args.lane_changes:
-            keys = streams.stream(args.seed, streams.VALIDATE, range(lo, lo + args.chunk))
-            q, k, drawn = chunk_proposal(fitted, base, lo // args.chunk, args, tally.components)
-            out = columns(jax.device_get(run(q, pol, keys))[0])
-            before = tally.lane_changes
-            tally.add(out, lo, np.asarray(keys), base.dt, tilted, k < 0, k, drawn)
-            lo += args.chunk
-            bar.update(tally.lane_changes - before)
-            est = tally.estimates(args.method)[args.kind]
-            bar.set_postfix(p=f"{est['estimate']:.3g}", rel=f"{est['rel_halfwidth']:.3g}")
-            if est["rel_halfwidth"] <= args.rel_halfwidth:
-                break
-    except KeyboardInterrupt:
-        interrupted = True
-    bar.close()
-    t2 = time.perf_counter()
-    return {
-        "meta": row["meta"],
-        "method": args.method,
-        "proposal": (tally.drawn_mixture if mixed else fitted).to_dict(),
-        "defensive": tally.defensive,
-        "ce": history,
-        "estimates": tally.estimates(args.method),
-        "lane_changes": tally.lane_changes,
-        "cases_started": tally.started,
-        "ce_s": round(t1 - t0, 1),
-        "wall_s": round(t2 - t0, 1),
-        "lane_changes_per_s": round(tally.lane_changes / max(t2 - t1, 1e-9), 1),
-        "interrupted": interrupted,
-        "cases": tally.cases,
-    }
+        return cfg, [(None, 1, dict(SCRIPTED))]
+    return cfg, [(a, int(m["k"] or 1), m) for a, m in zip(actors, metas[1:], strict=True)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -231,10 +142,12 @@ def main(argv: list[str] | None = None) -> int:
                 "(--traffic env.braking=true, env.braking_rate > 0)"
             )
         peak = machine.matmul_peak_gflops()
+        names = [f.name for f in dataclasses.fields(validation.Settings)]
+        settings = validation.Settings(**{n: getattr(args, n) for n in names})
         results = []
-        for row in rows:
-            results.append(estimate(cfg, row, args))
-            if results[-1]["interrupted"]:
+        for i, row in enumerate(rows):
+            results.append(METHODS[args.method](cfg, *row, settings, model=i))
+            if results[-1].interrupted:
                 break
         out = write_outputs(args, cfg, results, peak)
         if args.out is None and RunDir(args.run_dir).eval_json.is_file():
@@ -242,14 +155,14 @@ def main(argv: list[str] | None = None) -> int:
 
             report.write_report(args.run_dir)
         for r in results:
-            e = r["estimates"].get(args.kind, {})
+            e = r.estimates.get(args.kind)
             print(
-                f"{r['meta']['label']}: {args.kind} {e.get('estimate', float('nan')):.3g} "
-                f"[{e.get('lo', float('nan')):.3g}, {e.get('hi', float('nan')):.3g}] per lane "
-                f"change, {r['lane_changes']} lane changes, {r['wall_s']} s"
+                f"{r.meta['label']}: {args.kind} {e.estimate if e else math.nan:.3g} "
+                f"[{e.lo if e else math.nan:.3g}, {e.hi if e else math.nan:.3g}] per lane "
+                f"change, {r.lane_changes} lane changes, {r.wall_s} s"
             )
         print(f"Wrote {out}")
-        return 130 if results and results[-1]["interrupted"] else 0
+        return 130 if results and results[-1].interrupted else 0
     except (EvalError, CheckpointError, config.ConfigError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -172,10 +172,10 @@ def test_every_layer_is_a_package_that_says_what_it_may_import():
     assert all((d / "__init__.py").is_file() for d in folders), folders
 
 
-# The command modules: the library and the benchmarks never import them. The three the
+# The command modules: the library and the benchmarks never import them. The four the
 # study runs through parse arguments and call into the library, in at most COMMAND_LINES.
-COMMANDS = {"jaxlc.sweep", "jaxlc.evaluate", "jaxlc.figures", "jaxlc.export"}
-THIN = {"jaxlc.sweep", "jaxlc.evaluate", "jaxlc.figures"}
+COMMANDS = {"jaxlc.sweep", "jaxlc.evaluate", "jaxlc.figures", "jaxlc.export", "jaxlc.validate"}
+THIN = {"jaxlc.sweep", "jaxlc.evaluate", "jaxlc.figures", "jaxlc.validate"}
 COMMAND_LINES = 200
 
 

@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.stats
 
 from jaxlc import config
 from jaxlc.evaluation import keys as streams
@@ -34,28 +35,64 @@ def test_exponential_tilt_is_a_density():
     assert abs(rare.exponential_fit(float(np.mean(u))) - 3.0) < 0.1
 
 
+# The toy check: ``TOY_D`` events of probability ``TOY_P`` each, a failure when at least
+# ``TOY_K`` fire; its probability is the binomial tail, 8.39e-7.
+TOY_D, TOY_P, TOY_K = 100, 0.01, 9
+TOY_DEFENSIVE = 0.1  # the nominal's share of the toy's mixture: every weight at most 10
+
+
+def toy_truth() -> float:
+    return float(scipy.stats.binom.sf(TOY_K - 1, TOY_D, TOY_P))
+
+
+def toy_sample(key, n: int, q: float, alpha: float = TOY_DEFENSIVE) -> tuple:
+    """``(log_w, events)`` ``(n,)`` of ``n`` toy samples from the defensive mixture of the
+    nominal and the tilt to event probability ``q``."""
+    k_mix, k_u = jax.random.split(key)
+    p, q = jnp.float32(TOY_P), jnp.float32(q)
+    nominal = jax.random.uniform(k_mix, (n, 1)) < alpha
+    u = rare.tilt_bernoulli(jax.random.uniform(k_u, (n, TOY_D)), p, jnp.where(nominal, p, q))
+    log_r = rare.bernoulli_log_ratio(u, p, q).sum(axis=1)
+    return rare.balance(log_r[:, None], (1.0,), jnp.float32(alpha)), (u < p).sum(axis=1)
+
+
+def toy_estimate(key, n: int, pilot: int = 1000, rounds: int = 6) -> tuple:
+    """CE on ``pilot``-sample batches from the nominal ``q = p``, then IS from ``n`` samples:
+    the estimate and the ``q`` fitted."""
+    q = TOY_P
+    keys = jax.random.split(key, rounds + 1)
+    for k in keys[:rounds]:
+        log_w, events = (np.asarray(a) for a in toy_sample(k, pilot, q))
+        w, level = rare.elite(log_w, events >= TOY_K, events)
+        q = rare.ce_rate(w, events, np.full(events.shape, TOY_D), TOY_P, 0.5)
+        if level == math.inf:
+            break
+    log_w, events = (np.asarray(a) for a in toy_sample(keys[-1], n, q))
+    return rare.is_estimate(log_w, events >= TOY_K), q
+
+
 @pytest.mark.slow
 def test_toy_interval_covers_the_truth():
     """100 independent repeats of the final IS stage with one CE-fitted proposal: the 95%
     interval covers the closed-form 8.4e-7 in at least 93 (the full check with CE in each
     repeat: the retired benchmarks/scripts/validate_toy.py at b98c04d)."""
-    q = rare.toy_estimate(jax.random.PRNGKey(7), 1000)["q"]
+    _, q = toy_estimate(jax.random.PRNGKey(7), 1000)
     keys = jax.random.split(jax.random.PRNGKey(8), 100)
-    sample = jax.jit(jax.vmap(lambda k: rare.toy_sample(k, 20_000, q)))
-    truth, est = rare.toy_truth(), []
+    sample = jax.jit(jax.vmap(lambda k: toy_sample(k, 20_000, q)))
+    truth, est = toy_truth(), []
     for i in range(0, 100, 10):
         log_w, events = (np.asarray(a) for a in sample(keys[i : i + 10]))
-        est += [rare.is_estimate(a, e >= rare.TOY_K) for a, e in zip(log_w, events, strict=True)]
-    assert sum(r["lo"] <= truth <= r["hi"] for r in est) >= 93
-    assert sum(r["mean_weight_lo"] <= 1.0 <= r["mean_weight_hi"] for r in est) >= 90
+        est += [rare.is_estimate(a, e >= TOY_K) for a, e in zip(log_w, events, strict=True)]
+    assert sum(r.lo <= truth <= r.hi for r in est) >= 93
+    assert sum(r.mean_weight_lo <= 1.0 <= r.mean_weight_hi for r in est) >= 90
 
 
 def test_mc_estimate_is_clopper_pearson():
     r = rare.mc_estimate(0, 3_000_000)
-    assert r["estimate"] == 0.0 and r["rel_halfwidth"] == math.inf
-    assert r["upper_bound"] == pytest.approx(1e-6, rel=0.01)
+    assert r.estimate == 0.0 and r.rel_halfwidth == math.inf
+    assert r.upper_bound == pytest.approx(1e-6, rel=0.01)
     r = rare.mc_estimate(200, 1_000_000)
-    assert r["lo"] < 2e-4 < r["hi"] and 0.1 < r["rel_halfwidth"] < 0.2
+    assert r.lo < 2e-4 < r.hi and 0.1 < r.rel_halfwidth < 0.2
 
 
 # The command on a smoke run, in the traffic that brakes (the tilt's own draws included).
@@ -82,18 +119,44 @@ def validated(smoke_run, tmp_path_factory):
     return run_dir, out
 
 
+def _setup(smoke_run) -> tuple:
+    """The fixtures' config, params, program (``validate``'s default step cap: loaded, not
+    compiled), keys and scripted policy."""
+    from jaxlc.evaluation import validation
+    from jaxlc.evaluation.heldout import in_traffic
+    from jaxlc.sim.env import EnvParams
+    from jaxlc.study.rundir import RunDir
+
+    cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
+    run = validation.program(cfg, config.EvalConfig().max_steps, True)
+    keys = streams.stream(0, streams.VALIDATE, range(CHUNK))
+    return cfg, EnvParams.from_config(cfg.env), run, keys, validation.policies(cfg, None, 1)
+
+
+def _record(run, prop, pol, keys) -> tuple:
+    """``(outcome columns, proposal.Record)`` of one chunk under ``prop``."""
+    from jaxlc.evaluation.cases import columns
+    from jaxlc.evaluation.proposal import Record
+
+    out = columns(jax.device_get(run(prop, pol, keys)[0]))
+    return out, Record.unpack(out["tilt"][0].astype(np.float64))
+
+
 def test_validate_writes_its_outputs(validated):
     import json
 
     from jaxlc.evaluation import validation
+    from jaxlc.evaluation.mixture import Mixture
 
     _, out = validated
     doc = json.loads((out / "validate.json").read_text())
     (model,) = doc["models"]
     assert model["lane_changes"] >= 60 and model["ce"]
     # the defensive mixture's nominal chunks, in the share asked
-    chunks = model["cases_started"] // CHUNK
-    nominal = sum(validation.nominal_chunk(i, SHARE) for i in range(chunks))
+    chunks, comps = model["cases_started"] // CHUNK, []
+    for _ in range(chunks):
+        comps.append(Mixture(None, (1.0,), SHARE).next_component(comps))
+    nominal = sum(c < 0 for c in comps)
     assert chunks > 1 and model["defensive"] == nominal / chunks > 0
     assert set(model["estimates"]) == set(validation.KINDS)
     e = model["estimates"]["failure"]
@@ -116,133 +179,134 @@ def test_replay_reproduces_a_case_bit_for_bit(validated):
     assert cases, "the smoke validation's traffic fails the scripted controller"
     path, same = replay_case(run_dir, 0, out)
     assert same and path.stat().st_size > 0
-    # each case names its mixture component in the proposal that replays it
-    assert all(c["proposal"]["drawn_nominal"] == float(c["drawn_nominal"]) for c in cases)
+    # each case names the component that drew it (-1: the traffic's own) in the proposal,
+    # a mixture of one, that replays it
+    assert all(c["component"] in (-1, 0) and c["proposal"]["shares"] == [1.0] for c in cases)
 
 
 def test_nominal_proposal_weights_are_one(smoke_run):
-    """The proposal equal to the traffic's own distribution: every log weight exactly 0."""
-    from jaxlc.evaluation import proposal, validation
-    from jaxlc.evaluation.cases import columns
-    from jaxlc.evaluation.heldout import in_traffic
-    from jaxlc.sim.env import EnvParams
-    from jaxlc.study.rundir import RunDir
+    """The proposal equal to the traffic's own distribution: every log ratio exactly 0."""
+    from jaxlc.evaluation import mixture, proposal
 
-    cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
-    base = EnvParams.from_config(cfg.env)
-    # the validated fixture's program (``validate``'s default step cap): loaded, not compiled
-    run = validation.program(cfg, config.EvalConfig().max_steps, True)
-    keys = streams.stream(0, streams.VALIDATE, range(CHUNK))
+    _, base, run, keys, pol = _setup(smoke_run)
     trials = []
-    for start in range(len(proposal.TILT_FROM)):
-        nom = proposal.nominal(base).replace(tilt_from=jnp.float32(start))
-        out = columns(jax.device_get(run(nom, validation.policies(cfg, None, 1), keys)[0]))
-        assert out["performed"].any() and np.all(out["log_w"] == 0.0)
-        # (cases,) braking trials counted, every role
-        trials.append(out["tilt"][0][:, : len(proposal.ROLES)].sum(axis=1))
+    for window in proposal.WINDOWS:
+        nom = mixture.single(proposal.nominal(base), 0.0, window).proposal(0)
+        out, rec = _record(run, nom, pol, keys)
+        assert out["performed"].any() and np.all(rec.log_r == 0.0)
+        trials.append(rec.trials.sum(axis=1))  # (cases,) braking trials counted, every role
     assert trials[0].sum() > 0  # braking trials around the ego were drawn
-    # the same cases (nominal draws): a tilt that starts earlier counts every trial a later
-    # one does, and more where the ego cruised or searched before its lane change
-    assert np.all(trials[0] <= trials[1]) and np.all(trials[1] <= trials[2])
-    assert trials[0].sum() < trials[1].sum() < trials[2].sum()
+    # the same cases (nominal draws): a tilt from the entry counts every trial one from the
+    # acceptance does, and more where the ego cruised or searched before its lane change
+    assert np.all(trials[0] <= trials[1]) and trials[0].sum() < trials[1].sum()
 
 
 def test_a_nominal_chunk_drives_the_traffics_own_draws_weighed_against_the_proposal(smoke_run):
-    """The defensive mixture's nominal share (``drawn_nominal``): the same lane changes as the
+    """The defensive mixture's nominal share (``drawn`` -1): the same lane changes as the
     traffic's own draws, each weighed by the ratio of its braking draws against the proposal
     (which tilts the target lane's lead alone): ``events log(p/q) + (trials - events)
     log((1-p)/(1-q))`` of the lead's, as in a chunk the proposal draws."""
-    from jaxlc.evaluation import proposal, validation
-    from jaxlc.evaluation.cases import columns
-    from jaxlc.evaluation.heldout import in_traffic
+    from jaxlc.evaluation import mixture, proposal
     from jaxlc.sim.braking import start_probability
-    from jaxlc.sim.env import EnvParams
-    from jaxlc.study.rundir import RunDir
 
-    cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
-    base = EnvParams.from_config(cfg.env)
-    run = validation.program(cfg, config.EvalConfig().max_steps, True)  # the fixture's
-    keys = streams.stream(0, streams.VALIDATE, range(CHUNK))
+    _, base, run, keys, pol = _setup(smoke_run)
     nom, p, q = proposal.nominal(base), float(start_probability(base)), 0.02
-    tilt = nom.replace(brake=nom.brake.at[proposal.ROLES.index("lead")].set(q))
-    props = {"nominal": nom, "own": tilt.replace(drawn_nominal=jnp.float32(1.0)), "tilt": tilt}
-    pol = validation.policies(cfg, None, 1)
-    out = {n: columns(jax.device_get(run(pr, pol, keys)[0])) for n, pr in props.items()}
+    mix = mixture.single(nom.replace(brake=nom.brake.at[0].set(q)), 0.5)
+    props = {"nominal": mixture.single(nom, 0.5).proposal(0)}
+    props |= {"own": mix.proposal(-1), "tilt": mix.proposal(0)}
+    out = {n: _record(run, pr, pol, keys) for n, pr in props.items()}
     for field in ("performed", "reason", "steps"):
-        assert np.array_equal(out["own"][field], out["nominal"][field])
-    col = {s: proposal.STATS.index(f"brake_{s}_lead") for s in ("trials", "events")}
+        assert np.array_equal(out["own"][0][field], out["nominal"][0][field])
     for name in ("own", "tilt"):
-        perf, st = out[name]["performed"][0], out[name]["tilt"][0].astype(np.float64)
-        trials, events = st[:, col["trials"]], st[:, col["events"]]
+        perf, rec = out[name][0]["performed"][0], out[name][1]
+        trials, events = rec.trials[:, 0], rec.events[:, 0]
         expect = events * math.log(p / q) + (trials - events) * math.log((1 - p) / (1 - q))
         assert trials[perf].sum() > 0
-        np.testing.assert_allclose(out[name]["log_w"][0][perf], expect[perf], rtol=1e-4, atol=1e-4)
-    events = {n: out[n]["tilt"][0][:, col["events"]].sum() for n in ("own", "tilt")}
-    assert events["tilt"] > events["own"]  # the proposal's lead brakes more often
+        np.testing.assert_allclose(rec.log_r[perf, 0], expect[perf], rtol=1e-4, atol=1e-4)
+    assert out["tilt"][1].events[:, 0].sum() > out["own"][1].events[:, 0].sum()  # more often
+
+
+def test_a_single_proposal_and_a_one_component_mixture_give_the_same_weights(
+    smoke_run, validated_mixture
+):
+    """The CE's proposal is a mixture of one: drawn alone, or as the one component with a
+    share in a mixture of the one-role family's size (the others at share 0, the nominal at
+    the same share), its chunks give the same lane changes, the same log ratio to it, and
+    the same weights, each ``p / (a p + (1 - a) q)``."""
+    from jaxlc.evaluation import mixture, proposal
+    from jaxlc.evaluation.mixture import Mixture
+
+    _, base, run, keys, pol = _setup(smoke_run)
+    nom = proposal.nominal(base)
+    tilt = nom.replace(brake=nom.brake.at[0].set(0.02), yields=jnp.float32(0.7))
+    one = mixture.single(tilt, 0.3)
+    others = mixture.start_pilots(base, 0.3, "acceptance", 60).tilts
+    tilts = jax.tree.map(lambda a, b: jnp.concatenate([a[:1], b[1:]]), one.tilts, others)
+    padded = Mixture(tilts, (1.0, 0.0, 0.0, 0.0), 0.3, family="mixture")
+    comps = [0, 0, -1, 0]  # the chunks' components, the nominal's share 1/4
+    outs, weights = {}, {}
+    for name, mix in (("one", one), ("padded", padded)):
+        runs = [_record(run, mix.proposal(c), pol, keys) for c in (0, -1)]
+        outs[name] = [out for out, _ in runs]
+        log_r = np.concatenate([rec.log_r for _, rec in runs])
+        weights[name] = (log_r[:, 0], mix.drawn(comps).log_weights(log_r))
+    for a, b in zip(outs["one"], outs["padded"], strict=True):
+        for field in ("performed", "reason", "steps"):
+            assert np.array_equal(a[field], b[field])
+    assert np.any(weights["one"][0] != 0.0)  # the proposal tilts the draws the chunks used
+    assert np.array_equal(weights["one"][0], weights["padded"][0])
+    assert np.array_equal(weights["one"][1], weights["padded"][1])
+    w, r = np.exp(weights["one"][1]), np.exp(weights["one"][0])  # p / (a p + (1 - a) q)
+    np.testing.assert_allclose(w, r / (0.25 * r + 0.75), rtol=1e-12)
+    assert np.all(w <= 4.0)
 
 
 def test_the_mixtures_nominal_chunks_keep_their_share_and_cap_the_weights():
-    from jaxlc.evaluation import validation
+    from jaxlc.evaluation.mixture import Mixture
 
     for alpha in (0.0, 0.2, 0.5, 0.7):
-        flags = [validation.nominal_chunk(i, alpha) for i in range(100)]
+        comps: list[int] = []
+        for _ in range(100):
+            comps.append(Mixture(None, (1.0,), alpha).next_component(comps))
+        flags = [c < 0 for c in comps]
         assert not flags[0] and sum(flags) == round(100 * alpha)
         assert all(abs(sum(flags[:n]) - n * alpha) < 1 for n in range(1, 101))
-    log_r = np.array([-50.0, -1.0, 0.0, 3.0, 50.0])
-    w = np.exp(rare.defensive(log_r, 0.5))
+    log_r = np.array([-50.0, -1.0, 0.0, 3.0, 50.0])[:, None]
+    w = np.exp(rare.balance(log_r, (1.0,), 0.5))
     assert w.dtype == np.float64 and np.all(w <= 2.0) and w[2] == pytest.approx(1.0)
     assert np.all(np.diff(w) > 0)  # the order of the ratios kept
-    jw = np.exp(np.asarray(rare.defensive(jnp.asarray(log_r, jnp.float32), jnp.float32(0.5))))
+    jw = np.exp(np.asarray(rare.balance(jnp.asarray(log_r, jnp.float32), (1.0,), 0.5)))
     np.testing.assert_allclose(jw, w, rtol=1e-5)
 
 
-def test_a_mixture_component_weighs_from_its_statistics_as_the_program_does(smoke_run):
-    """``--family mixture``: each one-role component's ``log p/q`` from the step statistics
-    equals the tilted program's own ``log_w`` of the chunk it draws, for the conditional tilts
-    and the constant-rate ones; under a conditional tilt every lane change with an event of
-    the role weighs ``1 - (1 - p)^H`` to it whenever the event fell, one without
-    ``(1 - (1 - p)^H) / (1 - (1 - p)^(H - trials))``; horizons of 0 and rates equal to the
-    traffic's weigh every lane change 1, and no weight exceeds ``1 / alpha``."""
-    from jaxlc.evaluation import mixture, proposal, validation
-    from jaxlc.evaluation.cases import columns
-    from jaxlc.evaluation.heldout import in_traffic
-    from jaxlc.sim.env import EnvParams
-    from jaxlc.study.rundir import RunDir
+def test_a_mixture_component_weighs_one_path_with_an_event_alike(smoke_run, validated_mixture):
+    """``--family mixture``'s conditional one-role tilts: drawn by component ``k``, every lane
+    change with an event of its role weighs ``1 - (1 - p)^H`` to it whenever the event fell
+    (within ``H``), one without ``(1 - (1 - p)^H) / (1 - (1 - p)^(H - trials))``; horizons
+    of 0 weigh every lane change 1, and no weight exceeds ``1 / alpha``."""
+    from jaxlc.evaluation import mixture, proposal
 
-    cfg = in_traffic(RunDir(smoke_run[0]).load_config(), TRAFFIC)
-    base = EnvParams.from_config(cfg.env)
-    run = validation.program(cfg, config.EvalConfig().max_steps, True)  # the fixture's
-    keys = streams.stream(0, streams.VALIDATE, range(CHUNK))
-    pol = validation.policies(cfg, None, 1)
-    start = mixture.start(base, 0.2, "entry", 60)
-    p = start.p_fire
-    col = {n: i for i, n in enumerate(proposal.STATS)}
-    rates = dataclasses.replace(start, horizons=(), rates=(0.02, 0.01, 0.03, 0.004))
-    for mix in (dataclasses.replace(start, horizons=(60.0, 40.0, 60.0, 200.0)), rates):
-        for k, role in enumerate(proposal.ROLES):
-            out = columns(jax.device_get(run(mix.component(base, k), pol, keys)[0]))
-            st = out["tilt"][0].astype(np.float64)
-            log_r = mix.log_ratios(st)
-            assert st[:, col[f"brake_trials_{role}"]].sum() > 0  # the role's trials were drawn
-            np.testing.assert_allclose(log_r[:, k], out["log_w"][0], rtol=1e-4, atol=1e-3)
-            assert np.all(mix.log_weight(st) <= -math.log(0.2) + 1e-12)
-            if not mix.horizons or role == "ahead":  # several trials a step: not one per event
-                continue
-            h = mix.horizons[k]
-            events, trials = st[:, col[f"brake_events_{role}"]], st[:, col[f"brake_trials_{role}"]]
-            first = st[:, col[f"brake_first_{role}"]]
-            assert events.any() and np.all(first[events > 0] <= h)  # the event within H
-            reach = -math.expm1(h * math.log1p(-p))
-            none = -np.expm1(np.maximum(h - trials, 0) * math.log1p(-p)) / reach
-            with np.errstate(divide="ignore"):  # past the horizon with no event: +inf
-                expect = np.where(events > 0, math.log(reach), -np.log(none))
-            np.testing.assert_allclose(log_r[:, k], expect, rtol=1e-3, atol=1e-3)
-    out = columns(jax.device_get(run(mix.component(base, -1), pol, keys)[0]))
-    flat = dataclasses.replace(rates, rates=(p,) * len(proposal.ROLES))
-    assert np.all(np.abs(flat.log_weight(out["tilt"][0])) < 1e-12)
-    zero = dataclasses.replace(start, horizons=(0.0,) * len(proposal.ROLES))
-    out = columns(jax.device_get(run(zero.component(base, -1), pol, keys)[0]))
-    assert np.all(np.abs(zero.log_weight(out["tilt"][0])) < 1e-12)
+    _, base, run, keys, pol = _setup(smoke_run)
+    start = mixture.start_pilots(base, 0.2, "entry", 60)
+    h = jnp.broadcast_to(jnp.asarray([60.0, 40.0, 60.0, 200.0], jnp.float32), (4, 4))
+    mix = dataclasses.replace(start, tilts=start.tilts.replace(horizon=h))
+    p = float(proposal.start_probability(base))
+    for k, role in enumerate(proposal.ROLES):
+        _, rec = _record(run, mix.proposal(k), pol, keys)
+        assert rec.trials[:, k].sum() > 0  # the role's trials were drawn
+        assert np.all(mix.log_weights(rec.log_r) <= -math.log(0.2) + 1e-12)
+        if role == "ahead":  # several trials a step: not one per event
+            continue
+        hk, events, trials = float(h[k, k]), rec.events[:, k], rec.trials[:, k]
+        assert events.any() and np.all(rec.first[events > 0, k] <= hk)  # the event within H
+        reach = -math.expm1(hk * math.log1p(-p))
+        none = -np.expm1(np.maximum(hk - trials, 0) * math.log1p(-p)) / reach
+        with np.errstate(divide="ignore"):  # past the horizon with no event: +inf
+            expect = np.where(events > 0, math.log(reach), -np.log(none))
+        np.testing.assert_allclose(rec.log_r[:, k], expect, rtol=1e-3, atol=1e-3)
+    zero = dataclasses.replace(start, tilts=start.tilts.replace(horizon=jnp.zeros((4, 4))))
+    _, rec = _record(run, zero.proposal(-1), pol, keys)
+    assert np.all(np.abs(zero.log_weights(rec.log_r)) < 1e-12)
 
 
 def test_the_conditional_hazard_puts_one_event_within_the_horizon():
@@ -275,23 +339,22 @@ def test_the_conditional_hazard_puts_one_event_within_the_horizon():
 def test_fitted_shares_follow_the_failures_and_keep_every_role():
     """``mixture.fitted_shares``: a role the failures brake in more gets more, a role with a
     longer horizon more, and a role no failure braked in keeps a share."""
-    from jaxlc.evaluation import mixture, proposal
+    from jaxlc.evaluation import mixture
 
-    col = {n: i for i, n in enumerate(proposal.STATS)}
-    st = np.zeros((10, len(proposal.STATS)))
-    st[:8, col["brake_events_lead"]] = 1
-    st[8:, col["brake_events_ahead"]] = 1
-    shares = mixture.fitted_shares(np.ones(10), st, np.array([200.0] * 4), 1e-4)
+    events = np.zeros((10, 4))
+    events[:8, 0] = 1  # the lead's
+    events[8:, 3] = 1  # the others ahead
+    shares = mixture.fitted_shares(np.ones(10), events, np.array([200.0] * 4), 1e-4)
     assert sum(shares) == pytest.approx(1.0)
     assert shares[0] > shares[3] > shares[1] > 0.05 and shares[1] == pytest.approx(shares[2])
-    longer = mixture.fitted_shares(np.ones(10), st, np.array([200.0, 200, 200, 2000]), 1e-4)
+    longer = mixture.fitted_shares(np.ones(10), events, np.array([200.0, 200, 200, 2000]), 1e-4)
     assert longer[3] > shares[3]
 
 
 def test_the_mixtures_chunks_keep_its_shares():
-    from jaxlc.evaluation import mixture
+    from jaxlc.evaluation.mixture import Mixture
 
-    mix = mixture.Mixture(1e-4, (0.01,) * 4, (0.4, 0.1, 0.3, 0.2), 0.2, "entry")
+    mix = Mixture(None, (0.4, 0.1, 0.3, 0.2), 0.2, "entry", "mixture")
     comps: list[int] = []
     for _ in range(60):
         comps.append(mix.next_component(comps))
@@ -323,6 +386,7 @@ def test_the_mixture_estimate_is_written_and_its_cases_replay(validated_mixture)
     import json
 
     from jaxlc.evaluation.validation_io import replay_case
+    from jaxlc.sim.braking import start_probability
 
     run_dir, out = validated_mixture
     (model,) = json.loads((out / "validate.json").read_text())["models"]
@@ -335,12 +399,13 @@ def test_the_mixture_estimate_is_written_and_its_cases_replay(validated_mixture)
     cases = json.loads((out / "cases.json").read_text())
     # each case records the component that drew it: one role's braking tilted, none for the
     # traffic's own draws
+    p_fire = np.float32(start_probability(_setup((run_dir,))[1]))  # the traffic's own
     for c in cases:
-        tilted = np.asarray(c["proposal"]["conditional"]) > 0.5
-        assert tilted.sum() == (0 if c["drawn_nominal"] else 1)
-        assert np.all(np.asarray(c["proposal"]["brake"]) == np.float32(mix["p_fire"]))
-        assert c["proposal"]["drawn_nominal"] == float(c["drawn_nominal"])
-    assert any(not c["drawn_nominal"] for c in cases)
+        tilts = c["proposal"]["tilts"]
+        assert c["component"] in range(-1, 4) and c["proposal"]["window"] == "entry"
+        assert np.array_equal(np.asarray(tilts["conditional"]) > 0.5, np.eye(4, dtype=bool))
+        assert np.all(np.asarray(tilts["brake"]) == p_fire)
+    assert any(c["component"] >= 0 for c in cases)
     path, same = replay_case(run_dir, 0, out)
     assert same and path.stat().st_size > 0
 
@@ -362,51 +427,48 @@ def test_a_mixture_without_braking_events_is_refused_in_one_line(smoke_run, caps
     assert err.startswith("error:") and "env.braking=true" in err and "\n" not in err
 
 
-def test_the_mixtures_pilots_set_each_horizon_to_the_most_trials_a_lane_change_held(
-    monkeypatch,
-):
-    """``mixture.fit_mixture`` on a fake pilot program: after each round every horizon is the
+def test_the_mixtures_pilots_set_each_horizon_to_the_most_trials_a_lane_change_held():
+    """``mixture.fit_pilots`` on a fake pilot program: after each round every horizon is the
     most braking trials of its role a performed pilot lane change held (not a case that never
     became one), each round and component draws keys of its own, and the shares favour the
     role the failures braked in."""
     from types import SimpleNamespace
 
-    from jaxlc.evaluation import mixture, validation
+    from jaxlc.evaluation import mixture
     from jaxlc.evaluation.heldout import in_traffic
-    from jaxlc.evaluation.proposal import ROLES, STATS
+    from jaxlc.evaluation.proposal import ROLES, Record
     from jaxlc.sim.env import EnvParams
 
     p = EnvParams.from_config(in_traffic(config.load(), ["env.braking=true"]).env)
-    n, seen, col = 20, [], {name: i for i, name in enumerate(STATS)}
+    n, seen = 20, []
+    zeros = np.zeros((n, len(ROLES)))
 
     def run(prop, pol, keys):
         seen.append(np.asarray(keys))
         r = len(seen)
-        tilt = np.zeros((1, n, len(STATS)), np.float32)
-        for k, role in enumerate(ROLES):  # trials grow with the case and the call
-            tilt[0, :, col[f"brake_trials_{role}"]] = np.arange(n) + 10 * k + r
-        tilt[0, :3, col["brake_events_lead"]] = 1  # the failures brake in the lead's role
+        # trials grow with the case and the call; the failures brake in the lead's role
+        trials = np.arange(n)[:, None] + 10 * np.arange(len(ROLES)) + r
+        events = zeros.copy()
+        events[:3, 0] = 1
+        rec = Record(zeros, trials, events, zeros, *(np.zeros(n),) * 4)
         out = SimpleNamespace(
             names=(),
             performed=(np.arange(n) < n - 1)[None],  # the last case: no lane change
-            log_w=np.zeros((1, n), np.float32),
-            tilt=tilt,
+            tilt=np.asarray(rec.pack())[None],
             steps=np.arange(n)[None],
             reason=np.where(np.arange(n) < 3, 1, 0)[None],
         )
         return (out,)
 
-    def kinds(out, dt):  # failure kind 0: the cases the fake run marked
-        return np.stack([out["reason"][0] == 1] * len(validation.KINDS), axis=1)
-
-    monkeypatch.setattr(validation, "kinds", kinds)
-    start = mixture.start(p, 0.05, "entry", 100)
-    mix, history = mixture.fit_mixture(run, None, p, start, n, kind="failure", log=lambda m: 0)
+    start = mixture.start_pilots(p, 0.05, "entry", 100)
+    failed = lambda out: out["reason"][0] == 1  # noqa: E731 (the cases the fake run marked)
+    mix, history = mixture.fit_pilots(run, None, p, start, n, failed, log=lambda m: 0)
     calls = len(seen)
     assert calls == mixture.PILOT_ROUNDS * len(ROLES) and len({a.tobytes() for a in seen}) == calls
-    # the most trials: the last performed case (n - 2) of the last call
-    assert list(mix.horizons) == [n - 2 + 10 * k + calls for k in range(len(ROLES))]
-    assert history[0]["mixture"]["horizons"][0] == n - 2 + len(ROLES)
+    # the most trials: the last performed case (n - 2) of the last call, every component's
+    h = np.asarray(mix.tilts.horizon)
+    assert np.all(h == [n - 2 + 10 * k + calls for k in range(len(ROLES))])
+    assert history[0]["proposal"]["tilts"]["horizon"][0][0] == n - 2 + len(ROLES)
     assert sum(mix.shares) == pytest.approx(1.0) and mix.shares[0] == max(mix.shares)
     assert history[-1]["pooled_failures"] == 3 * calls
 
@@ -435,21 +497,18 @@ def test_ratio_estimate_with_unit_weights_is_the_plain_rate():
     perf = rng.random(10_000) < 0.7
     failed = perf & (rng.random(10_000) < 0.01)
     r = rare.is_ratio_estimate(np.zeros(10_000), perf, failed)
-    assert r["estimate"] == pytest.approx(failed.sum() / perf.sum())
-    assert r["lane_changes"] == perf.sum() and r["lo"] < r["estimate"] < r["hi"]
+    assert r.estimate == pytest.approx(failed.sum() / perf.sum())
+    assert r.lane_changes == perf.sum() and r.lo < r.estimate < r.hi
 
 
 @pytest.mark.parametrize("first", [6, 2])
-def test_the_ce_holds_its_proposal_for_a_round_that_as_many_failures_again_complete(
-    first, monkeypatch
-):
+def test_the_ce_holds_its_proposal_for_a_round_that_as_many_failures_again_complete(first):
     """A pilot round with failures short of ``rare.MIN_ELITE`` (10): with 6, another round
     under the same proposal (new keys) pools 11 and the fit is to those failures; with 2,
     as many again would not do, and the round's closest by ``score`` are the elite."""
     from types import SimpleNamespace
 
-    from jaxlc.evaluation import validation
-    from jaxlc.evaluation.proposal import STATS
+    from jaxlc.evaluation import mixture, validation
     from jaxlc.sim.env import EnvParams
 
     p = EnvParams.from_config(config.load().env)
@@ -459,24 +518,21 @@ def test_the_ce_holds_its_proposal_for_a_round_that_as_many_failures_again_compl
     def run(prop, pol, keys):
         seen.append(np.asarray(keys))
         k = next(fails)
+        tilt = np.ones((1, n, 1 + 16), np.float32)  # every statistic 1
+        tilt[..., 0] = 0.0  # the log ratio to the one component: drawn from the nominal
         out = SimpleNamespace(
             names=(),
             performed=np.ones((1, n), bool),
-            log_w=np.zeros((1, n), np.float32),
-            tilt=np.ones((1, n, len(STATS)), np.float32),
+            tilt=tilt,
             steps=np.arange(n)[None],
             reason=np.where(np.arange(n) < k, 1, 0)[None],
         )
         return (out,)
 
-    def kinds(out, dt):  # failure kind 0: the cases the fake run marked
-        return np.stack([out["reason"][0] == 1] * len(validation.KINDS), axis=1)
-
-    monkeypatch.setattr(validation, "kinds", kinds)
-    start = validation.start_proposal(p)
-    _, history = validation.fit_proposal(
-        run, None, p, start, n, kind="failure", rounds=3, log=said.append
-    )
+    start = mixture.start_ce(p, 0.2)
+    failed = lambda out: out["reason"][0] == 1  # noqa: E731 (the cases the fake run marked)
+    score = lambda out: validation.score(out, "failure")  # noqa: E731
+    _, history = mixture.fit_ce(run, None, p, start, n, failed, score, rounds=3, log=said.append)
     assert not np.array_equal(seen[0], seen[1])  # each round on keys of its own
     moved = [h["proposal"] != start.to_dict() for h in history]
     if first == 6:

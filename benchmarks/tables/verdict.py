@@ -11,6 +11,7 @@ from pathlib import Path
 from benchmarks.tables.common import BENCHMARKS, load
 from jaxlc import config
 from jaxlc.evaluation import rare, validation
+from jaxlc.evaluation.validation_io import Validation
 from jaxlc.paper import claims
 from jaxlc.paper.grid import is_best
 from jaxlc.study.rundir import RunDir
@@ -134,38 +135,38 @@ def validated_table() -> str:
         "|---|---|---|---|---|---|",
     ]
 
-    def rate(e: dict, ends: list[str]) -> str:  # ends: the kinds that occurred, if any
-        if e["failures"] == 0:
-            return f"0 of them: < {e['upper_bound']:.3g}"
-        interval = f"{e['estimate']:.2g} [{e['lo']:.2g}, {e['hi']:.2g}]"
-        return f"{e['failures']} ({', '.join(ends)}): {interval}"
+    def rate(e: rare.Estimate, ends: list[str]) -> str:  # ends: the kinds that occurred
+        if e.failures == 0:
+            return f"0 of them: < {e.upper_bound:.3g}"
+        return f"{e.failures} ({', '.join(ends)}): {e.estimate:.2g} [{e.lo:.2g}, {e.hi:.2g}]"
 
     def row(meta: dict, trained: str, traffic: str, est: dict, walls: list[str]) -> str:
-        ends = [k.replace("_", " ") + "s" for k in validation.ENDS if est[k]["failures"]]
+        ends = [k.replace("_", " ") + "s" for k in validation.ENDS if est[k].failures]
         return (
             f"| {meta['label']}, seed {meta['seed']}{trained} | {traffic} | "
-            f"{est['failure']['lane_changes']:,} | {rate(est['collision'], [])} | "
+            f"{est['failure'].lane_changes:,} | {rate(est['collision'], [])} | "
             f"{rate(est['failure'], ends)} | {' + '.join(walls)} |"
         )
 
-    def wall(m: dict, doc: dict) -> str:  # one call's time and its machine's matmul peak
-        return f"{m['wall_s']:,.1f} ({doc['matmul_peak_gflops']:,} GFLOP/s)"
+    def wall(m: validation.Result, doc: Validation) -> str:  # one call's time, its peak
+        return f"{m.wall_s:,.1f} ({doc.matmul_peak_gflops:,} GFLOP/s)"
 
     for folder, trained in VALIDATED.items():
-        doc = json.loads((folder / "validate.json").read_text())
-        for m in doc["models"]:
-            lines.append(row(m["meta"], trained, doc["traffic"], m["estimates"], [wall(m, doc)]))
+        doc = Validation.read(folder / "validate.json")
+        for m in doc.models:
+            lines.append(row(m.meta, trained, doc.traffic, m.estimates, [wall(m, doc)]))
     for trained, folders in POOLED.items():
-        docs = [json.loads((f / "validate.json").read_text()) for f in folders]
-        ms = [d["models"][0] for d in docs]  # one policy per call
+        docs = [Validation.read(f / "validate.json") for f in folders]
+        ms = [d.models[0] for d in docs]  # one policy per call
         est = {
             k: rare.mc_estimate(
-                *(sum(m["estimates"][k][c] for m in ms) for c in ("failures", "lane_changes"))
+                sum(m.estimates[k].failures for m in ms),
+                sum(m.estimates[k].lane_changes for m in ms),
             )
             for k in ("failure", *validation.ENDS)
         }
         walls = [wall(m, d) for m, d in zip(ms, docs, strict=True)]
-        lines.append(row(ms[0]["meta"], trained, docs[0]["traffic"], est, walls))
+        lines.append(row(ms[0].meta, trained, docs[0].traffic, est, walls))
     return "\n".join(lines)
 
 

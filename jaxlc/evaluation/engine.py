@@ -116,42 +116,33 @@ def _start_parts(
     """``(begin, going, step, finish)`` of one case's start: ``begin(key) -> carry`` resets
     (``env.reset``'s ``traffic_only`` warm-up with ``traffic_warmup``),
     ``step`` advances the carry one dt with no action while ``going``, ``finish(carry) ->
-    Cases``. The carry is ``(state, reason, log_w, tilt, k_run)``."""
+    Cases``. The carry is ``(state, reason, log_w, k_run)``."""
     env = LaneChangeEnv() if env is None else env
     zero, origin = jnp.zeros(action_dim(base)), origin_lane(base)
-    stats, env_step = getattr(env, "stats", 0), _step_of(env)
 
     def begin(key: Array) -> tuple:
         k_reset, k_run = jax.random.split(key)
         _, state = env.reset(k_reset, base, traffic_only=traffic_warmup)
-        return state, jnp.int32(0), jnp.float32(0.0), jnp.zeros(stats, jnp.float32), k_run
+        return state, jnp.int32(0), jnp.float32(0.0), k_run
 
     def going(c: tuple) -> Array:
         s, reason, *_ = c
         return (reason == 0) & (s.ego.phase != RL) & (s.time < max_steps)
 
     def step(c: tuple) -> tuple:
-        s, _, log_w, tilt, k_run = c
-        *_, s, _, _, _, info = env_step(jax.random.fold_in(k_run, s.time), s, zero, base, tilt)
-        tilt = tilt + info.get("tilt", 0.0)
-        return s, info["reason"], log_w + info.get("log_w", 0.0), tilt, k_run
+        s, _, log_w, k_run = c
+        *_, s, _, _, _, info = env.step(jax.random.fold_in(k_run, s.time), s, zero, base)
+        return s, info["reason"], log_w + info.get("log_w", 0.0), k_run
 
     def finish(c: tuple) -> Cases:
-        state, reason, log_w, tilt, k_run = c
+        state, reason, log_w, k_run = c
         performed = (reason == 0) & (state.ego.phase == RL)
         side = jnp.where(performed, state.ego.target - origin, 0).astype(jnp.int32)
         obs = observation(state, base)
-        return Cases(state, obs, k_run, reason, performed, side, log_w, tilt)
+        # a proposal's statistics of the approach: the sum its env keeps in the state
+        return Cases(state, obs, k_run, reason, performed, side, log_w, state.drawn)
 
     return begin, going, step, finish
-
-
-def _step_of(env: LaneChangeEnv) -> Callable:
-    """``(key, state, action, params, tilt) -> env.step(...)``: a proposal's env (``stats``)
-    also reads the statistics of its steps so far (``tilt``; its conditional tilts do)."""
-    if getattr(env, "stats", 0):
-        return lambda key, s, a, p, tilt: env.step(key, s, a, p, so_far=tilt)
-    return lambda key, s, a, p, tilt: env.step(key, s, a, p)
 
 
 def make_start_case(
@@ -222,7 +213,7 @@ def make_rollout(
     folded over its steps; ``traced`` ``(traced,)`` the cases whose frames are kept."""
     env = LaneChangeEnv() if env is None else env
     limit = int(step_limit(base))  # RL steps before a timeout
-    ms, env_step = measures.of(base), _step_of(env)
+    ms = measures.of(base)
 
     def rollout(pol: Policies, cs: Cases, traced: Array) -> tuple[Outcome, Trace]:
         n_pol, n = pol.k.shape[0], cs.reason.shape[0]
@@ -232,8 +223,8 @@ def make_rollout(
         trace = traces.empty(n_pol, traced.shape[0], limit + 2, base)
         trace = traces.record(trace, 0, state, traced, jnp.ones(trace.frames.shape, bool), base)
 
-        def step_policy(k: Array, keys: Array, s: EnvState, a: Array, tilt: Array) -> tuple:
-            return jax.vmap(env_step, (0, 0, 0, None, 0))(keys, s, a, base.replace(k=k), tilt)
+        def step_policy(k: Array, keys: Array, s: EnvState, a: Array) -> tuple:
+            return jax.vmap(env.step, (0, 0, 0, None))(keys, s, a, base.replace(k=k))
 
         def body(rows: Array, c: tuple) -> tuple:
             """One step of the cases ``rows`` ``(r,)``; ``c``'s per-case leaves are theirs."""
@@ -241,9 +232,7 @@ def make_rollout(
             mu = jax.vmap(actor_apply)(pol.actor, obs)  # (policies, r, action_dim)
             action = jnp.where(pol.scripted[:, None, None], baseline_action(obs, base), mu)
             keys = jax.vmap(jax.vmap(jax.random.fold_in))(case_keys[:, rows], state.time)
-            new_obs, new, r, _, _, info = jax.vmap(step_policy)(
-                pol.k, keys, state, action, out["tilt"]
-            )
+            new_obs, new, r, _, _, info = jax.vmap(step_policy)(pol.k, keys, state, action)
             live = ~done  # (policies, r); only live cases are in the RL phase
             watch, (lat_jerk, long_jerk, counted) = safety.observe(watch, new, base)
             s = Step(

@@ -1,28 +1,20 @@
-"""A policy's failure probability per lane change, by crude Monte Carlo or importance sampling
-(``python -m jaxlc.validate`` is its command line).
+"""A policy's failure probability per lane change, by crude Monte Carlo or importance sampling:
+``estimate`` (``python -m jaxlc.validate`` is its command line).
 
-A lane change is a held-out case (``jaxlc.evaluation.cases``: reset, the approach, then the
-manoeuvre; its warm-up steps the traffic alone, ``env.reset``'s ``traffic_only``), drawn from
-a key stream of its own (``keys.stream(seed, VALIDATE, ...)``), in chunks of ``chunk``
-cases: one jitted program (``program``) starts and rolls out a chunk under a ``Proposal``
-(``jaxlc.evaluation.proposal``; crude MC runs the simulator's own draws, no proposal), and
-``kinds`` reads each lane change's failures from the held-out outcome: any failure, each
-failed end (collision, out of bounds, timeout, unfinished) and each norm of
-``jaxlc.evaluation.safety.NORMS`` violated. ``Tally`` keeps every lane change's log weight and
-kinds (a few bytes each) and the failures with their keys, so the estimate
-(``jaxlc.evaluation.rare``) and the worst cases can be read at any chunk, Ctrl-C included.
-The IS proposal is fitted by ``fit_proposal``: multilevel cross-entropy on pilot chunks from a
-key stream apart from the estimate's. A defensive mixture draws the share ``alpha`` of the
-estimate's chunks (``nominal_chunk``) from the traffic's own distribution, their ratios still
-taken against the proposal, and weighs every lane change by the balance heuristic
-(``rare.defensive``): a failure the proposal makes rarer than the traffic does weighs at most
-``1 / alpha``.
+A lane change is a held-out case (reset with the traffic-only warm-up, the approach, the
+manoeuvre) from its own key stream (``keys.VALIDATE``), ``chunk`` cases per jitted ``program``
+under a proposal (``EnvParams.draws``; crude MC: the traffic's own). ``kinds`` reads each lane
+change's failures (any, each failed end, each norm of ``safety.NORMS`` violated). IS fits a
+``mixture.Mixture`` on pilot chunks and draws each chunk from one of its components or the
+traffic; ``Tally`` keeps each lane change's log ratios and kinds and the failures with their
+keys, so the estimate and the worst cases can be read at any chunk, Ctrl-C included.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
-import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,49 +22,37 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
 from jaxlc import config
 from jaxlc.evaluation import keys as streams
-from jaxlc.evaluation import rare
+from jaxlc.evaluation import mixture, rare
 from jaxlc.evaluation.cases import Policies, columns, init_actor, make_rollout, make_start_cases
 from jaxlc.evaluation.heldout import lane_change_measures
-from jaxlc.evaluation.proposal import (
-    ROLES,
-    STATS,
-    Proposal,
-    TiltedEnv,
-    nominal,
-)
+from jaxlc.evaluation.mixture import Mixture
+from jaxlc.evaluation.proposal import Proposal, Record, TiltedEnv
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.evaluation.safety import NORMS
 from jaxlc.learn.networks import make_networks
-from jaxlc.sim.braking import start_probability
 from jaxlc.sim.env import EnvParams, action_dim
 
 ENDS = ("collision", "out_of_bounds", "timeout", "unfinished")
 KINDS = ("failure", *ENDS, *(f"norm_{name}" for name, *_ in NORMS))
 CASE_CAP = 1000  # failures kept per model and kind, highest weight first
-DEFENSIVE_SHARE = 0.2  # the estimate's share of chunks drawn from the nominal (docs/decisions.md)
-POOL_STOP = 40  # the CE stops once this many failures of its kind are pooled
-SMOOTH = 0.7  # the CE's step: new = SMOOTH * fitted + (1 - SMOOTH) * old
-BRAKE_MAX = 0.05  # per-step probability of a braking event at most (one in 2 s)
 
 
 @functools.lru_cache(maxsize=4)
 def program(cfg: config.Config, max_steps: int, tilted: bool) -> Callable:
-    """Jitted ``(proposal, policies, keys (chunk, 2)) -> (Outcome, Trace, Cases.performed)``
-    of one policy on a chunk of cases (the first traced); ``tilted=False``: the simulator's own
-    draws (the proposal is ignored, no log weight is computed)."""
+    """Jitted ``(proposal, policies, keys (chunk, 2)) -> (Outcome, Trace)`` of one policy on a
+    chunk of cases, under a ``Proposal`` (traced: ``EnvParams.draws``); ``tilted=False``: the
+    simulator's own draws (the proposal, None, is ignored)."""
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
 
-    def run(prop: Proposal, pol: Policies, keys: jax.Array) -> tuple:
-        env = TiltedEnv(prop) if tilted else None
-        cs = make_start_cases(base, max_steps, env, traffic_warmup=True)(keys)
-        out, trace = make_rollout(base, actor_net.apply, max_steps, env)(
-            pol, cs, jnp.zeros(1, jnp.int32)
-        )
-        return out, trace
+    def run(prop: Proposal | None, pol: Policies, keys: jax.Array) -> tuple:
+        p, env = (base.replace(draws=prop), TiltedEnv()) if tilted else (base, None)
+        cs = make_start_cases(p, max_steps, env, traffic_warmup=True)(keys)
+        return make_rollout(p, actor_net.apply, max_steps, env)(pol, cs, jnp.zeros(1, jnp.int32))
 
     return jax.jit(run)
 
@@ -106,197 +86,189 @@ def score(out: dict[str, np.ndarray], kind: str) -> np.ndarray:
 
 
 @dataclass
+class Case:
+    """A failure kept to replay: its case index and key, weight, kinds, end, the component
+    that drew it (-1: the traffic's own) and the proposal at the shares so far (IS)."""
+
+    index: int
+    key: list[int]
+    log_w: float
+    kinds: list[str]
+    reason: str
+    component: int
+    proposal: dict[str, Any] | None  # IS's mixture at the shares its chunks held (to weigh)
+    model: int  # the policy: its index among those validated, label, checkpoint and k
+    label: str
+    checkpoint: str | None
+    k: int
+    method: str
+
+
+@dataclass
 class Tally:
-    """What the chunks so far found, per performed lane change."""
+    """What the chunks so far found, per kept case (every lane change; every case started
+    with ``ratio``, a window before acceptance): its log ratios to ``mix``'s components, its
+    kinds and whether it performed; each chunk's component; the failures."""
 
-    log_w: list[np.ndarray] = field(default_factory=list)
-    kinds: list[np.ndarray] = field(default_factory=list)
-    cases: list[dict[str, Any]] = field(default_factory=list)
-    started: int = 0  # cases started (performed or not)
-    ratio: bool = False  # the proposal tilts before acceptance: keep every case, ratio estimate
-    perf: list[np.ndarray] = field(default_factory=list)
-    nominal_started: int = 0  # cases of chunks drawn from the nominal (``drawn_nominal``)
-    # ``--family mixture`` (``jaxlc.evaluation.mixture.Mixture``): each case's weight from its
-    # log ratios to the components (``log_r``) and the shares the chunks were drawn in
-    mixture: Any = None
+    mix: Mixture | None  # None: crude MC
+    who: dict[str, Any]  # ``Case``'s model, label, checkpoint, k, method
+    ratio: bool = False
     log_r: list[np.ndarray] = field(default_factory=list)
-    components: list[int] = field(default_factory=list)  # each chunk's (-1: the nominal)
-
-    def add(
-        self,
-        out: dict,
-        lo: int,
-        keys: np.ndarray,
-        dt: float,
-        tilted: bool,
-        nominal: bool = False,
-        component: int = -1,
-        drawn: dict[str, Any] | None = None,
-    ) -> None:
-        """A chunk's cases (``nominal``: drawn from the traffic's own distribution, their log
-        ratios taken against the proposal: the defensive mixture's share). With a mixture:
-        the ``component`` that drew them; ``drawn``: what each failure records of its
-        proposal."""
-        perf = out["performed"][0]
-        k = kinds(out, dt)
-        keep = np.ones_like(perf) if self.ratio else perf
-        drawn = {"drawn_nominal": nominal, **(drawn or {})}
-        if self.mixture is not None:
-            self.components.append(component)
-            mix = self.drawn_mixture
-            log_r = self.mixture.log_ratios(out["tilt"][0])
-            log_w = mix.log_weight_of(log_r)  # the shares so far: the case's replay gives it
-            self.log_r.append(log_r[keep])
-            drawn["mixture"] = mix.to_dict()
-        else:
-            log_w = out["log_w"][0].astype(np.float64) if tilted else np.zeros(perf.shape)
-            self.log_w.append(log_w[keep])
-        self.kinds.append(k[keep] & perf[keep, None])
-        self.perf.append(perf[keep])
-        for c in np.nonzero(perf & k[:, 0])[0]:
-            self.cases.append(
-                {
-                    "index": lo + int(c),
-                    "key": [int(x) for x in keys[c]],
-                    "log_w": float(log_w[c]),
-                    "kinds": [n for n, hit in zip(KINDS, k[c], strict=True) if hit],
-                    "reason": OUTCOMES[int(out["reason"][0][c])],
-                    **drawn,
-                }
-            )
-        self.cases.sort(key=lambda r: -r["log_w"])
-        del self.cases[CASE_CAP:]
-        self.started += perf.size
-        self.nominal_started += perf.size if nominal else 0
+    kinds: list[np.ndarray] = field(default_factory=list)
+    perf: list[np.ndarray] = field(default_factory=list)
+    components: list[int] = field(default_factory=list)
+    cases: list[Case] = field(default_factory=list)
+    started: int = 0
 
     @property
-    def drawn_mixture(self) -> Any:
-        """The mixture with the shares its chunks so far were drawn in (the balance
-        heuristic's, for an estimate unbiased whatever they are)."""
-        return self.mixture.drawn(self.components)
-
-    @property
-    def defensive(self) -> float:
-        """The share of the cases drawn from the nominal (0: the proposal's alone)."""
-        return self.nominal_started / self.started if self.started else 0.0
+    def drawn(self) -> Mixture | None:
+        """The mixture at the shares its chunks so far were drawn in (the balance heuristic's,
+        for an estimate unbiased whatever they are)."""
+        return self.mix and self.mix.drawn(self.components)
 
     @property
     def lane_changes(self) -> int:
         return int(sum(a.sum() for a in self.perf))
 
-    def estimates(self, method: str) -> dict[str, dict[str, Any]]:
-        """Per kind: ``rare.mc_estimate`` or ``rare.is_estimate`` of the lane changes so far."""
+    def add(self, out: dict, lo: int, keys: np.ndarray, dt: float, component: int) -> None:
+        """A chunk's cases (``component``: the one that drew them, -1 the traffic's own)."""
+        perf, k = out["performed"][0], kinds(out, dt)
+        keep = np.ones_like(perf) if self.ratio else perf
+        self.components.append(component)
+        log_r, log_w, prop = np.zeros((perf.size, 0)), np.zeros(perf.size), None
+        if self.mix is not None:
+            log_r = Record.unpack(out["tilt"][0].astype(np.float64)).log_r
+            log_w, prop = self.drawn.log_weights(log_r), self.drawn.to_dict()  # as replayed
+        self.log_r.append(log_r[keep])
+        self.kinds.append(k[keep] & perf[keep, None])
+        self.perf.append(perf[keep])
+        for c in np.nonzero(perf & k[:, 0])[0]:
+            hit = [n for n, h in zip(KINDS, k[c], strict=True) if h]
+            reason = OUTCOMES[int(out["reason"][0][c])]
+            key = [int(x) for x in keys[c]]
+            case = Case(lo + int(c), key, float(log_w[c]), hit, reason, component, prop, **self.who)
+            self.cases.append(case)
+        self.cases.sort(key=lambda r: -r.log_w)
+        del self.cases[CASE_CAP:]
+        self.started += perf.size
+
+    def estimates(self) -> dict[str, rare.Estimate]:
+        """Per kind: crude MC's, IS's or (``ratio``) IS's ratio estimate of the lane changes so
+        far."""
         if not self.kinds:
             return {}
         k = np.concatenate(self.kinds)
-        if self.mixture is not None:
-            log_w = self.drawn_mixture.log_weight_of(np.concatenate(self.log_r))
-        else:
-            log_w = np.concatenate(self.log_w)
-        if self.nominal_started and self.mixture is None:  # the balance heuristic
-            log_w = rare.defensive(log_w, self.defensive)
-        if method == "mc":
+        if self.mix is None:
             return {
                 n: rare.mc_estimate(int(k[:, i].sum()), k.shape[0]) for i, n in enumerate(KINDS)
             }
+        log_w = self.drawn.log_weights(np.concatenate(self.log_r))
         if self.ratio:
             perf = np.concatenate(self.perf)
             return {n: rare.is_ratio_estimate(log_w, perf, k[:, i]) for i, n in enumerate(KINDS)}
         return {n: rare.is_estimate(log_w, k[:, i]) for i, n in enumerate(KINDS)}
 
 
-def nominal_chunk(index: int, alpha: float) -> bool:
-    """Whether the estimate's chunk ``index`` is drawn from the nominal: the share ``alpha``
-    of the chunks, spread evenly (chunk 0 is the proposal's)."""
-    return math.floor((index + 1) * alpha) > math.floor(index * alpha)
+@dataclass(frozen=True)
+class Settings:
+    """What ``estimate`` does (``python -m jaxlc.validate``'s options)."""
+
+    method: str = "is"  # "mc" or "is"
+    kind: str = "collision"  # the failure kind the fit and the stop read (KINDS)
+    family: str = "single"  # IS: one CE proposal, or the one-role tilts ("mixture")
+    window: str = "acceptance"  # IS: where the braking's tilt starts (proposal.WINDOWS)
+    defensive: float = 0.2  # IS: the nominal's share of the chunks
+    lane_changes: int = 1_000_000  # at most, per model
+    rel_halfwidth: float = 0.0  # stop once the kind's reaches it (0: never)
+    chunk: int = 2048
+    seed: int = 0
+    max_steps: int = config.EvalConfig().max_steps
 
 
-START_BRAKE = 0.005  # the CE's first proposal: a braking event per role one in 20 s
+@dataclass
+class Result:
+    """One policy's validation: the fitted proposal and its pilot rounds, the estimates per
+    kind, the counts and times, and the failures kept."""
+
+    meta: dict[str, Any]
+    method: str
+    proposal: dict[str, Any] | None
+    defensive: float
+    ce: list[dict[str, Any]]
+    estimates: dict[str, rare.Estimate]
+    lane_changes: int
+    cases_started: int
+    ce_s: float
+    wall_s: float
+    lane_changes_per_s: float
+    interrupted: bool
+    cases: list[Case] = field(default_factory=list)
 
 
-def start_proposal(p: EnvParams) -> Proposal:
-    """The CE's start: the nominal, braking events around the ego ``START_BRAKE`` per step."""
-    nom = nominal(p)
-    return nom.replace(brake=jnp.maximum(nom.brake, START_BRAKE))
+def fit(base: EnvParams, run: Callable, pol: Policies, s: Settings) -> tuple[Mixture | None, list]:
+    """The proposal the estimate draws from and the fit's record of each pilot round: none
+    (``mc``), the CE's mixture of one or the pilots' one-role tilts (``is``)."""
+    if s.method == "mc":
+        return None, []
+    col, log = KINDS.index(s.kind), tqdm.write
+
+    def failed(out: dict) -> np.ndarray:  # (cases,) the failures of the kind
+        return kinds(out, base.dt)[:, col]
+
+    if s.family == "mixture":
+        start = mixture.start_pilots(base, s.defensive, s.window, s.max_steps)
+        return mixture.fit_pilots(run, pol, base, start, s.chunk, failed, seed=s.seed, log=log)
+    start = dataclasses.replace(mixture.start_ce(base, s.defensive), window=s.window)
+    ce_score = functools.partial(score, kind=s.kind)
+    return mixture.fit_ce(run, pol, base, start, s.chunk, failed, ce_score, seed=s.seed, log=log)
 
 
-def _fit(w: np.ndarray, st: np.ndarray, p_fire: float) -> Proposal:
-    """The CE's fit of a proposal to the elite's weights ``w`` and statistics ``st``."""
-    s = {n: st[:, i] for i, n in enumerate(STATS)}
-    events = sum(s[f"brake_events_{x}"] for x in ROLES)
-    brake = [
-        rare.ce_rate(w, s[f"brake_events_{x}"], s[f"brake_trials_{x}"], p_fire, BRAKE_MAX)
-        for x in ROLES
-    ]
-    return Proposal(
-        brake=jnp.asarray(brake, jnp.float32),
-        brake_acc=jnp.float32(rare.ce_theta(w, s["brake_acc_sum"], events)),
-        brake_time=jnp.float32(rare.ce_theta(w, s["brake_time_sum"], events)),
-        yields=jnp.float32(rare.ce_rate(w, s["yield_events"], s["yield_trials"], 0.05, 0.95)),
+def estimate(
+    cfg: config.Config, actor: Any | None, k: int, meta: dict, s: Settings, model: int = 0
+) -> Result:
+    """The validation of policy ``model`` (``actor`` None: the scripted controller): the
+    proposal (``is``), then chunks until the lane changes or the relative half-width are
+    reached, or Ctrl-C."""
+    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+    run, pol = program(cfg, s.max_steps, s.method == "is"), policies(cfg, actor, k)
+    t0 = time.perf_counter()
+    fitted, history = fit(base, run, pol, s)
+    who = {"model": model, "label": meta["label"], "checkpoint": meta.get("checkpoint")}
+    who |= {"k": meta.get("k") or 1, "method": s.method}
+    tally = Tally(fitted, who, ratio=fitted is not None and s.window != "acceptance")
+    lo, interrupted = 0, False
+    bar = tqdm(total=s.lane_changes, unit="lc", desc=str(meta["label"]), leave=False)
+    t1 = time.perf_counter()
+    try:
+        while tally.lane_changes < s.lane_changes:
+            keys = streams.stream(s.seed, streams.VALIDATE, range(lo, lo + s.chunk))
+            c = fitted.next_component(tally.components) if fitted else -1
+            out = columns(jax.device_get(run(fitted and fitted.proposal(c), pol, keys))[0])
+            before = tally.lane_changes
+            tally.add(out, lo, np.asarray(keys), base.dt, c)
+            lo += s.chunk
+            bar.update(tally.lane_changes - before)
+            est = tally.estimates()[s.kind]
+            bar.set_postfix(p=f"{est.estimate:.3g}", rel=f"{est.rel_halfwidth:.3g}")
+            if est.rel_halfwidth <= s.rel_halfwidth:
+                break
+    except KeyboardInterrupt:
+        interrupted = True
+    bar.close()
+    t2 = time.perf_counter()
+    drawn = tally.drawn
+    return Result(
+        meta=meta,
+        method=s.method,
+        proposal=drawn and drawn.to_dict(),
+        defensive=drawn.alpha if drawn else 0.0,
+        ce=history,
+        estimates=tally.estimates(),
+        lane_changes=tally.lane_changes,
+        cases_started=tally.started,
+        ce_s=round(t1 - t0, 1),
+        wall_s=round(t2 - t0, 1),
+        lane_changes_per_s=round(tally.lane_changes / max(t2 - t1, 1e-9), 1),
+        interrupted=interrupted,
+        cases=tally.cases,
     )
-
-
-def fit_proposal(
-    run: Callable,
-    pol: Policies,
-    p: EnvParams,
-    start: Proposal,
-    chunk: int,
-    *,
-    kind: str = "collision",
-    rounds: int = 6,
-    seed: int = 0,
-    log: Callable = print,
-) -> tuple[Proposal, list[dict[str, Any]]]:
-    """Multilevel cross-entropy from ``start``: each round runs a pilot chunk and moves the
-    proposal ``SMOOTH`` of the way to its elite's weighted fit. The elite: every lane change
-    of ``kind`` of the rounds so far (each weighted by its ratio to the traffic's own
-    distribution, so rounds under different proposals pool) once ``rare.MIN_ELITE`` are seen;
-    short of them, the proposal is held for another round where as many failures again would
-    make them, else the elite is the round's tenth closest to failing so (``score``), whose
-    ``level`` the record gives (``None`` for a held round). Stops once ``POOL_STOP``
-    failures are pooled. Returns the proposal and each round's record."""
-    prop, history, col = start, [], KINDS.index(kind)
-    p_fire = float(start_probability(p))
-    pool: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-    for r in range(rounds):
-        keys = streams.stream(seed, streams.PILOT, range(r * chunk, (r + 1) * chunk))
-        out = columns(jax.device_get(run(prop, pol, keys)[0]))
-        perf = out["performed"][0]
-        failed = kinds(out, p.dt)[perf, col]
-        pool.append((out["log_w"][0][perf], failed, out["tilt"][0][perf].astype(np.float64)))
-        log_w, hits, st = (np.concatenate(a) for a in zip(*pool, strict=True))
-        # Failures short of an elite, but as many again would make one: another round under
-        # the same proposal, not a step toward the tenth closest by ``score``, whose lane
-        # changes need not share the failures' causes.
-        held = hits.sum() < rare.MIN_ELITE <= hits.sum() + failed.sum() and r + 1 < rounds
-        level = None
-        if hits.sum() >= rare.MIN_ELITE:
-            w, level = rare.elite(log_w, hits, np.zeros(hits.shape), rho=0.0)
-        elif not held:
-            log_w, st = pool[-1][0], pool[-1][2]
-            w, level = rare.elite(log_w, failed, score(out, kind)[perf])
-        if not held:
-            fit = _fit(w, st, p_fire).replace(tilt_from=start.tilt_from)
-            prop = jax.tree.map(lambda a, b: SMOOTH * a + (1 - SMOOTH) * b, fit, prop)
-        history.append(
-            {
-                "round": r,
-                "failures": int(failed.sum()),
-                "lane_changes": int(perf.sum()),
-                "pooled_failures": int(hits.sum()),
-                "level": level,
-                "proposal": prop.to_dict(),
-            }
-        )
-        if held:
-            elite = "held (as many failures again make one)"
-        else:
-            elite = "the failures" if level == math.inf else f"score >= {level:g}"
-        log(
-            f"CE round {r}: {int(failed.sum())} {kind} in {int(perf.sum())} lane changes "
-            f"({int(hits.sum())} pooled), elite {elite}"
-        )
-        if hits.sum() >= POOL_STOP:
-            break
-    return prop, history

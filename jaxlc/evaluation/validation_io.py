@@ -4,9 +4,11 @@ saved case replayed as a GIF (``replay_case``)."""
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,10 +17,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxlc import config
-from jaxlc.evaluation import heldout, proposal, validation
+from jaxlc.evaluation import heldout, rare, validation
 from jaxlc.evaluation.cases import columns
 from jaxlc.evaluation.mixture import Mixture
 from jaxlc.evaluation.numbers import csv_text
+from jaxlc.evaluation.proposal import Record
 from jaxlc.evaluation.results import OUTCOMES, EvalError
 from jaxlc.sim.env import EnvParams
 from jaxlc.study import checkpoint
@@ -34,59 +37,78 @@ def validate_dir(run_dir: Path, out: Path | None = None) -> Path:
     return Path(out) if out is not None else Path(run_dir) / "validate"
 
 
-def write_outputs(args: Any, cfg: config.Config, results: list[dict], peak: float) -> Path:
+@dataclass
+class Validation:
+    """``validate.json``: the setting and each model's ``validation.Result`` (its cases apart,
+    in ``cases.json``); ``family`` None with crude MC (and absent from older files)."""
+
+    traffic: str
+    traffic_overrides: list[str]
+    method: str
+    family: str | None
+    kind: str
+    chunk: int
+    seed: int
+    max_steps: int
+    matmul_peak_gflops: int
+    date: str
+    models: list[validation.Result]
+
+    def to_json(self) -> str:
+        models = [
+            {f.name: getattr(r, f.name) for f in dataclasses.fields(r) if f.name != "cases"}
+            | {"estimates": {k: e.to_dict() for k, e in r.estimates.items()}}
+            for r in self.models
+        ]
+        doc = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        return json.dumps(doc | {"models": models}, indent=1, default=str) + "\n"
+
+    @classmethod
+    def read(cls, path: Path) -> Validation:
+        """A ``validate.json`` (older ones: no ``defensive`` with crude MC)."""
+        doc = json.loads(Path(path).read_text())
+        models = [
+            validation.Result(**{"defensive": 0.0, **m, "estimates": {
+                k: rare.Estimate(**e) for k, e in m["estimates"].items()}})
+            for m in doc.pop("models")
+        ]  # fmt: skip
+        return cls(**{"family": None, **doc, "models": models})
+
+
+def write_outputs(
+    args: Any, cfg: config.Config, results: list[validation.Result], peak: float
+) -> Path:
     """``validate/validate.json``, ``validate.csv``, ``cases.json``, ``validate.md`` and the
     figure."""
     out = validate_dir(args.run_dir, args.out)
     out.mkdir(parents=True, exist_ok=True)
-    doc = {
-        "traffic": heldout.traffic_of(cfg.env),
-        "traffic_overrides": list(args.traffic),
-        "method": args.method,
-        "family": args.family if args.method == "is" else None,
-        "kind": args.kind,
-        "chunk": args.chunk,
-        "seed": args.seed,
-        "max_steps": args.max_steps,
-        "matmul_peak_gflops": round(peak),
-        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "models": [{k: v for k, v in r.items() if k != "cases"} for r in results],
-    }
-    (out / "validate.json").write_text(json.dumps(doc, indent=1, default=str) + "\n")
+    date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    family = args.family if args.method == "is" else None
+    doc = Validation(
+        heldout.traffic_of(cfg.env), list(args.traffic), args.method, family, args.kind,
+        args.chunk, args.seed, args.max_steps, round(peak), date, results,
+    )  # fmt: skip
+    (out / "validate.json").write_text(doc.to_json())
+    more = {"matmul_peak_gflops": round(peak)}
     rows = [
-        {
-            **r["meta"],
-            **e,
-            "method": r["method"],
-            "kind": kind,
-            "wall_s": r["wall_s"],
-            "lane_changes_per_s": r["lane_changes_per_s"],
-            "matmul_peak_gflops": round(peak),
-        }
+        r.meta | e.to_dict() | {"method": r.method, "kind": kind, "wall_s": r.wall_s}
+        | {"lane_changes_per_s": r.lane_changes_per_s} | more
         for r in results
-        for kind, e in r["estimates"].items()
-    ]
+        for kind, e in r.estimates.items()
+    ]  # fmt: skip
     checkpoint.write_text_atomic(out / "validate.csv", csv_text(rows, FIELDS))
-    cases = [
-        {
-            **c,
-            "model": i,
-            "label": r["meta"]["label"],
-            "checkpoint": r["meta"].get("checkpoint"),
-            "k": r["meta"].get("k") or 1,
-            "method": r["method"],
-            # a mixture's case names its component's proposal itself
-            "proposal": c.get(
-                "proposal", {**r["proposal"], "drawn_nominal": float(c["drawn_nominal"])}
-            ),
-        }
-        for i, r in enumerate(results)
-        for c in r["cases"]
-    ]
-    (out / "cases.json").write_text(json.dumps(cases, indent=1) + "\n")
+    cases = [c for r in results for c in r.cases]
+    (out / "cases.json").write_text(
+        json.dumps([dataclasses.asdict(c) for c in cases], indent=1) + "\n"
+    )
     (out / "validate.md").write_text("\n".join(report_section(args.run_dir, out)) + "\n")
     scenes_figure(args.run_dir, out, cfg, doc, cases)
     return out
+
+
+def read_cases(out: Path) -> list[validation.Case]:
+    """``cases.json``'s failures, highest weight first per model."""
+    return [validation.Case(**c) for c in json.loads((out / "cases.json").read_text())]
 
 
 _FAMILY = {"mixture": " (a mixture of one-role braking tilts)"}
@@ -102,34 +124,35 @@ def report_section(run_dir: Path, out: Path | None = None) -> list[str]:
     path = validate_dir(run_dir, out) / "validate.json"
     if not path.is_file():
         return []
-    doc = json.loads(path.read_text())
+    doc = Validation.read(path)
     lines = [
         "## How rarely it fails (`python -m jaxlc.validate`)",
         "",
-        f"{doc['method'].upper()}{_FAMILY.get(doc.get('family'), '')} in {doc['traffic']}; "
-        f"{doc['date']}, matmul peak "
-        f"{doc['matmul_peak_gflops']} GFLOP/s. Probability per lane change, 95% interval, "
-        "relative half-width, effective sample size; `validate/validate.json`.",
+        f"{doc.method.upper()}{_FAMILY.get(doc.family, '')} in {doc.traffic}; {doc.date}, "
+        f"matmul peak {doc.matmul_peak_gflops} GFLOP/s. Probability per lane change, 95% "
+        "interval, relative half-width, effective sample size; `validate/validate.json`.",
         "",
         "| policy | kind | estimate | 95% interval | rel. half-width | ESS | lane changes | s |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for m in doc["models"]:
-        for kind, e in m["estimates"].items():
-            if e["failures"] == 0 and kind != doc["kind"]:
+    for m in doc.models:
+        for kind, e in m.estimates.items():
+            if e.failures == 0 and kind != doc.kind:
                 continue
             lines.append(
-                f"| {m['meta']['label']} | {kind} | {_sci(e['estimate'])} | [{_sci(e['lo'])}, "
-                f"{_sci(e['hi'])}] | {_sci(e['rel_halfwidth'])} | {_sci(e['ess'])} | "
-                f"{e['lane_changes']} | {m['wall_s']} |"
+                f"| {m.meta['label']} | {kind} | {_sci(e.estimate)} | [{_sci(e.lo)}, "
+                f"{_sci(e.hi)}] | {_sci(e.rel_halfwidth)} | {_sci(e.ess)} | "
+                f"{e.lane_changes} | {m.wall_s} |"
             )
     return lines + [""]
 
 
-def scenes_figure(run_dir: Path, out: Path, cfg: config.Config, doc: dict, cases: list[dict]):
+def scenes_figure(
+    run_dir: Path, out: Path, cfg: config.Config, doc: Validation, cases: list[validation.Case]
+) -> Path | None:
     """``scenes.png``: per failure kind, its highest-weight saved case replayed, the scene at
     its last step (the ego red, the gap's lead and lag green)."""
-    kinds = [k for k in validation.KINDS if any(k in c["kinds"] for c in cases)]
+    kinds = [k for k in validation.KINDS if any(k in c.kinds for c in cases)]
     if not kinds:
         return None
     from jaxlc.evaluation.plots import _save, plt
@@ -138,38 +161,38 @@ def scenes_figure(run_dir: Path, out: Path, cfg: config.Config, doc: dict, cases
     p = EnvParams.from_config(cfg.env)
     fig, axes = plt.subplots(len(kinds), 1, figsize=(8, 1.3 * len(kinds) + 0.3), squeeze=False)
     for ax, kind in zip(axes[:, 0], kinds, strict=True):
-        case = next(c for c in cases if kind in c["kinds"])  # highest weight first
-        _, tr, _ = _rerun(run_dir, cfg, doc, case)
+        case = next(c for c in cases if kind in c.kinds)  # highest weight first
+        tr, _ = _rerun(run_dir, cfg, doc, case)
         draw_scene(ax, tr, 0, 0, max(int(tr["frames"][0, 0]) - 1, 0), p)
         ax.set_axis_off()
-        n = sum(kind in c["kinds"] for c in cases)
+        n = sum(kind in c.kinds for c in cases)
         ax.set_title(
-            f"{kind} ({n} saved): {case['label']}, case {case['index']}, {case['reason']}, "
-            f"log10 w = {case['log_w'] / math.log(10):.2f}",
+            f"{kind} ({n} saved): {case.label}, case {case.index}, {case.reason}, "
+            f"log10 w = {case.log_w / math.log(10):.2f}",
             fontsize=8,
             loc="left",
         )
     return _save(fig, out / "scenes.png")
 
 
-def _rerun(run_dir: Path, cfg: config.Config, doc: dict, case: dict) -> tuple[dict, dict, bool]:
-    """A saved case run again (the same program, its key in every row of a chunk): the
-    outcome and trace of its row, and whether its outcome and weight are the saved ones."""
+def _rerun(run_dir: Path, cfg: config.Config, doc: Validation, case: validation.Case) -> tuple:
+    """A saved case run again (the same program, its key in every row of a chunk): the trace
+    of its row, and whether its outcome and weight are the saved ones."""
     actor = None
-    if case["checkpoint"]:
-        actor = checkpoint.load(Path(run_dir) / case["checkpoint"])[0]
-    run = validation.program(cfg, doc["max_steps"], case["method"] == "is")
-    pol = validation.policies(cfg, actor, int(case["k"]))
-    keys = jnp.tile(jnp.asarray(case["key"], jnp.uint32)[None], (doc["chunk"], 1))
-    o, trace = jax.device_get(run(proposal.from_dict(case["proposal"]), pol, keys))
+    if case.checkpoint:
+        actor = checkpoint.load(Path(run_dir) / case.checkpoint)[0]
+    run = validation.program(cfg, doc.max_steps, case.method == "is")
+    pol = validation.policies(cfg, actor, int(case.k))
+    keys = jnp.tile(jnp.asarray(case.key, jnp.uint32)[None], (doc.chunk, 1))
+    mix = case.proposal and Mixture.from_dict(case.proposal)
+    o, trace = jax.device_get(run(mix and mix.proposal(case.component), pol, keys))
     o, tr = columns(o), columns(trace)
     last = max(int(tr["frames"][0, 0]) - 1, 0)
     tr["side"] = np.asarray([1 if tr["y"][0, 0, 0] < tr["y"][0, 0, last] else -1])
-    log_w = float(o["log_w"][0][0]) if case["method"] == "is" else 0.0
-    if "mixture" in case:  # the chunk's weights, as the estimate computed them
-        log_w = float(Mixture.from_dict(case["mixture"]).log_weight(o["tilt"][0])[0])
-    same = OUTCOMES[int(o["reason"][0][0])] == case["reason"] and log_w == case["log_w"]
-    return o, tr, same
+    log_w = 0.0
+    if mix:  # the chunk's weights, as the estimate computed them
+        log_w = float(mix.log_weights(Record.unpack(o["tilt"][0].astype(np.float64)).log_r)[0])
+    return tr, OUTCOMES[int(o["reason"][0][0])] == case.reason and log_w == case.log_w
 
 
 def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
@@ -179,16 +202,16 @@ def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Pat
     out = validate_dir(run_dir, out)
     if not (out / "cases.json").is_file():
         raise EvalError(f"{out / 'cases.json'} is missing; run python -m jaxlc.validate first")
-    cases = json.loads((out / "cases.json").read_text())
+    cases = read_cases(out)
     if not 0 <= index < len(cases):
         raise EvalError(f"--replay {index}: cases.json holds {len(cases)} cases")
-    doc, case = json.loads((out / "validate.json").read_text()), cases[index]
-    cfg = heldout.in_traffic(RunDir(run_dir).load_config(), doc["traffic_overrides"])
-    _, tr, same = _rerun(run_dir, cfg, doc, case)
+    doc, case = Validation.read(out / "validate.json"), cases[index]
+    cfg = heldout.in_traffic(RunDir(run_dir).load_config(), doc.traffic_overrides)
+    tr, same = _rerun(run_dir, cfg, doc, case)
     return _gif(out / f"case_{index}.gif", tr, cfg, case), same
 
 
-def _gif(path: Path, tr: dict, cfg: config.Config, case: dict) -> Path:
+def _gif(path: Path, tr: dict, cfg: config.Config, case: validation.Case) -> Path:
     from jaxlc.evaluation.plots import PillowWriter, plt
     from jaxlc.evaluation.plots_scenes import draw_scene
 
@@ -201,8 +224,8 @@ def _gif(path: Path, tr: dict, cfg: config.Config, case: dict) -> Path:
             draw_scene(ax, tr, 0, 0, f, p)
             ax.set_axis_off()
             ax.set_title(
-                f"{case['label']}  t = {f * p.dt:4.1f} s  {case['reason']}  "
-                f"log10 w = {case['log_w'] / math.log(10):.2f}",
+                f"{case.label}  t = {f * p.dt:4.1f} s  {case.reason}  "
+                f"log10 w = {case.log_w / math.log(10):.2f}",
                 fontsize=8,
                 loc="left",
             )

@@ -129,13 +129,13 @@ def _executed(state: EnvState, action: Array, p: EnvParams) -> tuple:
 
 
 def _advance(
-    key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool, draws: tuple = ()
+    key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool
 ) -> tuple[EnvState, Array, dict[str, Array]]:
     """One dt of traffic and ego; returns ``(state, reward, info)`` (no observation); ``info``
-    holds each of ``p.reward_terms`` under its name. ``draws``: the step's ``(Draws,
-    TrafficDraws)`` given instead of drawn from ``key`` (a proposal's: ``jaxlc.validate``)."""
+    holds each of ``p.reward_terms`` under its name. The draws are ``p.draws``' (None: the
+    traffic's own; a proposal's: ``jaxlc.validate``)."""
     eg = state.ego
-    u, ut = traffic_mod.step_draws(key, p, draws)
+    u, ut = traffic_mod.step_draws(key, p, state)
     kappa = road_curvature(state, p)
     in_rl = eg.phase == RL
     held, held_long, lat, lon = _executed(state, action, p)
@@ -176,7 +176,7 @@ def _advance(
         ep_return=ep_return,
     )
     road = kappa if p.curvature_drawn else None
-    state = EnvState(traffic, ego, nb, leader_gap, leader_v, state.time + 1, road)
+    state = EnvState(traffic, ego, nb, leader_gap, leader_v, state.time + 1, road, state.drawn)
     info = {
         "rl_step": in_rl,
         "phase": ego.phase,
@@ -225,8 +225,8 @@ class LaneChangeEnv:
         the ego, off the road all along, keeps its reset values where the full step lets it
         coast (nothing after its spawn reads them). Its traffic is the full step's to float32
         rounding, not to the bit: XLA's CPU code rounds an entry's headway one ulp apart in
-        a few lanes in 10^4."""
-        p, lanes = params, params.lanes
+        a few lanes in 10^4. The warm-up draws the traffic's own, whatever ``params.draws``."""
+        p, lanes = params.replace(draws=None), params.lanes
         k_init, k_warm = jax.random.split(key)
         u = jax.random.uniform(k_init, (4, lanes))
         traffic = traffic_mod.empty(u, p)
@@ -254,15 +254,14 @@ class LaneChangeEnv:
         return observation(state, p), state.replace(time=jnp.int32(0))
 
     def step(
-        self, key: Array, state: EnvState, action: Array, params: EnvParams, draws: tuple = ()
+        self, key: Array, state: EnvState, action: Array, params: EnvParams
     ) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
         """Advance one dt with ``action`` ``(action_dim,)`` in [-1, 1] (read every ``k``-th RL
         step, ignored outside the RL phase). Returns ``(obs (OBS_DIM,), state, reward (),
         terminated (), truncated (), info)``: ``terminated``/``truncated`` refer to the RL
         manoeuvre (a timeout truncates unless ``params.terminal_timeout``); ``info`` has the
-        reward terms, phase and ``reason`` codes of ``jaxlc.sim.reward.REASONS``. ``draws``:
-        see ``_advance``."""
-        state, r, info = _advance(key, state, action, params, spawn=True, draws=draws)
+        reward terms, phase and ``reason`` codes of ``jaxlc.sim.reward.REASONS``."""
+        state, r, info = _advance(key, state, action, params, spawn=True)
         reason = info["reason"]
         rl = info["rl_step"]
         timeout = rl & (reason == reward.TIMEOUT)

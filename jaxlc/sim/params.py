@@ -337,6 +337,9 @@ class EnvParams:
     curvature_drawn: bool = derived(False, _curvature_drawn, unit="", static=True)
     gamma: float = derived(GAMMA, None, unit="", static=False)  # eq. (11)'s discount
     k: int = derived(1, None, unit="", static=False)  # an action is held for k RL steps
+    # The source of the traffic's draws: None, the traffic's own (no leaf: the nominal
+    # programs are unchanged); a proposal's (``jaxlc.evaluation.proposal``) draws them tilted.
+    draws: Any = derived(None, None, unit="", static=False)
 
     @classmethod
     def from_config(cls, env: Any, gamma: float = GAMMA, k: int = 1) -> EnvParams:

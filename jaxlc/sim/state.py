@@ -83,6 +83,8 @@ class EnvState:
     # () the episode's road curvature when drawn per episode (``params.curvature_drawn``);
     # None (no leaf) on a road of constant curvature, whose state is a straight road's.
     curvature: Array | None = None
+    # () a proposal's statistics of the draws so far (``params.draws``); None (no leaf) else
+    drawn: Array | None = None
 
 
 class Draws(NamedTuple):

@@ -205,13 +205,16 @@ class TrafficStep(NamedTuple):
     events: braking.Events | None  # with env.braking
 
 
-def step_draws(key: Array, p: EnvParams, draws: tuple = ()) -> tuple[Draws, TrafficDraws | None]:
-    """The step's ``(Draws, TrafficDraws)`` from ``key``, or ``draws`` where given; no
-    ``TrafficDraws`` (None) in the paper's traffic, which draws and computes none of them."""
-    u = draws[0] if draws else Draws.draw(key, p.lanes)
-    ut = None
-    if p.mobil or p.braking:  # static
-        ut = draws[1] if draws else TrafficDraws.draw(key, p.lanes, p.slots_per_lane)
+def step_draws(
+    key: Array, p: EnvParams, state: EnvState | None = None
+) -> tuple[Draws, TrafficDraws | None]:
+    """The step's ``(Draws, TrafficDraws)`` from ``key``: the traffic's own, or, with a source
+    ``p.draws`` and the ``state`` they are drawn in, that source's; no ``TrafficDraws`` (None)
+    in the paper's traffic, which draws and computes none of them."""
+    if p.draws is not None and state is not None:
+        return p.draws.draw(key, state, p)
+    u = Draws.draw(key, p.lanes)
+    ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane) if p.mobil or p.braking else None
     return u, ut
 
 
