@@ -71,6 +71,7 @@ class Splitting:
     chains: Chain  # (N, M) the final particles' chains
     paths: Array  # (N, T) their score paths
     scores: Array  # (N,) their scores (max of the path)
+    first: Array  # (N,) the initial particles' scores: crude MC's draws
 
 
 def step_key(chain: Chain, t: Array) -> Array:
@@ -165,13 +166,15 @@ def splitting(
     particles: int,
     kill_fraction: float,
     max_rounds: int,
+    initial: Array | None = None,
 ) -> Splitting:
     """AMS estimate of P(max_t run(chain)[t] >= target); jit with ``run``, ``particles``,
     ``kill_fraction``, ``max_rounds`` static, vmap over ``key`` for independent runs.
 
     ``run``: one chain -> (T,) score path, drawing step t from ``step_key(chain, t)``.
     The initial particles are ``initial_chains(split(key)[0], N, M)``: on the same key,
-    ``max_rounds=0`` is crude MC on those draws."""
+    ``max_rounds=0`` is crude MC on those draws. ``initial`` ``(N, 2)``: the initial
+    particles' first segment keys instead (raw key data; a caller's chosen draws)."""
     n = particles
     k = max(1, math.ceil(kill_fraction * n))  # particles killed per round, ties aside
     first, rounds_key = jax.random.split(key)
@@ -180,6 +183,8 @@ def splitting(
     # branch steps strictly increase along a chain and lie in [0, T]; one segment per round
     segments = min(max_rounds, horizon) + 1
     chains = initial_chains(first, n, segments)
+    if initial is not None:
+        chains = chains.replace(keys=chains.keys.at[:, 0].set(initial.astype(chains.keys.dtype)))
     paths = jax.vmap(run)(chains).astype(jnp.float32)  # (N, T)
     target = jnp.asarray(target, jnp.float32)
 
@@ -210,6 +215,7 @@ def splitting(
         chains=s["chains"],
         paths=s["paths"],
         scores=scores,
+        first=paths.max(axis=1),
     )
 
 
