@@ -120,6 +120,21 @@ def test_the_exceedance_curve_ends_at_the_estimate(programs):
     assert probs[-1] * one.reached == pytest.approx(float(one.estimate), rel=1e-5)
 
 
+def test_the_curve_at_every_level_is_unbiased(programs):
+    """``exceedance_at``: at the target it is the run's estimate; over 2000 runs its mean at
+    each level a = 6, 8, 10, 12 of the walk is the closed form P(max >= a) within 4 standard
+    errors (a between two of a run's levels included)."""
+    many, _, _ = programs
+    r = jax.device_get(many(jax.random.split(jax.random.key(11), 2000), float(LEVEL)))
+    at = np.asarray([6.0, 8.0, 10.0, 12.0, float(LEVEL)])
+    runs = [jax.tree.map(lambda x, i=i: x[i], r) for i in range(2000)]
+    e = np.asarray([ams.exceedance_at(one, N, at) for one in runs])  # (runs, levels)
+    np.testing.assert_allclose(e[:, -1], np.asarray(r.estimate), rtol=1e-5)
+    for j, a in enumerate(at):
+        p, se = ams_toy.truth(STEPS, int(a)), e[:, j].std(ddof=1) / math.sqrt(len(runs))
+        assert abs(e[:, j].mean() - p) < 4 * se, (a, e[:, j].mean(), p, se)
+
+
 def test_the_log_interval_covers_a_skewed_mean_where_t_misses_low():
     """4000 samples of 10 lognormal draws (sigma 0.6, the skew of a product of many
     factors): Cox's interval covers the mean about 95%, Student's t about 91%."""

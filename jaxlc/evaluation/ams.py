@@ -192,21 +192,6 @@ def command(cfg: config.Config, rows: list[dict], args: Any, out_dir: Any, peak:
     return 0
 
 
-def curve(levels: np.ndarray, probs: np.ndarray, final: np.ndarray, w: float, m: np.ndarray):
-    """One run's P(margin <= m) at the margins ``m``: at a margin below the last level's,
-    the final particles' share times their weight ``w``; above it, the survival at the
-    largest applied level below minus m (an upper step between two levels)."""
-    out = np.empty(m.shape)
-    last = -levels[-1] if levels.size else np.inf  # margin of the last level
-    for j, x in enumerate(m):
-        if x < last or not levels.size:
-            out[j] = w * np.mean(final <= x)
-        else:
-            below = np.nonzero(levels < -x)[0]  # levels crossed before reaching -x
-            out[j] = probs[below[-1]] if below.size else 1.0
-    return out
-
-
 def estimate(cfg: config.Config, row: dict, a: Any, pol: Policies, peak: float) -> dict:
     """``a.repeats`` independent AMS runs of one policy (``a``: validate's arguments): the
     estimate of P(margin <= a.margin) per lane change with Cox's 95% interval, the curve
@@ -265,9 +250,8 @@ def estimate(cfg: config.Config, row: dict, a: Any, pol: Policies, peak: float) 
 
 
 def _curve_of(res: splitting.Splitting, n: int, grid: np.ndarray) -> np.ndarray:
-    levels, probs = splitting.exceedance(res, n)
-    w = float(probs[-1]) if probs.size else 1.0
-    return curve(levels, probs, -np.asarray(res.scores), w, grid)
+    """One run's P(margin <= m) at each margin of ``grid``, each unbiased."""
+    return splitting.exceedance_at(res, n, -grid)
 
 
 def _cp(k: int, n: int) -> tuple[float, float]:
