@@ -28,12 +28,15 @@ policy is deterministic), and they are thin: with the smoke config's scripted co
 least clearance is often set at the command itself (a vehicle alongside in the next lane,
 ~1.9 m), in the cached start, where no split reaches. Branched at RL step 1 in 16 ways, 3
 of 8 lane changes drew distinct paths even with braking events at 3,000 per vehicle-hour and
-MOBIL on; the runs' clones collapse onto one ancestor and the run goes extinct (``extinct``,
-``distinct``). Unbiased still, but useless below crude MC's reach. The way on (not built):
-split before the command, the approach in the path, on a score that reads the traffic there
-(the clearance the ego would have if it went now), capped below the target's level so
-that the event stays {margin <= m}; the estimand then per case, divided by crude MC's share
-of cases that change lanes.
+MOBIL on. With 32-64 particles the runs' clones collapsed onto one ancestor and the
+runs went extinct (``extinct``, ``distinct``); with 200 they did not, and the curve agreed
+with an independent crude MC where it sees >= 300 lane changes below the margin, but at ~3x
+its steps for a wider interval: unbiased, no gain while the splits cannot move the margin.
+The way on (not built): split before the command, the approach in the path, on a score
+that reads the traffic there (the target lane's lead and lag gaps: the clearance the ego
+would get if it went now; not the clearance now, which every vehicle passing alongside sets
+to 1.9 m), capped below the target's level so that the event stays {margin <= m}; the
+estimand then per case, divided by crude MC's share of cases that change lanes.
 """
 
 from __future__ import annotations
