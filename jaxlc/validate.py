@@ -30,10 +30,10 @@ from pathlib import Path
 from typing import Any
 
 from jaxlc import config
-from jaxlc.evaluation import heldout, mixture, proposal, validation
+from jaxlc.evaluation import ams, heldout, mixture, proposal, validation
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.evaluation.results import SCRIPTED, EvalError
-from jaxlc.evaluation.validation_io import replay_case, write_outputs
+from jaxlc.evaluation.validation_io import replay_case, validate_dir, write_outputs
 from jaxlc.paper.grid import tag_of
 from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
@@ -55,7 +55,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     ap.add_argument("run_dir", type=Path, help="run directory of jaxlc.sweep")
     ap.add_argument("--model", default="④", help="index, label, tag (④), all or scripted")
-    ap.add_argument("--method", choices=tuple(METHODS), default="is")
+    ap.add_argument("--method", choices=(*METHODS, "ams"), default="is")
     ap.add_argument("--lane-changes", type=int, default=1_000_000, help="most per model")
     ap.add_argument("--rel-halfwidth", type=float, default=0.0, help="stop at this (0: never)")
     ap.add_argument("--kind", choices=validation.KINDS, default="collision")
@@ -89,6 +89,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--max-steps", type=int, default=config.EvalConfig().max_steps)
     ap.add_argument("--out", type=Path, default=None, help="default: RUN_DIR/validate")
     ap.add_argument("--replay", type=int, default=None, metavar="CASE", help="cases.json index")
+    # --method ams (jaxlc.evaluation.ams): P(margin <= --margin) by adaptive multilevel splitting
+    ap.add_argument("--particles", type=int, default=1000, help="ams: lane changes per run")
+    ap.add_argument("--kill", type=float, default=0.1, help="ams: share killed per round")
+    ap.add_argument("--repeats", type=int, default=10, help="ams: independent runs (interval)")
+    ap.add_argument("--margin", type=float, default=0.0, help="ams: the margin m (0: failure)")
+    ap.add_argument("--max-rounds", type=int, default=2000, help="ams: 0 is crude MC")
     args = ap.parse_intermixed_args(argv)
     for name in ("lane_changes", "chunk", "max_steps"):
         if getattr(args, name) < 1:
@@ -130,8 +136,13 @@ def main(argv: list[str] | None = None) -> int:
             path, same = replay_case(args.run_dir, args.replay, args.out)
             print(f"Wrote {path}; the replay {'matches' if same else 'DIFFERS from'} the case")
             return 0 if same else 1
+        if args.method == "ams":
+            ams.check(args)
         cfg, rows = model_rows(args.run_dir, args.model)
         cfg = heldout.in_traffic(cfg, args.traffic)
+        if args.method == "ams":  # all of it in jaxlc.evaluation.ams
+            out = validate_dir(args.run_dir, args.out)
+            return ams.command(cfg, rows, args, out, machine.matmul_peak_gflops())
         if (
             args.method == "is"
             and args.family == "mixture"

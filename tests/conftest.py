@@ -138,7 +138,7 @@ SLOW_FIXTURES = {
     "tracked",  # test_tracking: a tracked smoke sweep
     "long_run",  # test_traffic: 102,400 env-steps at the highest rates
     "rows",  # test_ecosystem: Rejax's learners trained
-    "rollout",  # test_env, test_gymnax, test_manoeuvre_reward: long rollouts
+    "rollout",  # test_env, test_gymnax, test_reward_terms: long rollouts
     "rollouts",  # test_joint
     "run",  # test_evaluate, test_ranges: compiled evaluation programs
 }

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from jaxlc import config
-from jaxlc.evaluation import cases, heldout, keys, safety
+from jaxlc.evaluation import cases, heldout, keys, measures, safety
 from jaxlc.evaluation.results import OUTCOMES
+from jaxlc.sim import collision
 from jaxlc.sim.env import EnvParams, LaneChangeEnv
 
 
@@ -335,3 +336,56 @@ def test_the_r79_norm_times_the_manoeuvre_line_to_line() -> None:
     np.testing.assert_allclose(m["lcm_start_s"], [1.2, 1.2, 3.0])
     assert m["norm_lcm_s"].tolist() == [True, False, False]
     assert m["norm_all"].tolist() == [True, False, False]
+
+
+def test_clearance_is_the_distance_between_the_boxes_by_hand() -> None:
+    """The paper's traffic (rows are lanes), a straight road, the ego heading along it at
+    x = 100 (front bumper), y = 5.55 (lane 1's centre): a body 3 m ahead in its lane is 3 m
+    away; one in lane 2 whose rear is 4 m ahead is hypot(4, 3.7 - 1.8) away (boxes 1.8 m
+    wide, centres 3.7 m apart); one overlapping is 0, as ``overlaps`` says; an empty slot inf.
+    The margin measure takes the least and is exactly 0 on a collision's step."""
+    p = EnvParams()
+    L, W = p.vehicle_length, p.vehicle_width
+    assert (L, W, p.lane_width) == (5.0, 1.8, 3.7)
+    ego = type("E", (), {"x": jnp.float32(100.0), "y": jnp.float32(5.55), "psi": 0.0})
+    x = jnp.zeros((3, 3)).at[1, 0].set(100 + L + 3).at[2, 0].set(100 + L + 4)
+    x = x.at[1, 1].set(100 - L + 1)  # its front 1 m into the ego's rear
+    active = jnp.zeros((3, 3), bool).at[1, :2].set(True).at[2, 0].set(True)
+    tr = type("T", (), {"x": x, "lane": None, "active": active})
+    gap = np.asarray(collision.clearance(tr, ego, p))
+    assert gap[1, 0] == pytest.approx(3.0, abs=1e-4)
+    assert gap[2, 0] == pytest.approx(math.hypot(4.0, 3.7 - W), abs=1e-4)
+    assert gap[1, 1] == 0.0 and np.isinf(gap[0]).all() and np.isinf(gap[2, 1:]).all()
+    assert (gap == 0).tolist() == np.asarray(collision.overlaps(tr, ego, p)).tolist()
+    # turned by 90 degrees the ego's box is 1.8 long and 5 wide: lane 2's body, 4 m ahead of
+    # the front bumper and 3.7 - 3.4 = 0.3 m beside, is hypot(4, 0.3) away
+    ego.psi = jnp.float32(math.pi / 2)
+    far = float(collision.clearance(tr, ego, p)[2, 0])
+    assert far == pytest.approx(math.hypot(4.0, 3.7 - 0.5 * (L + W)), abs=1e-4)
+
+
+@pytest.fixture(scope="module")
+def margins(smoke_cfg: config.Config) -> dict[str, np.ndarray]:
+    """24 held-out lane changes: the scripted controller (succeeds), a zero actor (times
+    out) and a constant full-left action (out of bounds, either side)."""
+    found, started = cases.cases_for_lane_changes(smoke_cfg, 24, seed=0, batch=32)
+    zero = jax.tree.map(jnp.zeros_like, cases.init_actor(smoke_cfg))
+    out, _, info = cases.evaluate_policies(smoke_cfg, [None, zero], [1, 1], started=started)
+    left = cases.evaluate_act(smoke_cfg, lambda o: jnp.ones((o.shape[0], 1)), started=started)
+    both = {k: np.concatenate([v, left[k]]) for k, v in out.items()}
+    return {k: v[:, info["performed"]] for k, v in both.items()}
+
+
+def test_each_margin_is_zero_exactly_on_its_failure(margins: dict[str, np.ndarray]) -> None:
+    reason = margins["reason"]
+    assert {int(r) for r in reason.ravel()} >= {1, 2, 4}  # success, out of bounds, timeout
+    for kind, name in measures.MARGINS.items():
+        failed = reason == OUTCOMES.index(kind)
+        m = margins[name]
+        assert (m[failed] == 0).all(), kind
+        assert (m[reason == OUTCOMES.index("success")] > 0).all(), kind
+    # a lane change that ends in any other way keeps its gap: > 0 unless it collided
+    hit = reason == OUTCOMES.index("collision")
+    assert ((margins["margin_gap"] == 0) == hit).all()
+    # every lane change had a vehicle about it, and at most the limit's 10 s left
+    assert np.isfinite(margins["margin_gap"]).all() and (margins["margin_time"] <= 10.0).all()

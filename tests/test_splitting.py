@@ -120,6 +120,21 @@ def test_the_exceedance_curve_ends_at_the_estimate(programs):
     assert probs[-1] * one.reached == pytest.approx(float(one.estimate), rel=1e-5)
 
 
+def test_the_curve_at_every_level_is_unbiased(programs):
+    """``exceedance_at``: at the target it is the run's estimate; over 2000 runs its mean at
+    each level a = 6, 8, 10, 12 of the walk is the closed form P(max >= a) within 4 standard
+    errors (a between two of a run's levels included)."""
+    many, _, _ = programs
+    r = jax.device_get(many(jax.random.split(jax.random.key(11), 2000), float(LEVEL)))
+    at = np.asarray([6.0, 8.0, 10.0, 12.0, float(LEVEL)])
+    runs = [jax.tree.map(lambda x, i=i: x[i], r) for i in range(2000)]
+    e = np.asarray([ams.exceedance_at(one, N, at) for one in runs])  # (runs, levels)
+    np.testing.assert_allclose(e[:, -1], np.asarray(r.estimate), rtol=1e-5)
+    for j, a in enumerate(at):
+        p, se = ams_toy.truth(STEPS, int(a)), e[:, j].std(ddof=1) / math.sqrt(len(runs))
+        assert abs(e[:, j].mean() - p) < 4 * se, (a, e[:, j].mean(), p, se)
+
+
 def test_the_log_interval_covers_a_skewed_mean_where_t_misses_low():
     """4000 samples of 10 lognormal draws (sigma 0.6, the skew of a product of many
     factors): Cox's interval covers the mean about 95%, Student's t about 91%."""
@@ -131,3 +146,80 @@ def test_the_log_interval_covers_a_skewed_mean_where_t_misses_low():
     }
     assert cover[True] == pytest.approx(0.95, abs=0.01) and cover[False] < 0.93, cover
     assert ams.interval(np.array([0.0, 1.0, 2.0]), log=True) == ams.interval(np.arange(3.0))
+
+
+# On the simulator (jaxlc.evaluation.ams): the smoke config's scripted controller, few
+# particles; the start's batch small so that the starts cost little.
+SIM_N, SIM_KILL, SIM_ROUNDS, SIM_STEPS, SIM_BATCH = 12, 0.25, 6, 1500, 24
+
+
+@pytest.fixture(scope="module")
+def sim():
+    """The lane changes, the policy, the AMS program at SIM_ROUNDS and at 0 rounds (one
+    compile each), and the engine's crude-MC program of the validation on the same keys."""
+    from jaxlc import config
+    from jaxlc.evaluation import ams as sim_ams
+    from jaxlc.evaluation import keys, validation
+
+    cfg = config.load(config.CONFIG_DIR / "smoke.toml")
+    cs, lo, begun = sim_ams.starts(cfg, SIM_N, 0, 0, SIM_STEPS, batch=SIM_BATCH)
+    pol = validation.policies(cfg, None, 1)
+    one = jax.tree.map(lambda x: x[0], pol)
+    prog = {
+        r: sim_ams.program(cfg, "collision", SIM_N, SIM_KILL, r, SIM_STEPS) for r in (0, SIM_ROUNDS)
+    }
+    crude = validation.program(cfg, SIM_STEPS, False)
+    out, _ = crude(None, pol, keys.stream(0, keys.VALIDATE, range(lo)))
+    return dict(cfg=cfg, cs=cs, pol=one, prog=prog, out=jax.device_get(out), begun=begun)
+
+
+@pytest.mark.slow
+def test_a_lane_change_particle_replays_bit_for_bit_from_its_chain(sim):
+    from jaxlc.evaluation import ams as sim_ams
+    from jaxlc.learn.networks import make_networks
+    from jaxlc.sim.env import EnvParams, action_dim
+
+    res = jax.device_get(sim["prog"][SIM_ROUNDS](jax.random.PRNGKey(3), sim["pol"], sim["cs"], 0.0))
+    assert int(res.rounds) >= 1  # particles were killed and cloned
+    cloned = np.sum(np.asarray(res.chains.steps) != ams.UNUSED, axis=1) >= 2
+    assert cloned.any()
+    cfg = sim["cfg"]
+    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+    actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
+    run = sim_ams.make_run(base, actor_net.apply, "collision", SIM_STEPS)(sim["pol"], sim["cs"])
+    again = np.asarray(jax.jit(jax.vmap(run))(res.chains))
+    np.testing.assert_array_equal(again, np.asarray(res.paths))
+    # a path is minus the least clearance so far: it never falls, and it ends at the score
+    assert (np.diff(again, axis=1) >= 0).all() and (again[:, -1] == res.scores).all()
+
+
+@pytest.mark.slow
+def test_no_rounds_is_the_engines_crude_mc_on_the_same_keys(sim):
+    """max_rounds = 0 keeps the first particles: each one's margin is the one the
+    validation's own rollout (jaxlc.evaluation.engine) folds on the same case keys, so the
+    estimate at every margin is crude MC's share on those lane changes."""
+    from jaxlc.evaluation.results import OUTCOMES
+
+    out, cs = sim["out"], sim["cs"]
+    performed = out["performed"][0]
+    engine = out["margin_gap"][0][performed][:SIM_N]  # the first SIM_N lane changes
+    assert performed.sum() >= SIM_N and len(out["reason"][0]) == sim["begun"]
+    assert (out["reason"][0][performed] != OUTCOMES.index("collision")).all()
+    res = jax.device_get(sim["prog"][0](jax.random.PRNGKey(0), sim["pol"], cs, 0.0))
+    np.testing.assert_allclose(-np.asarray(res.first), engine, rtol=1e-6)
+    for m in np.quantile(engine, [0.25, 0.5, 0.75]):
+        est = sim["prog"][0](jax.random.PRNGKey(0), sim["pol"], cs, -float(m)).estimate
+        assert float(est) == np.mean(-np.asarray(res.first) <= m) > 0
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [["--particles", "1"], ["--kill", "1.0"], ["--repeats", "1"], ["--margin", "-1"],
+     ["--kind", "failure"], ["--max-rounds", "-1"]],
+)  # fmt: skip
+def test_a_bad_ams_argument_is_one_line_and_exit_2(bad, tmp_path, capsys):
+    from jaxlc import validate
+
+    assert validate.main([str(tmp_path), "--method", "ams", *bad]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("error: --"), err

@@ -50,6 +50,8 @@ CRIT_KEYS = tuple(f"{m}_crit_{v}" for m in ("ttc", "thw") for v in VEHICLES)
 # The traffic's hazards met (env.mobil, env.braking): cut-ins, lane changes that met one,
 # braking events of the vehicles around the ego; 0 in the paper's traffic.
 HAZARD_KEYS = ("cut_ins", "met_cut_in", "brakes_near", "met_braking")
+# How close the lane changes came to each failure (measures.MARGINS): 5th pct. and median.
+MARGIN_KEYS = tuple(f"{m}_{q}" for m in measures.MARGINS.values() for q in ("p5", "p50"))
 HELDOUT_FIELDS = (
     ("label", "model", "cell", "seed", "k", "memory", "episode", "lane_changes")
     + ENDS
@@ -61,6 +63,7 @@ HELDOUT_FIELDS = (
     + NORM_KEYS
     + CRIT_KEYS
     + HAZARD_KEYS
+    + MARGIN_KEYS
 )
 
 
@@ -139,6 +142,16 @@ def _p5(x: np.ndarray) -> float:
     return float(np.percentile(x, 5, method="lower")) if x.size else math.nan
 
 
+def _margins(out: dict[str, np.ndarray], p: int, perf: np.ndarray) -> dict[str, float]:
+    """``MARGIN_KEYS`` of policy ``p``'s lane changes (outcomes without margins: none)."""
+    row = {}
+    for name in (m for m in measures.MARGINS.values() if m in out):
+        x = out[name][p][perf]
+        for q in (5, 50):
+            row[f"{name}_p{q}"] = float(np.percentile(x, q, method="lower")) if x.size else math.nan
+    return row
+
+
 def _mean(x: np.ndarray) -> float:
     return float(np.mean(x)) if x.size else math.nan
 
@@ -183,6 +196,7 @@ def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, d
         "met_cut_in": int((out["cut_ins"][p][perf] > 0).sum()),
         "brakes_near": int(out["brakes_near"][p][perf].sum()),
         "met_braking": int((out["brakes_near"][p][perf] > 0).sum()),
+        **_margins(out, p, perf),
         **{me.name: _summary(me, out[me.name][p][perf], ok) for me in own},  # after the rest
     }
 

@@ -40,8 +40,8 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxlc.evaluation import safety
-from jaxlc.sim.collision import overlaps
-from jaxlc.sim.reward import COLLISION
+from jaxlc.sim.collision import clearance, overlaps
+from jaxlc.sim.reward import COLLISION, OUT_OF_BOUNDS, step_limit
 from jaxlc.sim.reward import names as reward_names
 from jaxlc.sim.road import ego_yaw_rate, road_curvature
 
@@ -126,6 +126,32 @@ def _hazard(s: Step, p) -> Array:
     return jnp.where(_hit(s), safety.hazard(_overlap(s, p), s.state.traffic), 0)
 
 
+def gap_margin(s: Step, p) -> Array:
+    """Metres between the ego's body and the nearest other body (``collision.clearance``);
+    exactly 0 on the step that ends in a collision."""
+    kappa = jnp.broadcast_to(road_curvature(s.state, p), s.reason.shape)
+    each = clearance
+    for _ in range(s.reason.ndim):  # any batch axes: (policies, cases) or none (ams)
+        each = jax.vmap(each, (0, 0, None, 0))
+    gap = each(s.state.traffic, s.state.ego, p, kappa).min(axis=(-2, -1))
+    return jnp.where(s.reason == COLLISION, 0.0, gap)
+
+
+def time_margin(s: Step, p) -> Array:
+    """Seconds left before the manoeuvre's limit (``reward.step_limit``): 0 on a timeout."""
+    return (step_limit(p) - s.steps) * p.dt
+
+
+def border_margin(s: Step, p) -> Array:
+    """Metres left to the border past the target lane (``|offset| > border`` is out of
+    bounds; every manoeuvre starts on the origin side's, so that side reads 0 from the
+    command on and says nothing): exactly 0 on the step that ends out of bounds."""
+    return jnp.where(s.reason == OUT_OF_BOUNDS, 0.0, jnp.maximum(p.border - _toward(s, p), 0.0))
+
+
+# The margins of "How close to failure" (SPEC): per failure kind, how close the manoeuvre
+# came, 0 exactly where it ended in that failure (jaxlc.evaluation.ams splits on them).
+MARGINS = {"collision": "margin_gap", "timeout": "margin_time", "out_of_bounds": "margin_border"}
 I32 = jnp.int32
 # The outcome's columns in their order (the reward terms' follow "ret": ``of``). Each
 # ``(policies, cases)`` unless its function's value has more axes; dynamics are over the RL
@@ -168,6 +194,10 @@ BUILTIN: tuple[Measure, ...] = (
     # A proposal's log likelihood ratio and statistics (jaxlc.validate), the approach's included.
     Measure("log_w", "sum", lambda s, p: s.log_w, from_start=True),
     Measure("tilt", "sum", lambda s, p: s.tilt, from_start=True),  # (..., stats)
+    # How close each lane change came to each failure (MARGINS), over its RL steps.
+    Measure("margin_gap", "min", gap_margin, jnp.inf),  # m, least clearance
+    Measure("margin_time", "last", time_margin, jnp.nan),  # s left at the end
+    Measure("margin_border", "min", border_margin, jnp.inf),  # m, least left to the border
 )
 _REGISTRY: dict[str, Measure] = {}
 

@@ -13,6 +13,12 @@ from jaxlc.evaluation import report_text as text
 from jaxlc.evaluation.numbers import defined, fixed, percent
 from jaxlc.evaluation.report_text import EVERY_STEP
 
+# How close to each failure (heldout.MARGIN_KEYS), where the rows have them (older: none).
+MARGINS = {
+    "margin_gap": "clearance m",
+    "margin_time": "time left s",
+    "margin_border": "to border m",
+}
 COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
 
 
@@ -36,6 +42,7 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
     lines += ["", f"Cell intervals: {'; '.join(how)}.", ""]
     norms = [n["measure"] for n in doc["norms"]]
     extra = doc.get("measures", [])  # measures registered with a held-out summary
+    margins = [m for m in MARGINS if any(f"{m}_p5" in r for r in doc["rows"])]
     lines += [
         "| model | seed | success [95% CP] | out of bounds | collision | timeout | "
         "duration s | R79 manoeuvre s | peak lat. acc. m/s² | peak lat. jerk m/s³ | "
@@ -43,8 +50,9 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
         "min THW s, 5th pct. | "
         + " | ".join(f"{m} ok" for m in norms)
         + " | all norms |"
+        + "".join(f" {MARGINS[m]}, 5th / 50th pct. |" for m in margins)
         + "".join(f" {m} |" for m in extra),
-        "|---" * (15 + len(norms) + len(extra)) + "|",
+        "|---" * (15 + len(norms) + len(margins) + len(extra)) + "|",
     ]
     for r in doc["rows"]:
         lines.append(
@@ -58,6 +66,7 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
             f"{_tail(r, 'min_ttc_s')} | {_tail(r, 'min_thw_s')} | "
             + " | ".join(percent(r[f"norm_{m}"]) for m in norms)
             + f" | {percent(r['norm_all'])} |"
+            + "".join(f" {_tail(r, m + '_p5')} / {_tail(r, m + '_p50')} |" for m in margins)
             + "".join(f" {fixed(r.get(m))} |" for m in extra)
         )
     return lines

@@ -65,12 +65,14 @@ class Splitting:
     rounds: Array  # () int32: rounds applied (levels below the target)
     levels: Array  # (max_rounds,) level Z_j of each applied round; NaN after ``rounds``
     kills: Array  # (max_rounds,) int32 K_j of each applied round; 0 after
+    lowest: Array  # (max_rounds, k) the k smallest scores before each applied round; NaN after
     reached: Array  # () share of the final particles with score >= target
     stopped: Array  # () bool: stopped by the level reaching the target, not max_rounds
     trajectories: Array  # () int32: trajectories run, chunk padding included (cost / T)
     chains: Chain  # (N, M) the final particles' chains
     paths: Array  # (N, T) their score paths
     scores: Array  # (N,) their scores (max of the path)
+    first: Array  # (N,) the initial particles' scores: crude MC's draws
 
 
 def step_key(chain: Chain, t: Array) -> Array:
@@ -151,6 +153,7 @@ def _round(
         chains=chains,
         paths=paths,
         levels=s["levels"].at[j].set(jnp.where(apply, level, s["levels"][j])),
+        lowest=s["lowest"].at[j].set(jnp.where(apply, jnp.sort(scores)[:k], s["lowest"][j])),
         kills=s["kills"].at[j].set(jnp.where(apply, n_killed, 0)),
         log_weight=s["log_weight"] + jnp.where(apply, jnp.log1p(-n_killed / n), 0.0),
         trajectories=s["trajectories"] + chunks * k,
@@ -165,13 +168,15 @@ def splitting(
     particles: int,
     kill_fraction: float,
     max_rounds: int,
+    initial: Array | None = None,
 ) -> Splitting:
     """AMS estimate of P(max_t run(chain)[t] >= target); jit with ``run``, ``particles``,
     ``kill_fraction``, ``max_rounds`` static, vmap over ``key`` for independent runs.
 
     ``run``: one chain -> (T,) score path, drawing step t from ``step_key(chain, t)``.
     The initial particles are ``initial_chains(split(key)[0], N, M)``: on the same key,
-    ``max_rounds=0`` is crude MC on those draws."""
+    ``max_rounds=0`` is crude MC on those draws. ``initial`` ``(N, 2)``: the initial
+    particles' first segment keys instead (raw key data; a caller's chosen draws)."""
     n = particles
     k = max(1, math.ceil(kill_fraction * n))  # particles killed per round, ties aside
     first, rounds_key = jax.random.split(key)
@@ -180,6 +185,8 @@ def splitting(
     # branch steps strictly increase along a chain and lie in [0, T]; one segment per round
     segments = min(max_rounds, horizon) + 1
     chains = initial_chains(first, n, segments)
+    if initial is not None:
+        chains = chains.replace(keys=chains.keys.at[:, 0].set(initial.astype(chains.keys.dtype)))
     paths = jax.vmap(run)(chains).astype(jnp.float32)  # (N, T)
     target = jnp.asarray(target, jnp.float32)
 
@@ -192,6 +199,7 @@ def splitting(
         chains=chains,
         paths=paths,
         levels=jnp.full(max(max_rounds, 1), jnp.nan, jnp.float32),  # (1,) when 0: traceable
+        lowest=jnp.full((max(max_rounds, 1), k), jnp.nan, jnp.float32),
         kills=jnp.zeros(max(max_rounds, 1), jnp.int32),
         log_weight=jnp.float32(0.0),
         trajectories=jnp.int32(n),
@@ -203,6 +211,7 @@ def splitting(
         estimate=jnp.exp(s["log_weight"]) * reached,
         rounds=s["rounds"],
         levels=s["levels"][:max_rounds],
+        lowest=s["lowest"][:max_rounds],
         kills=s["kills"][:max_rounds],
         reached=reached,
         stopped=s["stopped"],
@@ -210,6 +219,7 @@ def splitting(
         chains=s["chains"],
         paths=s["paths"],
         scores=scores,
+        first=paths.max(axis=1),
     )
 
 
@@ -219,6 +229,23 @@ def exceedance(result: Splitting, particles: int) -> tuple[np.ndarray, np.ndarra
     j = int(result.rounds)
     kills = np.asarray(result.kills[:j], float)
     return np.asarray(result.levels[:j]), np.cumprod(1.0 - kills / particles)
+
+
+def exceedance_at(result: Splitting, particles: int, z: np.ndarray) -> np.ndarray:
+    """P(score >= z) at each of ``z``, each unbiased: the run with target z stops at the
+    first round J whose level Z_J >= z (the same draws), so p(z) = prod_{j<J} (1 - K_j / N)
+    times the share of round J's particles with score >= z; those below z < Z_J are among
+    the k smallest (``lowest``). Past the last level: the final particles' share."""
+    j = int(result.rounds)
+    levels, lowest = np.asarray(result.levels[:j]), np.asarray(result.lowest[:j])
+    weight = np.concatenate([[1.0], np.cumprod(1.0 - np.asarray(result.kills[:j]) / particles)])
+    final = np.asarray(result.scores)
+    out = np.empty(np.shape(z))
+    for i, x in enumerate(np.asarray(z, float)):
+        at = int(np.searchsorted(levels >= x, True))  # first round with Z_J >= x (levels rise)
+        below = (final < x).sum() if at == j else (lowest[at] < x).sum()
+        out[i] = weight[at] * (1.0 - below / particles)
+    return out
 
 
 def interval(
