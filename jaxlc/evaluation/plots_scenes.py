@@ -14,23 +14,23 @@ import numpy as np
 from jaxlc.evaluation.plots_io import SCENE_AHEAD, SCENE_BEHIND, PillowWriter, Rectangle, plt
 from jaxlc.evaluation.plots_io import eval_files as _eval
 from jaxlc.evaluation.plots_io import save as _save
-from jaxlc.evaluation.results import OUTCOMES, rank_models
+from jaxlc.evaluation.results import OUTCOMES, EvalResult, rank_models
 from jaxlc.sim.render import road_to_world
 from jaxlc.sim.road import origin_lane, reference_y
 from jaxlc.study.rundir import RunDir
 
 
-def _best(result: dict[str, Any]) -> tuple[int, list[int]] | None:
+def _best(result: EvalResult) -> tuple[int, list[int]] | None:
     """Best model and its evaluated policy rows (eval.json order), by episode."""
-    ranked = rank_models(result["rows"])
+    ranked = rank_models(result.rows)
     if not ranked:
         return None
-    m = ranked[0]["model"]
-    rows = [i for i, r in enumerate(result["rows"]) if r["model"] == m]
-    return m, sorted(rows, key=lambda i: result["rows"][i]["episode"])
+    m = ranked[0].model
+    rows = [i for i, r in enumerate(result.rows) if r.model == m]
+    return m, sorted(rows, key=lambda i: result.rows[i].episode)
 
 
-def _best_traces(run_dir: Path) -> tuple[dict, dict, dict, Any, list[int]] | None:
+def _best_traces(run_dir: Path) -> tuple[EvalResult, dict, dict, Any, list[int]] | None:
     """``(result, traces, cases, env config, best model's policy rows by episode)`` of an
     evaluated run; None when it has no evaluation or no model was ranked."""
     data = _eval(run_dir)
@@ -105,9 +105,9 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
                 lab = "scripted controller"
             a.plot(x, y, label=lab, **kw)
     _lanes(a, p, 0, span, kappa)
-    label = result["rows"][final]["label"]
+    label = result.rows[final].label
     a.set(
-        title=f"(a) {label}, checkpoint {result['rows'][final]['episode']}",
+        title=f"(a) {label}, checkpoint {result.rows[final].episode}",
         xlabel=_along(kappa),
         ylabel="y (m)",
     )
@@ -129,7 +129,7 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
             y,
             color="tab:red" if last else cmap(n_i / max(1, len(prows) - 1)),
             lw=2.2 if last else 1.1,
-            label=f"episode {result['rows'][pi]['episode']}",
+            label=f"episode {result.rows[pi].episode}",
         )
     _lanes(b, p, 0, span, kappa)
     b.set(
@@ -173,9 +173,9 @@ def speed_gaps(run_dir: Path) -> Path | None:
     ):
         ax.set(xlabel="time since the manoeuvre began (s)", ylabel=what)
     axes[0].legend(fontsize=7)
-    row = result["rows"][final]
+    row = result.rows[final]
     fig.suptitle(
-        f"Speed and gaps: {row['label']}, checkpoint {row['episode']} (solid); "
+        f"Speed and gaps: {row.label}, checkpoint {row.episode} (solid); "
         "scripted controller, IDM speed (dashed)"
     )
     return _save(fig, RunDir(run_dir).figure("speed_gaps.png"))
@@ -250,7 +250,7 @@ def fig5_scenes(run_dir: Path, panels: int = 6) -> Path | None:
         draw_scene(ax, tr, pi, j, f, p)
         reason = OUTCOMES[int(cases["reason"][pi, tr["traced"][j]])]
         ax.set_title(
-            f"checkpoint {result['rows'][pi]['episode']}: {reason.replace('_', ' ')} "
+            f"checkpoint {result.rows[pi].episode}: {reason.replace('_', ' ')} "
             f"after {f * p.dt:.1f} s",
             fontsize=9,
             loc="left",
@@ -258,7 +258,7 @@ def fig5_scenes(run_dir: Path, panels: int = 6) -> Path | None:
     axes[-1, 0].set_xlabel("x (m)")
     fig.suptitle(
         f"Fig. 5  Case {tr['traced'][j]} at chosen checkpoints of "
-        f"{result['rows'][prows[-1]]['label']} (red: ego, green: gap, blue: others)"
+        f"{result.rows[prows[-1]].label} (red: ego, green: gap, blue: others)"
     )
     return _save(fig, RunDir(run_dir).figure("fig5_scenes.png"))
 
@@ -296,7 +296,7 @@ def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | 
                 loc="left",
             )
         fig.suptitle(
-            f"{result['rows'][pi]['label']}, checkpoint {result['rows'][pi]['episode']}",
+            f"{result.rows[pi].label}, checkpoint {result.rows[pi].episode}",
             fontsize=10,
         )
 

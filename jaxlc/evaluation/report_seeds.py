@@ -5,14 +5,14 @@ probability that one cell improves on another) and ``compare.md``, two runs side
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 from jaxlc.evaluation import report_text as text
 from jaxlc.evaluation import stats
 from jaxlc.evaluation.numbers import interval, percent
+from jaxlc.evaluation.results import Row
 
 
-def section(rows: list[dict[str, Any]]) -> list[str]:
+def section(rows: list[Row]) -> list[str]:
     """Each cell's success and return at its last evaluated checkpoint over seeds (means and
     IQMs with intervals), and the probability that each cell improves on each other."""
     cells = stats.cells_of(rows)
@@ -34,17 +34,15 @@ def section(rows: list[dict[str, Any]]) -> list[str]:
         "|---|---|---|---|---|---|",
     ]
     for r in stats.final_table(cells):
-        s, ret = (
-            [(r[f"{m}_{q}"], r[f"{m}_{q}_lo"], r[f"{m}_{q}_hi"]) for q in ("mean", "iqm")]
-            for m in ("success", "return")
-        )
         lines.append(
-            f"| {r['label']} | {r['seeds']} | {interval(*s[0], '.1f', 100)}% | "
-            f"{interval(*s[1], '.1f', 100)}% | {interval(*ret[0], '.1f')} | "
-            f"{interval(*ret[1], '.1f')} |"
+            f"| {r.label} | {r.seeds} | "
+            f"{interval(r.success_mean, r.success_mean_lo, r.success_mean_hi, '.1f', 100)}% | "
+            f"{interval(r.success_iqm, r.success_iqm_lo, r.success_iqm_hi, '.1f', 100)}% | "
+            f"{interval(r.return_mean, r.return_mean_lo, r.return_mean_hi, '.1f')} | "
+            f"{interval(r.return_iqm, r.return_iqm_lo, r.return_iqm_hi, '.1f')} |"
         )
     if len(cells) > 1:
-        p = {(r["x"], r["y"]): r for r in stats.improvement_table(cells)}
+        p = {(r.x, r.y): r.p for r in stats.improvement_table(cells)}
         tags = [c.label.split()[0] for c in cells]
         lines += [
             "",
@@ -54,15 +52,15 @@ def section(rows: list[dict[str, Any]]) -> list[str]:
             "|---" * (len(cells) + 1) + "|",
         ]
         for x, tx in zip(cells, tags, strict=True):
-            vals = ["–" if x is y else f"{p[x.label, y.label]['p']:.2f}" for y in cells]
+            vals = ["–" if x is y else f"{p[x.label, y.label]:.2f}" for y in cells]
             lines.append(f"| {tx} | " + " | ".join(vals) + " |")
     return lines + [""]
 
 
-def compare_markdown(table: list[dict[str, Any]], run_a: Path, run_b: Path) -> str:
+def compare_markdown(table: list[stats.Difference], run_a: Path, run_b: Path) -> str:
     """The ``--compare`` table: per cell at the last common checkpoint, mean success rates
     of both runs and B - A with its interval."""
-    last = max(r["episode"] for r in table)
+    last = max(r.episode for r in table)
     lines = [
         f"# {run_b.name} against {run_a.name}",
         "",
@@ -72,13 +70,13 @@ def compare_markdown(table: list[dict[str, Any]], run_a: Path, run_b: Path) -> s
         "|---|---|---|---|---|---|",
     ]
     for r in table:
-        if r["episode"] == last:
-            diff = interval(r["diff"], r["diff_lo"], r["diff_hi"], "+.1f", 100)
+        if r.episode == last:
+            diff = interval(r.diff, r.diff_lo, r.diff_hi, "+.1f", 100)
             lines.append(
-                f"| {r['label']} | {r['seeds_a']} | {r['seeds_b']} | {percent(r['success_a'])} | "
-                f"{percent(r['success_b'])} | {diff} |"
+                f"| {r.label} | {r.seeds_a} | {r.seeds_b} | {percent(r.success_a)} | "
+                f"{percent(r.success_b)} | {diff} |"
             )
-    if min(min(r["seeds_a"], r["seeds_b"]) for r in table) < 2:
+    if min(min(r.seeds_a, r.seeds_b) for r in table) < 2:
         lines += ["", text.COMPARE_NOTE.format(note=stats.SEEDS_NOTE)]
     lines += ["", "![B − A per cell](compare.png)", ""]
     return "\n".join(lines)
