@@ -6,20 +6,24 @@ from __future__ import annotations
 
 import csv
 import functools
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from jaxlc.evaluation.convergence import Convergence
+from jaxlc.evaluation.numbers import read
+from jaxlc.evaluation.results import Heldout
 
 ROOT = Path(__file__).resolve().parents[2]
 BENCHMARKS = ROOT / "benchmarks"
 
 
 @functools.cache
-def load(study: Path, name: str) -> dict[str, Any]:
-    """``study/eval/name``, a JSON file ``python -m jaxlc.evaluate`` wrote, read once."""
-    return json.loads((study / "eval" / name).read_text())
+def load(study: Path, name: str) -> Any:
+    """``study/eval/name``, a JSON file ``python -m jaxlc.evaluate`` wrote, read once as its
+    record (``heldout.json``: ``Heldout``, ``convergence.json``: ``Convergence``)."""
+    return read(study / "eval" / name, Heldout if name == "heldout.json" else Convergence)
 
 
 @functools.cache
@@ -43,9 +47,9 @@ def per_cell(rows: tuple[dict[str, str], ...], column: str) -> dict[str, float]:
     return {label: float(np.mean(v)) for label, v in per_seed(rows, column).items()}
 
 
-def duration_rule(doc: dict[str, Any]) -> str:
+def duration_rule(doc: Heldout) -> str:
     """Which time the evaluation held to 5 s, read off the norms ``heldout.json`` lists."""
-    if any(n["measure"] == "lcm_s" for n in doc["norms"]):
+    if any(n.measure == "lcm_s" for n in doc.norms):
         return (
             "The 5 s norm times UN R79's manoeuvre, the body from first over the line to "
             "wholly across it."

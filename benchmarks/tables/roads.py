@@ -38,7 +38,7 @@ def roads_table() -> str:
 
     drawn = config.load(ROADS_STUDY / "config.toml").env.curvature
     road = f"drawn from [{drawn[0]:g}, {drawn[1]:g}]".replace("-", "−")
-    lines.append(row(road, "`roads.toml`", load(ROADS_STUDY, "heldout.json")["rows"]))
+    lines.append(row(road, "`roads.toml`", load(ROADS_STUDY, "heldout.json").rows))
     probes = [("`roads.toml`", "probe_roads"), ("`default.toml` (straight)", "probe_straight")]
     rows = {name: csv_rows(ROADS_STUDY / name / "probe.csv") for _, name in probes}
     for kappa in dict.fromkeys(r["curvature"] for r in rows["probe_roads"]):
