@@ -20,11 +20,7 @@ Measures: the mean and the interquartile mean (IQM, the mean of the middle 50% o
 Agarwal et al. 2021) of the evaluated success rate and average return; the probability of
 improvement ``P(X > Y) = P(x > y) + 0.5 P(x = y)`` over all pairs of a seed of X and a seed
 of Y; the performance profile, the share of models whose success rate is above each
-level tau in [0, 1].
-
-The paper's claims are not decided here: (a)-(c) on the training curves
-(``jaxlc.evaluation.convergence``), (d) on the held-out failure bound
-(``jaxlc.evaluation.heldout.claim_d``), as ``jaxlc.paper.claims`` states them.
+level tau in [0, 1]. (The claims: ``convergence`` (a)-(c), ``heldout.claim_d`` (d).)
 """
 
 from __future__ import annotations
@@ -72,9 +68,7 @@ class SeedCell(CellId):
 
 
 @dataclass
-class Improvement(Record):
-    """P(x > y) of the final success rate of two cells, with its interval."""
-
+class Improvement(Record):  # P(x > y) of the final success rate of two cells
     x: str = ""
     y: str = ""
     seeds_x: int = 0
