@@ -38,7 +38,6 @@ import jax
 from jaxlc import config
 from jaxlc.evaluation import heldout
 from jaxlc.evaluation.protocol import (  # the names the command's users and tests know it by
-    compare_runs,
     default_episodes,
     evaluate_checkpoint,
     evaluate_heldout,
@@ -51,6 +50,7 @@ from jaxlc.evaluation.protocol import (  # the names the command's users and tes
 )
 from jaxlc.evaluation.results import EvalError, format_table
 from jaxlc.evaluation.stats import StatsError
+from jaxlc.report.report_seeds import compare_runs
 from jaxlc.sim.env import action_dim
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.study import machine
@@ -157,7 +157,7 @@ def _evaluate_run_dir(args: argparse.Namespace, ev: config.EvalConfig, devices: 
     if ev.lane_changes > 0:
         result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)
         print(heldout.format_rows(result.rows))
-    from jaxlc.evaluation import plots, report
+    from jaxlc.report import plots, report
 
     made = [] if args.no_figures else plots.make_all(args.run_dir)
     path = report.write_report(args.run_dir)

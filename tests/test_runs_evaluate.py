@@ -23,8 +23,8 @@ from pathlib import Path
 import pytest
 
 from jaxlc import config, evaluate, figures, sweep
-from jaxlc.evaluation import report_heldout
 from jaxlc.evaluation.results import Heldout
+from jaxlc.report import report_heldout
 from jaxlc.study.rundir import RunDir
 
 from .conftest import HANG_GUARD_S, SMOKE, wait_for_line

@@ -15,12 +15,13 @@ import pytest
 
 from jaxlc import evaluate, figures, sweep
 from jaxlc.config import DDPGConfig
-from jaxlc.evaluation import report, results, stats
+from jaxlc.evaluation import results, stats
 from jaxlc.evaluation.numbers import read
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.paper import grid as paper_grid
 from jaxlc.paper.claims import CLAIM_D, COMPARISONS
 from jaxlc.paper.grid import LABELS as PAPER_LABELS
+from jaxlc.report import report
 
 from .conftest import HANG_GUARD_S
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from benchmarks.tables.common import BENCHMARKS, duration_rule, load
-from jaxlc.evaluation.report import EVERY_STEP
+from jaxlc.report.report import EVERY_STEP
 
 DEFAULT_STUDY = BENCHMARKS / "study_symmetric_cpu_s3"  # today's default, three seeds per cell
 TEN_SEEDS = BENCHMARKS / "study_default_cpu_s10"  # today's default, ten seeds per cell

@@ -26,7 +26,7 @@ from jaxlc.evaluation.cases import (
     evaluate_policies,
     init_actor,
 )
-from jaxlc.evaluation.numbers import read, write, write_csv
+from jaxlc.evaluation.numbers import write, write_csv
 from jaxlc.evaluation.results import (
     OUTCOMES,
     SCRIPTED,
@@ -332,27 +332,3 @@ def write_seed_stats(out_dir: Path, rows: list[Row]) -> stats.SeedStats:
     write_csv(out_dir / "cells.csv", doc.cells)
     write_csv(out_dir / "improvement.csv", doc.improvement)
     return doc
-
-
-def _eval_rows(run_dir: Path) -> list[Row]:
-    path = RunDir(run_dir).eval_json
-    if not path.is_file():
-        raise EvalError(f"{path} is missing; run python -m jaxlc.evaluate {run_dir} first")
-    return read(path, EvalResult).rows
-
-
-def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
-    """Per-cell differences B - A of the mean success rate of two evaluated runs (their
-    ``eval/eval.json``; nothing is re-evaluated): writes ``compare.md``, ``compare.csv`` and
-    ``compare.png`` into ``out`` (default ``run_b/compare_<name of run_a>``); returns it."""
-    run_a, run_b = Path(run_a), Path(run_b)
-    table = stats.compare(stats.cells_of(_eval_rows(run_a)), stats.cells_of(_eval_rows(run_b)))
-    out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
-    out.mkdir(parents=True, exist_ok=True)
-    write_csv(out / "compare.csv", table)
-    from jaxlc.evaluation import plots, report_seeds
-
-    plots.fig_compare(table, run_a.name, run_b.name, out / "compare.png")
-    text = report_seeds.compare_markdown(table, run_a, run_b)
-    checkpoint.write_text_atomic(out / "compare.md", text)
-    return out

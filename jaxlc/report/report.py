@@ -1,10 +1,10 @@
 """``RUN_DIR/report.md``: the evaluation table, the best model, the paper's claims beside ours.
 
-    python -m jaxlc.evaluation.report RUN_DIR
+    python -m jaxlc.report.report RUN_DIR
 
 Reads ``RUN_DIR/eval/eval.json`` (``python -m jaxlc.evaluate``); every number in the report is
 computed from the run, the paper's only quoted. The prose around the numbers is
-``jaxlc.evaluation.report_text``'s. With several seeds per grid cell the paper's
+``jaxlc.report.report_text``'s. With several seeds per grid cell the paper's
 claims get a verdict from intervals over seeds (the rules: ``jaxlc.evaluation.stats``).
 """
 
@@ -16,11 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from jaxlc.evaluation import report_heldout, report_seeds
-from jaxlc.evaluation import report_text as text
 from jaxlc.evaluation.convergence import Convergence
 from jaxlc.evaluation.numbers import defined, fixed, percent, read
-from jaxlc.evaluation.report_text import EVERY_STEP  # noqa: F401  (benchmarks/publish.py reads it here)
 from jaxlc.evaluation.results import (
     OUTCOMES,
     Claim,
@@ -34,6 +31,9 @@ from jaxlc.evaluation.results import (
 )
 from jaxlc.paper.claims import CLAIM_D, COMPARISONS
 from jaxlc.paper.grid import BEST, BEST_TAG, is_best
+from jaxlc.report import report_heldout, report_seeds
+from jaxlc.report import report_text as text
+from jaxlc.report.report_text import EVERY_STEP  # noqa: F401  (benchmarks/publish.py reads it here)
 from jaxlc.study.checkpoint import write_text_atomic
 from jaxlc.study.rundir import RunDir
 
@@ -326,7 +326,7 @@ def write_report(run_dir: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     args = argv if argv is not None else sys.argv[1:]
     if len(args) != 1:
-        print("usage: python -m jaxlc.evaluation.report RUN_DIR", file=sys.stderr)
+        print("usage: python -m jaxlc.report.report RUN_DIR", file=sys.stderr)
         return 2
     try:
         print(write_report(Path(args[0])))

@@ -6,10 +6,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from jaxlc.evaluation import report_text as text
 from jaxlc.evaluation import stats
-from jaxlc.evaluation.numbers import interval, percent
-from jaxlc.evaluation.results import Row
+from jaxlc.evaluation.numbers import interval, percent, read, write_csv
+from jaxlc.evaluation.results import EvalError, EvalResult, Row
+from jaxlc.report import report_text as text
+from jaxlc.study.checkpoint import write_text_atomic
+from jaxlc.study.rundir import RunDir
 
 
 def section(rows: list[Row]) -> list[str]:
@@ -80,3 +82,26 @@ def compare_markdown(table: list[stats.Difference], run_a: Path, run_b: Path) ->
         lines += ["", text.COMPARE_NOTE.format(note=stats.SEEDS_NOTE)]
     lines += ["", "![B − A per cell](compare.png)", ""]
     return "\n".join(lines)
+
+
+def _eval_rows(run_dir: Path) -> list[Row]:
+    path = RunDir(run_dir).eval_json
+    if not path.is_file():
+        raise EvalError(f"{path} is missing; run python -m jaxlc.evaluate {run_dir} first")
+    return read(path, EvalResult).rows
+
+
+def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
+    """Per-cell differences B - A of the mean success rate of two evaluated runs (their
+    ``eval/eval.json``; nothing is re-evaluated): writes ``compare.md``, ``compare.csv`` and
+    ``compare.png`` into ``out`` (default ``run_b/compare_<name of run_a>``); returns it."""
+    from jaxlc.report import plots
+
+    run_a, run_b = Path(run_a), Path(run_b)
+    table = stats.compare(stats.cells_of(_eval_rows(run_a)), stats.cells_of(_eval_rows(run_b)))
+    out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(out / "compare.csv", table)
+    plots.fig_compare(table, run_a.name, run_b.name, out / "compare.png")
+    write_text_atomic(out / "compare.md", compare_markdown(table, run_a, run_b))
+    return out

@@ -9,10 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from jaxlc.evaluation import report_text as text
 from jaxlc.evaluation.numbers import defined, fixed, percent
-from jaxlc.evaluation.report_text import EVERY_STEP
 from jaxlc.evaluation.results import Collision, Heldout, HeldoutRow
+from jaxlc.report import report_text as text
+from jaxlc.report.report_text import EVERY_STEP
 
 COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
 

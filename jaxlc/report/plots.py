@@ -28,15 +28,15 @@ import numpy as np
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator
 
 from jaxlc.evaluation import heldout, stats
-from jaxlc.evaluation import plots_scenes as scenes
 from jaxlc.evaluation.convergence import moving
 from jaxlc.evaluation.numbers import number, read
-from jaxlc.evaluation.plots_io import PillowWriter, plt  # noqa: F401  (validation_io's; on Agg)
-from jaxlc.evaluation.plots_io import eval_files as _eval
-from jaxlc.evaluation.plots_io import npz as _npz
-from jaxlc.evaluation.plots_io import save as _save
 from jaxlc.evaluation.results import EvalResult, Heldout
 from jaxlc.paper import grid as paper_grid
+from jaxlc.report import plots_scenes as scenes
+from jaxlc.report.plots_scenes import PillowWriter, plt  # noqa: F401  (validation_io's; on Agg)
+from jaxlc.report.plots_scenes import eval_files as _eval
+from jaxlc.report.plots_scenes import npz as _npz
+from jaxlc.report.plots_scenes import save as _save
 from jaxlc.study.rundir import RunDir
 
 BAND_POINTS = 300  # bootstrap a training curve's band at this many points, not every episode
