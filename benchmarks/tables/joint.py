@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from benchmarks.tables.common import BENCHMARKS, csv_rows, duration_rule, load, per_cell
+from jaxlc.evaluation.results import HeldoutRow
 
 # configs/joint.toml's study (lateral and longitudinal control), with today's default on the
 # same seeds evaluated under the same rules (default_s3/), and configs/joint_assist.toml's.
@@ -31,7 +32,7 @@ def joint_table(default: Path, joint: Path, name: str = "joint") -> str:
     docs = {policy: {c.label: c for c in d.cells} for policy, d in drawn.items()}
     norms = ("norm_min_thw_s", "norm_lcm_s", "norm_peak_lat_acc", "norm_peak_lat_jerk")
     means = {
-        policy: [per_cell(csv_rows(study / "eval" / "heldout.csv"), n) for n in norms]
+        policy: [per_cell(csv_rows(study / "eval" / "heldout.csv", HeldoutRow), n) for n in norms]
         for policy, study in studies
     }
     for label in docs[name]:

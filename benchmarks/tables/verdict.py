@@ -78,11 +78,9 @@ def _comparisons(study: Path, claim: Claim) -> str:
         fmt = "{:.0f}" if episodes else "{:.3g}"
         x, y = (("never" if v is None else fmt.format(v)) for v in (c.x_mean, c.y_mean))
         text = f"{c.measure}: {c.x} {x} vs {c.y} {y}{' ep' if episodes else ''}"
-        if c.seeds > 1 and c.diff is not None:
+        if c.seeds > 1:  # every committed study's comparisons have their margins
             d, lo, hi, m = (fmt.format(v) for v in (c.diff, c.diff_lo, c.diff_hi, c.margin))
             text += f", {c.x} ahead by {d} [{lo}, {hi}] (margin ±{m})"
-        elif c.seeds > 1:  # a study evaluated before the margins: P only
-            text += f", P = {c.p:.2f} [{c.p_lo:.2f}, {c.p_hi:.2f}]"
         parts.append(text)
     return "; ".join(parts)
 
