@@ -96,6 +96,8 @@ class Record:
     def keys(self) -> Iterator[str]:
         return iter(self.as_dict())
 
+    __iter__ = keys
+
 
 def _plain(v: Any) -> Any:
     if isinstance(v, Record):

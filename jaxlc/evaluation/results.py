@@ -351,7 +351,11 @@ class Heldout(Record):
 def heldout_fields(measures: Sequence[str] = ()) -> tuple[str, ...]:
     """``heldout.csv``'s columns: the identity, ``HeldoutRow``'s, then ``measures``'."""
     own_ = [f.name for f in fields(HeldoutRow)[len(fields(Policy)) :] if f.name != "measures"]
-    return CSV_ID + tuple(own_) + tuple(measures)
+    # the CSV has the longitudinal peaks after the TTC and headway percentiles (the JSON before)
+    longitudinal = ["peak_long_acc", "peak_long_jerk"]
+    own_ = [n for n in own_ if n not in longitudinal]
+    at = own_.index("min_thw_s") + 1
+    return CSV_ID + tuple(own_[:at] + longitudinal + own_[at:]) + tuple(measures)
 
 
 def format_table(rows: Sequence[Row]) -> str:
