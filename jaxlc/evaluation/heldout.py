@@ -146,21 +146,22 @@ def model_row(
     counts = {e: int((reason == OUTCOMES.index(e)).sum()) for e in ENDS}
     ok = reason == OUTCOMES.index("success")
     m = {k: v[perf] for k, v in lane_change_measures(out, p, dt).items()}
-    fails, hits = n - counts["success"], counts["collision"]
+    wins, hits = counts["success"], counts["collision"]
+    fails = n - wins
     own = [me for me in measures.registered() if me.heldout]  # measures of your own
     crit = {}  # the share of lane changes critical, per vehicle
     for name in ("ttc", "thw"):
         bound = BOUNDS[f"min_{name}_s"]
         for i, v in enumerate(VEHICLES):
             crit[f"{name}_crit_{v}"] = _mean(out[f"min_{name}"][p][perf][:, i] < bound)
-    s_lo, s_hi = clopper_pearson(counts["success"], n)
+    s_lo, s_hi = clopper_pearson(wins, n)
     c_lo, c_hi = clopper_pearson(hits, n)
     cuts, brakes = out["cut_ins"][p][perf], out["brakes_near"][p][perf]
     return HeldoutRow(
         **policy.as_dict(),
         lane_changes=n,
         **counts,
-        success_rate=counts["success"] / n if n else math.nan,
+        success_rate=wins / n if n else math.nan,
         success_lo=s_lo,
         success_hi=s_hi,
         failure_bound=upper_bound(fails, n),

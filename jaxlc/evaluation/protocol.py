@@ -137,7 +137,7 @@ def evaluate_run(
     out, trace, info = evaluate_policies(
         cfg, [None, *actors], [1] + [m.k for m in metas[1:]], devices=devices, **kw
     )
-    result = _result(cfg, out, info, metas, kw)
+    result = _result(cfg, out, info, metas, seed, max_steps)
     _write(rd.eval, "eval", result, cfg)
     write_seed_stats(rd.eval, result.rows)
     ids = _policy_ids(metas)
@@ -270,7 +270,7 @@ def evaluate_checkpoint(
     metas = [SCRIPTED, _row_meta(path.resolve(), meta, run_dir and Path(run_dir).resolve())]
     kw = dict(cases=cases, seed=seed, max_steps=max_steps, traced=0)
     out, _, info = evaluate_policies(cfg, [None, params], [1, int(meta.get("k", 1))], **kw)
-    result = _result(cfg, out, info, metas, kw)
+    result = _result(cfg, out, info, metas, seed, max_steps)
     eval_dir = RunDir(run_dir).eval if run_dir else path.parent / "eval"
     _write(eval_dir, f"{path.parent.name}_{path.stem}", result, cfg)
     return result
@@ -281,7 +281,8 @@ def _result(
     out: dict[str, np.ndarray],
     info: dict[str, np.ndarray],
     metas: list[Policy],
-    kw: dict[str, Any],
+    seed: int,
+    max_steps: int,
 ) -> EvalResult:
     """The content of eval.json: the setting, the cases, one row per policy."""
     # The run up to the gap is the same for every policy, so these counts are the cases'.
@@ -290,8 +291,8 @@ def _result(
     return EvalResult(
         cfg.hash(),
         int(info["case"].size),
-        kw["seed"],
-        kw["max_steps"],
+        seed,
+        max_steps,
         int(info["performed"].sum()),
         int((info["side"] > 0).sum()),
         int((info["side"] < 0).sum()),
