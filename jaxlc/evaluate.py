@@ -38,7 +38,6 @@ import jax
 from jaxlc import config
 from jaxlc.evaluation import heldout
 from jaxlc.evaluation.protocol import (  # the names the command's users and tests know it by
-    compare_runs,
     default_episodes,
     evaluate_checkpoint,
     evaluate_heldout,
@@ -51,6 +50,7 @@ from jaxlc.evaluation.protocol import (  # the names the command's users and tes
 )
 from jaxlc.evaluation.results import EvalError, format_table
 from jaxlc.evaluation.stats import StatsError
+from jaxlc.report.report_seeds import compare_runs
 from jaxlc.sim.env import action_dim
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.study import machine
@@ -147,17 +147,17 @@ def _evaluate_run_dir(args: argparse.Namespace, ev: config.EvalConfig, devices: 
     held = dict(lane_changes=ev.lane_changes, seed=ev.heldout_seed, traffic=ev.traffic, **kw)
     if args.heldout_only:
         result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)
-        print(heldout.format_rows(result["rows"]))
+        print(heldout.format_rows(result.rows))
         return 0
     result = evaluate_run(
         args.run_dir, args.episodes, cases=ev.cases, model=args.model, seed=ev.seed, **kw
     )
-    print(format_table(result["rows"]))
+    print(format_table(result.rows))
     write_convergence(args.run_dir)
     if ev.lane_changes > 0:
         result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)
-        print(heldout.format_rows(result["rows"]))
-    from jaxlc.evaluation import plots, report
+        print(heldout.format_rows(result.rows))
+    from jaxlc.report import plots, report
 
     made = [] if args.no_figures else plots.make_all(args.run_dir)
     path = report.write_report(args.run_dir)
@@ -179,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
             result = evaluate_checkpoint(
                 args.checkpoint, args.run_dir, cases=ev.cases, seed=ev.seed, max_steps=ev.max_steps
             )
-            print(format_table(result["rows"]))
+            print(format_table(result.rows))
             return 0
         return _evaluate_run_dir(args, ev, len(jax.devices()) if auto else args.devices)
     except (EvalError, StatsError, CheckpointError, config.ConfigError, OSError) as err:

@@ -1,5 +1,5 @@
 """``python -m jaxlc.figures RUN_DIR`` (``jaxlc-figures``): the paper's figures of a run
-directory, drawn by ``jaxlc.evaluation.plots``, as files in ``RUN_DIR/figures/``."""
+directory, drawn by ``jaxlc.report.plots``, as files in ``RUN_DIR/figures/``."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from jaxlc.evaluation.plots import (  # the names the command's users and tests know it by
+from jaxlc.report.plots import (  # the names the command's users and tests know it by
     fig3_returns,
     fig4_steps_loss,
     fig6_checkpoints,
@@ -15,7 +15,7 @@ from jaxlc.evaluation.plots import (  # the names the command's users and tests 
     make_all,
     profiles,
 )
-from jaxlc.evaluation.plots_scenes import fig5_scenes, fig7_trajectories, learning_gif
+from jaxlc.report.plots_scenes import fig5_scenes, fig7_trajectories, learning_gif
 
 __all__ = ["fig3_returns", "fig4_steps_loss", "fig5_scenes", "fig6_checkpoints"]
 __all__ += ["fig7_trajectories", "heldout_norms", "learning_gif", "main", "make_all", "profiles"]

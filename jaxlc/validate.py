@@ -162,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
                 break
         out = write_outputs(args, cfg, results, peak)
         if args.out is None and RunDir(args.run_dir).eval_json.is_file():
-            from jaxlc.evaluation import report  # the run's report gains the section
+            from jaxlc.report import report  # the run's report gains the section
 
             report.write_report(args.run_dir)
         for r in results:

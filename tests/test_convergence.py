@@ -40,6 +40,10 @@ def test_a_step_change_converges_where_the_window_has_crossed_it() -> None:
     assert m["plateau"] == pytest.approx(-130.0)
 
 
+def _typed(models: list[dict]) -> list[convergence.Speed]:
+    return [convergence.Speed.from_dict(m) for m in models]
+
+
 def test_earlier_learners_win_every_comparison_over_seeds() -> None:
     models = []
     for tag, switch in (("④", 400), ("⑦", 900)):
@@ -49,7 +53,7 @@ def test_earlier_learners_win_every_comparison_over_seeds() -> None:
     lo, hi = min(m["auc"] for m in models), max(m["auc"] for m in models)
     for m in models:  # auc normalised over the run, as run_measures does
         m["auc"] = (m["auc"] - lo) / (hi - lo)
-    rows = convergence.comparisons(models, {m: 100.0 for m in convergence.LOWER_IS_BETTER})
+    rows = convergence.comparisons(_typed(models), {m: 100.0 for m in convergence.LOWER_IS_BETTER})
     faster = {r["measure"]: r for r in rows if (r["x"], r["y"]) == ("④", "⑦")}
     for m in ("converged", "success95", "steps_rise"):
         # 500 episodes earlier, on the paper's side (positive), well past the 100 margin
@@ -58,7 +62,7 @@ def test_earlier_learners_win_every_comparison_over_seeds() -> None:
     (claim,) = [c for c in convergence.claim_verdicts(rows) if "faster than ⑦" in c["claim"]]
     assert claim["verdict"] == "holds"
     # Fewer than 5 seeds per cell decide nothing, however cleanly they separate.
-    few = convergence.comparisons([m for i, m in enumerate(models) if i % 6 < 3])
+    few = convergence.comparisons(_typed([m for i, m in enumerate(models) if i % 6 < 3]))
     assert {r["verdict"] for r in few if (r["x"], r["y"]) == ("④", "⑦")} == {"undecided at 3 seeds"}
 
 
@@ -71,7 +75,7 @@ def _seeded(switches: dict[str, list[int]]) -> list[dict]:
 
 
 def _decision(models: list[dict], measure: str = "converged") -> str:
-    rows = convergence.comparisons(models, {m: 100.0 for m in convergence.LOWER_IS_BETTER})
+    rows = convergence.comparisons(_typed(models), {m: 100.0 for m in convergence.LOWER_IS_BETTER})
     (row,) = [r for r in rows if (r["x"], r["y"]) == ("④", "⑦") and r["measure"] == measure]
     return row["verdict"]
 

@@ -21,10 +21,10 @@ import pytest
 from jaxlc import config, evaluate
 from jaxlc.evaluation import cases, engine, heldout, results, safety
 from jaxlc.evaluation import keys as streams
-from jaxlc.evaluation.report_text import FIGURES
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.learn.networks import make_networks
 from jaxlc.policy import actor_fn
+from jaxlc.report.report_text import FIGURES
 from jaxlc.sim.controller import scripted_action
 from jaxlc.sim.env import EnvParams, LaneChangeEnv
 from jaxlc.study import checkpoint
@@ -209,8 +209,9 @@ def test_a_measure_declared_once_reaches_heldout_csv_and_the_report(run, tmp_pat
     manoeuvre (its reducer, a max here), kept per case in ``heldout_cases.npz``, summarised
     per model in ``heldout.csv`` and ``heldout.json`` (the mean over the successful lane
     changes) and shown in the report's held-out table; every built-in column stays as it was."""
-    from jaxlc.evaluation import measures, report
+    from jaxlc.evaluation import measures
     from jaxlc.evaluation.protocol import evaluate_heldout
+    from jaxlc.report import report
 
     run_dir, cfg, _ = run
     out = tmp_path / "run"
@@ -223,7 +224,7 @@ def test_a_measure_declared_once_reaches_heldout_csv_and_the_report(run, tmp_pat
     finally:
         measures.unregister("top_speed")
     header = (out / "eval" / "heldout.csv").read_text().splitlines()[0].split(",")
-    assert header == [*heldout.HELDOUT_FIELDS, "top_speed"]
+    assert header == [*heldout.fields(), "top_speed"]  # fields(): the built-ins again
     assert header[:-1] == (run_dir / "eval" / "heldout.csv").read_text().splitlines()[0].split(",")
     per_case = np.load(out / "eval" / "heldout_cases.npz")
     before = np.load(run_dir / "eval" / "heldout_cases.npz")

@@ -3,6 +3,7 @@ intervals (their coverage measured), the held-out key stream, claim (d) as a bou
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -12,7 +13,7 @@ import pytest
 
 from jaxlc import config
 from jaxlc.evaluation import cases, heldout, keys, measures, safety
-from jaxlc.evaluation.results import OUTCOMES
+from jaxlc.evaluation.results import OUTCOMES, HeldoutRow
 from jaxlc.sim import collision
 from jaxlc.sim.env import EnvParams, LaneChangeEnv
 
@@ -90,31 +91,31 @@ def test_two_level_interval_covers_the_mean_over_seeds() -> None:
 
 def test_cells_below_five_seeds_use_the_seeds_range() -> None:
     rows = [
-        {
-            "label": "④ k=1 D=4000",
-            "model": m,
-            "k": 1,
-            "memory": 4000,
-            "seed": m,
-            "success": s,
-            "lane_changes": 1000,
-            "collision": 1000 - s,
-            "norm_all": 0.5,
+        HeldoutRow(
+            "④ k=1 D=4000",
+            m,
+            m,
+            1,
+            4000,
+            success=s,
+            lane_changes=1000,
+            collision=1000 - s,
+            norm_all=0.5,
             **dict(
                 zip(("success_lo", "success_hi"), heldout.clopper_pearson(s, 1000), strict=True)
             ),
-        }
+        )
         for m, s in enumerate((1000, 996, 999))
     ]
     (cell,) = heldout.cell_rows(rows)
-    assert "range" in cell["interval"]
-    assert cell["success_lo"] == rows[1]["success_lo"] and cell["success_hi"] == 1.0
-    assert cell["failures"] == 5 and cell["lane_changes"] == 3000
+    assert "range" in cell.interval
+    assert cell.success_lo == rows[1].success_lo and cell.success_hi == 1.0
+    assert cell.failures == 5 and cell.lane_changes == 3000
     d = heldout.claim_d([cell])
-    assert d["verdict"] == "supported"  # 5 in 3000: bound 0.35% <= 1%
-    assert "fewer than 0.35%" in d["figures"]
-    worse = heldout.claim_d([{**cell, "failures": 60, "failure_bound": 0.025}])
-    assert worse["verdict"] == "not supported"  # 2% observed: the lower end is above 1%
+    assert d.verdict == "supported"  # 5 in 3000: bound 0.35% <= 1%
+    assert "fewer than 0.35%" in d.figures
+    worse = heldout.claim_d([dataclasses.replace(cell, failures=60, failure_bound=0.025)])
+    assert worse.verdict == "not supported"  # 2% observed: the lower end is above 1%
 
 
 def test_heldout_keys_are_a_stream_apart_from_the_protocols() -> None:

@@ -9,8 +9,9 @@ The floors, lowest first (a module may import its own floor and those below, nev
     1  jaxlc.sim           the simulator
     2  jaxlc.learn         DDPG and the training grid
     3  jaxlc.study         run directory, checkpoints, tracking, the machine
-    4  jaxlc.evaluation    cases, results, statistics, the report
-    5  top level           the commands and the public API (``TOP_LEVEL``)
+    4  jaxlc.evaluation    cases, results, statistics
+    5  jaxlc.report        report.md and the figures, drawn from the evaluation's records
+    6  top level           the commands and the public API (``TOP_LEVEL``)
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ PACKAGE = Path(__file__).resolve().parent.parent / "jaxlc"
 MAX_LINES = 80
 
 FLOORS = {"config": 0, "paper": 0, "sim": 1, "learn": 2, "study": 3, "evaluation": 4}
-TOP = 5
+FLOORS["report"] = 5
+TOP = 6
 # The package root (jaxlc/__init__.py) and the modules beside it: commands and public API only.
 TOP_LEVEL = {
     "jaxlc",
@@ -39,6 +41,9 @@ TOP_LEVEL = {
 EXCEPTIONS = {
     ("jaxlc.study.checkpoint", "jaxlc"): "reads jaxlc.__version__ (deferred) for the metadata",
     ("jaxlc.config", "jaxlc.sim.params"): "[env] is EnvParams' declaration: one per setting",
+    # (deferred) a validated failure replayed is drawn as the figures draw a scene
+    ("jaxlc.evaluation.validation_io", "jaxlc.report.plots"): "the replay's figure and GIF",
+    ("jaxlc.evaluation.validation_io", "jaxlc.report.plots_scenes"): "the replay's scene",
 }
 
 
@@ -153,7 +158,7 @@ def test_the_import_graph_sees_every_form_of_import():
     assert "jaxlc.config" in graph["jaxlc.sim.env"]  # from jaxlc import config (in a function)
     assert "jaxlc.sim.env" in graph["jaxlc.learn.train"]
     assert "jaxlc.learn.tree" in graph["jaxlc.evaluation.engine"]  # from jaxlc.learn import tree
-    assert "jaxlc.evaluation.report" in graph["jaxlc.evaluate"]  # deferred, in a function
+    assert "jaxlc.report.report" in graph["jaxlc.evaluate"]  # deferred, in a function
     assert "jaxlc" in graph["jaxlc.study.checkpoint"]  # import jaxlc
 
 

@@ -23,7 +23,8 @@ from pathlib import Path
 import pytest
 
 from jaxlc import config, evaluate, figures, sweep
-from jaxlc.evaluation import report_heldout
+from jaxlc.evaluation.results import Heldout
+from jaxlc.report import report_heldout
 from jaxlc.study.rundir import RunDir
 
 from .conftest import HANG_GUARD_S, SMOKE, wait_for_line
@@ -119,11 +120,11 @@ def test_a_collision_with_no_lag_vehicle_prints_dashes(runs) -> None:
     }
     doc["collisions"] = [hit, hit | {"case": 4, "accept_lag_gap": 12.0, "accept_lag_v": 18.0}]
     doc_path.write_text(json.dumps(doc))
-    lines = report_heldout.collision_tally(doc)
+    lines = report_heldout.collision_tally(Heldout.from_dict(doc))
     (row,) = [x for x in lines if x.startswith("| own follower")]
     # two collisions; the lag gap's median over the one that had a lag, the rest as they are
     assert row.rstrip(" |").split(" | ")[2:8] == ["2", "4.0", "2.5", "12.0", "18.0", "20.0"]
-    lines = report_heldout.collision_tally({"collisions": [hit]})
+    lines = report_heldout.collision_tally(Heldout.from_dict({"collisions": [hit]}))
     (row,) = [x for x in lines if x.startswith("| own follower")]
     assert row.split(" | ")[5:7] == ["–", "–"]
     assert any("no lag vehicle" in x for x in lines)

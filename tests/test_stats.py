@@ -15,18 +15,20 @@ import pytest
 
 from jaxlc import evaluate, figures, sweep
 from jaxlc.config import DDPGConfig
-from jaxlc.evaluation import report, results, stats
+from jaxlc.evaluation import results, stats
+from jaxlc.evaluation.numbers import read
 from jaxlc.evaluation.results import OUTCOMES
 from jaxlc.paper import grid as paper_grid
 from jaxlc.paper.claims import CLAIM_D, COMPARISONS
 from jaxlc.paper.grid import LABELS as PAPER_LABELS
+from jaxlc.report import report
 
 from .conftest import HANG_GUARD_S
 
 EPISODES = (100, 200)
 
 
-def _rows(success: dict[tuple[int, int], list[float]]) -> list[dict]:
+def _rows(success: dict[tuple[int, int], list[float]]) -> list[results.Row]:
     """eval.json rows of a grid: ``success[(k, memory)]`` per seed at the last checkpoint
     (the first checkpoint at half of it)."""
     rows = [{"label": "scripted controller", "model": None, "seed": None, "episode": None}]
@@ -56,7 +58,7 @@ def _rows(success: dict[tuple[int, int], list[float]]) -> list[dict]:
         r.update(dict.fromkeys(results.MEASURES[2:], 0.0))
         r.setdefault("success_rate", 1.0)
         r.setdefault("avg_return", -140.0)
-    return rows
+    return [results.Row.from_dict(r) for r in rows]
 
 
 def _grid(best: float, spread: float = 0.02, seeds: int = 8) -> dict:
@@ -72,7 +74,7 @@ def _grid(best: float, spread: float = 0.02, seeds: int = 8) -> dict:
     return out
 
 
-def _run_dir(path: Path, rows: list[dict]) -> Path:
+def _run_dir(path: Path, rows: list) -> Path:
     (path / "eval").mkdir(parents=True)
     result = {
         "config_hash": "x",
@@ -84,10 +86,14 @@ def _run_dir(path: Path, rows: list[dict]) -> Path:
         "right": 35,
         "before_rl": {o: 0 for o in OUTCOMES},
         "traced": [0],
-        "rows": rows,
+        "rows": [dict(r) for r in rows],
     }
     (path / "eval" / "eval.json").write_text(json.dumps(result))
     return path
+
+
+def _eval_rows(run: Path) -> list[results.Row]:
+    return read(run / "eval" / "eval.json", results.EvalResult).rows
 
 
 def test_interval_covers_the_true_mean_95_percent_at_8_seeds() -> None:
@@ -141,7 +147,7 @@ def test_performance_profile_falls_with_tau_inside_its_band() -> None:
 def test_the_paper_models_are_found_by_hyperparameters_not_labels() -> None:
     rows = _rows(_grid(best=0.9, seeds=2))
     for r in rows:  # labels that say nothing of the paper
-        r["label"] = f"cell {r.get('cell')}"
+        r.label = f"cell {r.cell}"
     cells = stats.cells_of(rows)
     tags = {paper_grid.tag_of(c.axes) for c in cells}
     assert tags == set(PAPER_LABELS.values())
@@ -169,9 +175,7 @@ def test_one_seed_per_cell_runs_and_says_intervals_need_two(tmp_path: Path) -> N
     assert stats.performance_profile([cells[0].final_success])[0][0] == 1.0
 
     run = _run_dir(tmp_path / "run", _rows(_grid(best=1.0, seeds=1)))
-    doc = evaluate.write_seed_stats(
-        run / "eval", json.loads((run / "eval" / "eval.json").read_text())["rows"]
-    )
+    doc = evaluate.write_seed_stats(run / "eval", _eval_rows(run))
     assert stats.SEEDS_NOTE in doc["note"]
     text = report.build_report(run)
     assert "intervals need >= 2 seeds" in text and "| (d)" in text
@@ -179,7 +183,7 @@ def test_one_seed_per_cell_runs_and_says_intervals_need_two(tmp_path: Path) -> N
 
 def test_report_and_tables_give_the_verdicts(tmp_path: Path) -> None:
     run = _run_dir(tmp_path / "run", _rows(_grid(best=0.2)))
-    rows = json.loads((run / "eval" / "eval.json").read_text())["rows"]
+    rows = _eval_rows(run)
     doc = evaluate.write_seed_stats(run / "eval", rows)
     assert doc["note"] is None
     lines = (run / "eval" / "cells.csv").read_text().strip().splitlines()

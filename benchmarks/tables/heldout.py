@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from benchmarks.tables.common import BENCHMARKS, duration_rule, load
-from jaxlc.evaluation.report import EVERY_STEP
+from jaxlc.report.report import EVERY_STEP
 
 DEFAULT_STUDY = BENCHMARKS / "study_symmetric_cpu_s3"  # today's default, three seeds per cell
 TEN_SEEDS = BENCHMARKS / "study_default_cpu_s10"  # today's default, ten seeds per cell
@@ -23,15 +23,14 @@ def heldout_cells(study: Path = DEFAULT_STUDY) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     doc = load(study, "heldout.json")
-    for c in doc["cells"]:
+    for c in doc.cells:
         lines.append(
-            f"| {c['label']} | {c['seeds']} | {c['lane_changes']:,} | "
-            f"{100 * c['success_mean']:.2f}% | [{100 * c['success_lo']:.2f}, "
-            f"{100 * c['success_hi']:.2f}]% | {c['failures']} "
-            f"(< {100 * c['failure_bound']:.2f}%) | {c['collisions']} "
-            f"(< {100 * c['collision_bound']:.2f}%) | {100 * c['norm_all']:.1f}% |"
+            f"| {c.label} | {c.seeds} | {c.lane_changes:,} | {100 * c.success_mean:.2f}% | "
+            f"[{100 * c.success_lo:.2f}, {100 * c.success_hi:.2f}]% | {c.failures} "
+            f"(< {100 * c.failure_bound:.2f}%) | {c.collisions} "
+            f"(< {100 * c.collision_bound:.2f}%) | {100 * c.norm_all:.1f}% |"
         )
-    counted = doc.get("conflicts_counted", EVERY_STEP)
+    counted = doc.conflicts_counted or EVERY_STEP
     return "\n".join(
         [*lines, "", f"Headway and time-to-collision counted {counted}. {duration_rule(doc)}"]
     )

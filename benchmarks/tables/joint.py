@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from benchmarks.tables.common import BENCHMARKS, csv_rows, duration_rule, load, per_cell
+from jaxlc.evaluation.results import HeldoutRow
 
 # configs/joint.toml's study (lateral and longitudinal control), with today's default on the
 # same seeds evaluated under the same rules (default_s3/), and configs/joint_assist.toml's.
@@ -28,10 +29,10 @@ def joint_table(default: Path, joint: Path, name: str = "joint") -> str:
     ]
     studies = (("default", default), (name, joint))
     drawn = {policy: load(study, "heldout.json") for policy, study in studies}
-    docs = {policy: {c["label"]: c for c in d["cells"]} for policy, d in drawn.items()}
+    docs = {policy: {c.label: c for c in d.cells} for policy, d in drawn.items()}
     norms = ("norm_min_thw_s", "norm_lcm_s", "norm_peak_lat_acc", "norm_peak_lat_jerk")
     means = {
-        policy: [per_cell(csv_rows(study / "eval" / "heldout.csv"), n) for n in norms]
+        policy: [per_cell(csv_rows(study / "eval" / "heldout.csv", HeldoutRow), n) for n in norms]
         for policy, study in studies
     }
     for label in docs[name]:
@@ -39,15 +40,15 @@ def joint_table(default: Path, joint: Path, name: str = "joint") -> str:
             c = docs[policy][label]
             shares = " | ".join(f"{100 * m[label]:.1f}%" for m in means[policy])
             lines.append(
-                f"| {label} | {policy} | {c['lane_changes']:,} | {100 * c['success_mean']:.2f}% | "
-                f"[{100 * c['success_lo']:.2f}, {100 * c['success_hi']:.2f}]% | "
-                f"{c['collisions']} (< {100 * c['collision_bound']:.2f}%) | "
-                f"{100 * c['norm_all']:.1f}% | {shares} |"
+                f"| {label} | {policy} | {c.lane_changes:,} | {100 * c.success_mean:.2f}% | "
+                f"[{100 * c.success_lo:.2f}, {100 * c.success_hi:.2f}]% | "
+                f"{c.collisions} (< {100 * c.collision_bound:.2f}%) | "
+                f"{100 * c.norm_all:.1f}% | {shares} |"
             )
-    counted = drawn[name]["conflicts_counted"]
+    counted = drawn[name].conflicts_counted
     gaps = "; ".join(
-        f"{policy}: {d['cases']:,} cases drawn for {d['lane_changes']:,} lane changes, "
-        f"{100 * (1 - d['lane_changes'] / d['cases']):.1f}% with no lane change"
+        f"{policy}: {d.cases:,} cases drawn for {d.lane_changes:,} lane changes, "
+        f"{100 * (1 - d.lane_changes / d.cases):.1f}% with no lane change"
         for policy, d in drawn.items()
     )
     rule = duration_rule(drawn[name])

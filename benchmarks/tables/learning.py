@@ -13,6 +13,7 @@ from benchmarks import study_summary
 from benchmarks.tables.common import BENCHMARKS, csv_rows
 from benchmarks.tables.speed import bench
 from jaxlc.evaluation import stats
+from jaxlc.evaluation.results import Row
 from jaxlc.paper.grid import is_best
 
 # The GPU study's settings (its folders under study_gpu_8seeds/), against its first row.
@@ -43,12 +44,10 @@ def study_cells(eval_csv: Path) -> str:
 
 def _final_success(folder: Path) -> tuple[np.ndarray, np.ndarray]:
     """``(success, seed)`` of every model at its last evaluated checkpoint, ``(models,)``."""
-    rows = [r for r in csv_rows(folder / "eval.csv") if r["model"] != ""]
-    last = max(int(r["episode"]) for r in rows)
-    final = [r for r in rows if int(r["episode"]) == last]
-    return np.array([float(r["success_rate"]) for r in final]), np.array(
-        [int(r["seed"]) for r in final]
-    )
+    rows = [r for r in csv_rows(folder / "eval.csv", Row) if r.model is not None]
+    last = max(r.episode for r in rows)
+    final = [r for r in rows if r.episode == last]
+    return np.array([r.success_rate for r in final]), np.array([r.seed for r in final])
 
 
 def _studies_at(success: np.ndarray, seeds: np.ndarray, level: float = 0.99) -> tuple[int, int]:
@@ -98,10 +97,9 @@ def _largest_drop(eval_csv: Path) -> tuple[int, float]:
     """``(last episode, largest drop)``: how far a cell's mean success over seeds at the last
     checkpoint lies below its best checkpoint's, the most of any cell."""
     by_cell: dict[str, dict[int, list[float]]] = {}
-    for r in csv_rows(eval_csv):
-        if r["model"] != "":
-            cell = by_cell.setdefault(r["label"], {})
-            cell.setdefault(int(r["episode"]), []).append(float(r["success_rate"]))
+    for r in csv_rows(eval_csv, Row):
+        if r.model is not None:
+            by_cell.setdefault(r.label, {}).setdefault(r.episode, []).append(r.success_rate)
     last = max(max(eps) for eps in by_cell.values())
     drop = max(
         max(np.mean(v) for v in eps.values()) - np.mean(eps[last]) for eps in by_cell.values()
@@ -114,27 +112,25 @@ def targets_table() -> str:
     summary.json), the CPU study that evaluated every checkpoint, and both time-to-solution
     runs; each verdict follows from the figures beside it."""
     gpu = GPU_STUDY / "mirror_huber"
-    rows = [r for r in csv_rows(gpu / "eval.csv") if r["model"] != "" and r["episode"] == "5000"]
-    cells: dict[str, list[dict[str, str]]] = {}
+    rows = [r for r in csv_rows(gpu / "eval.csv", Row) if r.model is not None and r.episode == 5000]
+    cells: dict[str, list[Row]] = {}
     for r in rows:
-        cells.setdefault(r["label"], []).append(r)
-    mean = {c: np.mean([float(r["success_rate"]) for r in rs]) for c, rs in cells.items()}
-    k = {c: int(rs[0]["k"]) for c, rs in cells.items()}
-    four = next(
-        c for c, rs in cells.items() if is_best({"k": k[c], "memory": int(rs[0]["memory"])})
-    )
-    d = stats.describe(np.array([float(r["success_rate"]) for r in cells[four]]))
+        cells.setdefault(r.label, []).append(r)
+    mean = {c: np.mean([r.success_rate for r in rs]) for c, rs in cells.items()}
+    k = {c: rs[0].k for c, rs in cells.items()}
+    four = next(c for c, rs in cells.items() if is_best(rs[0]))
+    d = stats.describe(np.array([r.success_rate for r in cells[four]]))
     small = [mean[c] for c in cells if k[c] != 4]
     big = [mean[c] for c in cells if k[c] == 4]
-    cases = sum(int(r["performed"]) for r in rows)
-    collided = sum(int(r["collision"]) for r in rows)
+    cases = sum(r.performed for r in rows)
+    collided = sum(r.collision for r in rows)
     ends = [
         m["ends_last"]["collision"]
         for m in json.loads((gpu / "summary.json").read_text())["models"]
     ]
     studies, n_studies = _studies_at(*_final_success(gpu))
     last_ep, drop = _largest_drop(EVERY_CHECKPOINT / "eval" / "eval.csv")
-    durations = [float(r["duration_s"]) for r in rows if r["duration_s"]]
+    durations = [r.duration_s for r in rows if r.duration_s is not None]
     (now,) = bench("time_to_solution.csv")
     (then,) = csv_rows(EVERY_CHECKPOINT / "time_to_solution.csv")
     scaled = float(now["wall_s"]) * float(now["matmul_peak_gflops"]) / 200
@@ -142,9 +138,7 @@ def targets_table() -> str:
     def met(ok: bool) -> str:
         return "met" if ok else "not met"
 
-    dur = [
-        np.mean([float(r["duration_s"]) for r in rs if r["duration_s"]]) for rs in cells.values()
-    ]
+    dur = [np.mean([r.duration_s for r in rs if r.duration_s is not None]) for rs in cells.values()]
     lines = [
         '| target ("every seed learns") | measured | |',
         "|---|---|---|",

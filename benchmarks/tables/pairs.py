@@ -11,6 +11,8 @@ import numpy as np
 
 from benchmarks.tables.common import BENCHMARKS, csv_rows, per_cell
 from benchmarks.tables.common import per_seed as values_per_seed
+from jaxlc.evaluation.convergence import Speed
+from jaxlc.evaluation.results import HeldoutRow
 
 PAIRS_STUDY_S20 = BENCHMARKS / "study_pairs_gpu_s20"  # twenty seeds, rows20, pairs20, rows20b
 
@@ -32,8 +34,8 @@ def pairs_table(
     ``auc`` 0.02 lower or ``converged`` 100 episodes later). ``spread``: a run of the rows on
     other seeds, whose difference from ``rows`` is given beside, outside the rule."""
     names = (rows, pairs) + ((spread,) if spread else ())
-    held = {r: csv_rows(study / r / "eval" / "heldout.csv") for r in names}
-    conv = {r: csv_rows(study / r / "eval" / "convergence.csv") for r in names}
+    held = {r: csv_rows(study / r / "eval" / "heldout.csv", HeldoutRow) for r in names}
+    conv = {r: csv_rows(study / r / "eval" / "convergence.csv", Speed) for r in names}
     lines = [
         "| cell | held-out success (rows; pairs) | failures (rows; pairs) "
         "| auc (rows; pairs) | converged, episode (rows; pairs) |",
@@ -45,8 +47,8 @@ def pairs_table(
     converged = {r: per_cell(conv[r], "converged") for r in names}
 
     def failures(r: str, label: str | None = None) -> int:
-        rows_ = [x for x in held[r] if x["cell"] and label in (None, x["label"])]
-        return sum(int(x["lane_changes"]) - int(x["success"]) for x in rows_)
+        rows_ = [x for x in held[r] if x.cell is not None and label in (None, x.label)]
+        return sum(x.lane_changes - x.success for x in rows_)
 
     for label in success[rows]:
         lines.append(
@@ -69,7 +71,7 @@ def pairs_table(
 
     point, lo, hi = difference(rows, pairs)
     worst = min(success[pairs][c] - success[rows][c] for c in success[rows])
-    models = sum(1 for x in held[rows] if x["cell"])
+    models = sum(1 for x in held[rows] if x.cell is not None)
     said = (
         f"Held-out success pooled over the {models} models, pairs − rows: {100 * point:+.3f} "
         f"points, 95% interval [{100 * lo:+.3f}, {100 * hi:+.3f}]; the largest drop in a cell "

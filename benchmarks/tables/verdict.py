@@ -12,6 +12,7 @@ from benchmarks.tables.common import BENCHMARKS, load
 from jaxlc import config
 from jaxlc.evaluation import rare, validation
 from jaxlc.evaluation.validation_io import Validation
+from jaxlc.evaluation.results import Claim
 from jaxlc.paper import claims
 from jaxlc.paper.grid import is_best
 from jaxlc.study.rundir import RunDir
@@ -48,7 +49,7 @@ def _tag(claim: str) -> str:
 
 
 def _seeds(study: Path) -> str:
-    n = len({m["seed"] for m in load(study, "convergence.json")["models"]})
+    n = len({m.seed for m in load(study, "convergence.json").models})
     return f"{n} seed{'s' if n > 1 else ''} per cell"
 
 
@@ -65,37 +66,35 @@ def _unlike_default(study: Path) -> str:
     )
 
 
-def _comparisons(study: Path, claim: dict[str, str]) -> str:
+def _comparisons(study: Path, claim: Claim) -> str:
     """A claim's comparisons in a study on the measures it is decided by: each side's mean over
     seeds and, from 2 seeds on, the paper-side difference with its interval and the margin
     (``jaxlc.evaluation.convergence``)."""
     parts = []
-    measures = claim["measures"].split(", ")
-    for c in load(study, "convergence.json")["comparisons"]:
-        if c["claim"] != claim["claim"] or c["measure"] not in measures:
+    measures = claim.measures.split(", ")
+    for c in load(study, "convergence.json").comparisons:
+        if c.claim != claim.claim or c.measure not in measures:
             continue
-        episodes = c["measure"] in _EPISODES
+        episodes = c.measure in _EPISODES
         fmt = "{:.0f}" if episodes else "{:.3g}"
-        x, y = (("never" if v is None else fmt.format(v)) for v in (c["x_mean"], c["y_mean"]))
-        text = f"{c['measure']}: {c['x']} {x} vs {c['y']} {y}{' ep' if episodes else ''}"
-        if c["seeds"] > 1 and "diff" in c:
-            d, lo, hi, m = (fmt.format(c[k]) for k in ("diff", "diff_lo", "diff_hi", "margin"))
-            text += f", {c['x']} ahead by {d} [{lo}, {hi}] (margin ±{m})"
-        elif c["seeds"] > 1:  # a study evaluated before the margins: P only
-            text += f", P = {c['p']:.2f} [{c['p_lo']:.2f}, {c['p_hi']:.2f}]"
+        x, y = (("never" if v is None else fmt.format(v)) for v in (c.x_mean, c.y_mean))
+        text = f"{c.measure}: {c.x} {x} vs {c.y} {y}{' ep' if episodes else ''}"
+        if c.seeds > 1:  # every committed study's comparisons have their margins
+            d, lo, hi, m = (fmt.format(v) for v in (c.diff, c.diff_lo, c.diff_hi, c.margin))
+            text += f", {c.x} ahead by {d} [{lo}, {hi}] (margin ±{m})"
         parts.append(text)
     return "; ".join(parts)
 
 
 def _claim_d(study: Path) -> tuple[str, str]:
     doc = load(study, "heldout.json")
-    cell = next(c for c in doc["cells"] if is_best(c))
+    cell = next(c for c in doc.cells if is_best(c))
     text = (
-        f"{cell['failures']} failures ({cell['collisions']} collisions) in "
-        f"{cell['lane_changes']:,} held-out lane changes; fails in < "
-        f"{100 * cell['failure_bound']:.2f}% (95%)"
+        f"{cell.failures} failures ({cell.collisions} collisions) in "
+        f"{cell.lane_changes:,} held-out lane changes; fails in < "
+        f"{100 * cell.failure_bound:.2f}% (95%)"
     )
-    return text, doc["claim_d"]["verdict"]
+    return text, doc.claim_d.verdict
 
 
 def verdict_table() -> str:
@@ -107,16 +106,16 @@ def verdict_table() -> str:
         "verdict (paper.toml; default.toml) |",
         "|---|---|---|---|---|",
     ]
-    paper_claims = {c["claim"]: c for c in load(PAPER_STUDY, "convergence.json")["claims"]}
-    for claim in load(VERDICT_STUDY, "convergence.json")["claims"]:
-        text = claim["claim"]
+    paper_claims = {c.claim: c for c in load(PAPER_STUDY, "convergence.json").claims}
+    for claim in load(VERDICT_STUDY, "convergence.json").claims:
+        text = claim.claim
         lines.append(
             f"| {text} | {claims.SHOWS[_tag(text)]} | {_comparisons(PAPER_STUDY, claim)} | "
-            f"{_comparisons(VERDICT_STUDY, claim)} | {paper_claims[text]['verdict']}; "
-            f"{claim['verdict']} |"
+            f"{_comparisons(VERDICT_STUDY, claim)} | {paper_claims[text].verdict}; "
+            f"{claim.verdict} |"
         )
     (p_text, p_verdict), (d_text, d_verdict) = _claim_d(PAPER_STUDY), _claim_d(VERDICT_STUDY)
-    claim_d = load(VERDICT_STUDY, "heldout.json")["claim_d"]["claim"]
+    claim_d = load(VERDICT_STUDY, "heldout.json").claim_d.claim
     lines.append(
         f"| {claim_d} | {claims.SHOWS['(d)']} | {p_text} | {d_text} | {p_verdict}; {d_verdict} |"
     )

@@ -5,11 +5,11 @@ the simulator and its reason codes (``jaxlc.sim``), the ``Config`` (``jaxlc.conf
 Out: the evaluation protocol of a run (``protocol``), the fixed cases and every policy run on
 them (``cases``) by the rollout engine (``engine``: a case's start and its manoeuvre on one
 scheduler), the measures of a lane change, each declared once (``measures``), every key
-stream (``keys``), the drawn cases' frames (``trace``), result rows,
-outcomes and ranking (``results``), statistics over seeds (``stats``), the safety and
-comfort measures of a lane change (``safety``), the held-out evaluation's bounds
-(``heldout``), learning speed from the training curves (``convergence``), ``report.md``
-(``report``), the figures (``plots``).
+stream (``keys``), the drawn cases' frames (``trace``), the typed results
+(``results``) and the one module that writes and reads their files (``numbers``), statistics
+over seeds (``stats``), the safety and comfort measures of a lane change (``safety``), the
+held-out evaluation's bounds (``heldout``), learning speed from the training curves
+(``convergence``). ``report.md`` and the figures draw these records: ``jaxlc.report``.
 
 Imports: ``jaxlc.config``, ``jaxlc.sim``, ``jaxlc.learn`` and ``jaxlc.study``; never the
 top-level commands (``tests/test_layout.py`` checks it).

@@ -39,15 +39,75 @@ The probability of improvement P(X > Y) (rliable's) is given beside each differe
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
 from jaxlc.evaluation import stats
-from jaxlc.evaluation.numbers import fixed
+from jaxlc.evaluation.numbers import Record, fixed, many
+from jaxlc.evaluation.results import Claim
 from jaxlc.paper.claims import COMPARISONS
 from jaxlc.paper.grid import tag_of
 from jaxlc.sim.reward import SUCCESS
+
+
+@dataclass
+class Speed(Record):
+    """One model's learning speed from its training curves (``convergence.model_measures``)."""
+
+    model: int | None = None
+    cell: int | None = None
+    seed: int | None = None
+    label: str | None = None
+    k: int | None = None
+    memory: int | None = None
+    actor_lr: float | None = None
+    critic_lr: float | None = None
+    noise_sigma: float | None = None
+    converged: float | None = None
+    success95: float | None = None
+    steps_rise: float | None = None
+    auc: float | None = None
+    plateau: float | None = None
+
+
+@dataclass
+class Comparison(Record):
+    """One of the paper's comparisons "x better than y" on one measure: the cells' means, P(x
+    better than y), the paper-side difference of means with its interval, the margin."""
+
+    claim: str = ""
+    x: str = ""
+    y: str = ""
+    measure: str = ""
+    x_mean: float | None = None
+    y_mean: float | None = None
+    seeds: int = 0
+    p: float | None = None
+    p_lo: float | None = None
+    p_hi: float | None = None
+    diff: float | None = None
+    diff_lo: float | None = None
+    diff_hi: float | None = None
+    margin: float | None = None
+    verdict: str = ""
+
+
+@dataclass
+class Convergence(Record):
+    """``convergence.json``: the settings of the measures, each model's, the comparisons and
+    the claims (a)-(c)."""
+
+    window: int = 0
+    plateau_episodes: int = 0
+    band: float = 0.0
+    margin_share: float | None = None
+    margins: dict[str, float] | None = None
+    models: list[Speed] = many(Speed)
+    comparisons: list[Comparison] = many(Comparison)
+    claims: list[Claim] = many(Claim)
+
 
 WINDOW = 100
 PLATEAU = 500
@@ -150,9 +210,7 @@ def decide(lo: float, hi: float, margin: float, seeds: int) -> str:
     return f"undecided (interval width {hi - lo:.3g}, margin ±{margin:.3g})"
 
 
-def comparisons(
-    models: list[dict[str, Any]], margin: dict[str, float] | None = None
-) -> list[dict[str, Any]]:
+def comparisons(models: list[Speed], margin: dict[str, float] | None = None) -> list[Comparison]:
     """Each of the paper's comparisons on each measure: ``models`` are rows with ``k``,
     ``memory`` (the paper's tag: ``paper.grid.tag_of``) and the measures; one row per pair
     and measure where the grid has both cells, with the paper-side difference of means
@@ -160,7 +218,7 @@ def comparisons(
     given, so nothing is "no practical difference"), the ``verdict`` (``decide``) and
     P(X better than Y) with its interval."""
     margin = margin or {}
-    by_tag: dict[str | None, list[dict[str, Any]]] = {}
+    by_tag: dict[str | None, list[Speed]] = {}
     for r in models:
         by_tag.setdefault(tag_of(r), []).append(r)
     out = []
@@ -171,93 +229,80 @@ def comparisons(
             n = min(len(by_tag[x]), len(by_tag[y]))
             for m in MEASURES:
                 sign = -1.0 if m in LOWER_IS_BETTER else 1.0
-                xs = np.asarray([sign * r[m] for r in by_tag[x]])
-                ys = np.asarray([sign * r[m] for r in by_tag[y]])
+                xs = np.asarray([sign * getattr(r, m) for r in by_tag[x]])
+                ys = np.asarray([sign * getattr(r, m) for r in by_tag[y]])
                 p, lo, hi = stats.improvement([xs], [ys])
                 d, d_lo, d_hi = stats.difference(ys, xs)  # mean(xs) - mean(ys), paper side +
                 room = margin.get(m, math.nan)
                 out.append(
-                    {
-                        "claim": claim,
-                        "x": x,
-                        "y": y,
-                        "measure": m,
-                        "x_mean": float(np.nanmean(sign * xs)),
-                        "y_mean": float(np.nanmean(sign * ys)),
-                        "seeds": n,
-                        "p": p,
-                        "p_lo": lo,
-                        "p_hi": hi,
-                        "diff": d,
-                        "diff_lo": d_lo,
-                        "diff_hi": d_hi,
-                        "margin": room,
-                        "verdict": decide(d_lo, d_hi, room if room == room else 0.0, n),
-                    }
+                    Comparison(
+                        claim,
+                        x,
+                        y,
+                        m,
+                        float(np.nanmean(sign * xs)),
+                        float(np.nanmean(sign * ys)),
+                        n,
+                        p,
+                        lo,
+                        hi,
+                        d,
+                        d_lo,
+                        d_hi,
+                        room,
+                        decide(d_lo, d_hi, room if room == room else 0.0, n),
+                    )
                 )
     return out
 
 
-def claim_verdicts(rows: list[dict[str, Any]]) -> list[dict[str, str]]:
+def claim_verdicts(rows: list[Comparison]) -> list[Claim]:
     """One verdict per claim from its comparisons on its key measures (``COMPARISONS``):
     *fails* when one fails; else undecided when one is; else *holds* or *no practical
     difference* when all agree, and when they mix, which measures hold and which show none."""
     out = []
     for claim, pairs, keys in COMPARISONS:
-        mine = [r for r in rows if r["claim"] == claim and r["measure"] in keys]
+        mine = [r for r in rows if r.claim == claim and r.measure in keys]
         if not mine:  # the claim is still named, so every report lists the same claims
             tags = "".join(dict.fromkeys(t for pair in pairs for t in pair))
-            figures = f"the grid lacks a cell of {tags}"
-            out.append(
-                {"claim": claim, "measures": ", ".join(keys), "figures": figures, "verdict": "n/a"}
-            )
+            out.append(Claim(claim, None, ", ".join(keys), f"the grid lacks a cell of {tags}"))
             continue
-        vs = [r["verdict"] for r in mine]
+        vs = [r.verdict for r in mine]
         if FAILS in vs:
             v = FAILS
         elif any(x.startswith("undecided") for x in vs):
-            n = min(r["seeds"] for r in mine)
+            n = min(r.seeds for r in mine)
             v = f"undecided at {n} seed{'s' * (n != 1)}"
             if n >= stats.RANGE_BELOW:  # the intervals that stayed too wide, and how wide
-                wide = [r for r in mine if r["verdict"].startswith("undecided")]
+                wide = [r for r in mine if r.verdict.startswith("undecided")]
                 v += " (" + "; ".join(_width(r) for r in wide) + ")"
         elif len(set(vs)) == 1:
             v = vs[0]
         else:
-            held = sorted({r["measure"] for r in mine if r["verdict"] == HOLDS})
+            held = sorted({r.measure for r in mine if r.verdict == HOLDS})
             v = f"{HOLDS} on {', '.join(held)}; {SAME} on the rest"
         figures = "; ".join(
-            f"{r['measure']}: {r['x']} ahead of {r['y']} by {fixed(r['diff'], '.3g')} "
-            f"[{fixed(r['diff_lo'], '.3g')}, {fixed(r['diff_hi'], '.3g')}] "
-            f"(margin ±{fixed(r['margin'], '.3g')})"
+            f"{r.measure}: {r.x} ahead of {r.y} by {fixed(r.diff, '.3g')} "
+            f"[{fixed(r.diff_lo, '.3g')}, {fixed(r.diff_hi, '.3g')}] "
+            f"(margin ±{fixed(r.margin, '.3g')})"
             for r in mine
         )
-        out.append({"claim": claim, "measures": ", ".join(keys), "figures": figures, "verdict": v})
+        out.append(Claim(claim, None, ", ".join(keys), figures, v))
     return out
 
 
-def _width(r: dict[str, Any]) -> str:
+def _width(r: Comparison) -> str:
     """How wide an undecided comparison's interval stayed, beside its margin."""
-    width = fixed(r["diff_hi"] - r["diff_lo"], ".3g")
-    margin = fixed(r["margin"], ".3g")
-    return f"{r['measure']} {r['x']}−{r['y']}: interval {width} wide, margin ±{margin}"
+    width, margin = fixed(r.diff_hi - r.diff_lo, ".3g"), fixed(r.margin, ".3g")
+    return f"{r.measure} {r.x}−{r.y}: interval {width} wide, margin ±{margin}"
 
 
-def study(episodes: dict[str, np.ndarray], models: list[dict[str, Any]]) -> dict[str, Any]:
+def study(episodes: dict[str, np.ndarray], models: list[dict[str, Any]]) -> Convergence:
     """The content of ``eval/convergence.json``: per model (``summary.json``'s ``models``,
     whose ``model`` indexes ``episodes``) its measures, then the comparisons and verdicts."""
-    keep = ("model", "cell", "seed", "label", *stats.CELL_AXES)
+    keep = [f.name for f in fields(Speed)[:9]]  # the model's identity
     per = run_measures(episodes)
-    rows = [{**{k: m.get(k) for k in keep}, **per[m["model"]]} for m in models]
+    rows = [Speed(**{k: m.get(k) for k in keep}, **per[m["model"]]) for m in models]
     room = margins(episodes)
     comps = comparisons(rows, room)
-    return {
-        "window": WINDOW,
-        "plateau_episodes": PLATEAU,
-        "band": BAND,
-        "margin_share": MARGIN,
-        "margins": room,
-        "models": rows,
-        "comparisons": comps,
-        "claims": claim_verdicts(comps),
-    }
+    return Convergence(WINDOW, PLATEAU, BAND, MARGIN, room, rows, comps, claim_verdicts(comps))

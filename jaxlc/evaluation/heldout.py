@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import fields as dataclass_fields
 from typing import Any
 
 import numpy as np
@@ -34,9 +35,18 @@ import scipy.stats
 from jaxlc import config
 from jaxlc.evaluation import measures
 from jaxlc.evaluation.numbers import TERMINAL_DASH, percent
-from jaxlc.evaluation.results import OUTCOMES
+from jaxlc.evaluation.results import (
+    OUTCOMES,
+    SCRIPTED,
+    Claim,
+    Collision,
+    HeldoutCell,
+    HeldoutRow,
+    Policy,
+    heldout_fields,
+)
 from jaxlc.evaluation.safety import HAZARDS, NORMS, PARTNERS, VEHICLES
-from jaxlc.evaluation.stats import CELL_AXES, CONFIDENCE, RESAMPLES, cell_key, expanded_level
+from jaxlc.evaluation.stats import CONFIDENCE, RESAMPLES, expanded_level
 from jaxlc.paper.claims import CLAIM_D, SOLVED
 from jaxlc.paper.grid import BEST_TAG, is_best
 
@@ -44,33 +54,21 @@ MIN_BOOT_SEEDS = 5
 BOUNDS = {name: bound for name, bound, *_ in NORMS}
 # Measured beside the norms (no norm of their own here): comfort along the road.
 LONGITUDINAL = ("peak_long_acc", "peak_long_jerk")
+# Means over the successful lane changes.
+MEANS = ("duration_s", "lcm_s", "lcm_start_s", "peak_lat_acc", "peak_lat_jerk") + LONGITUDINAL
 ENDS = ("success", "out_of_bounds", "collision", "timeout", "unfinished")
 NORM_KEYS = tuple(f"norm_{name}" for name, *_ in NORMS) + ("norm_all",)
-CRIT_KEYS = tuple(f"{m}_crit_{v}" for m in ("ttc", "thw") for v in VEHICLES)
 # The traffic's hazards met (env.mobil, env.braking): cut-ins, lane changes that met one,
 # braking events of the vehicles around the ego; 0 in the paper's traffic.
 HAZARD_KEYS = ("cut_ins", "met_cut_in", "brakes_near", "met_braking")
 # How close the lane changes came to each failure (measures.MARGINS): 5th pct. and median.
 MARGIN_KEYS = tuple(f"{m}_{q}" for m in measures.MARGINS.values() for q in ("p5", "p50"))
-HELDOUT_FIELDS = (
-    ("label", "model", "cell", "seed", "k", "memory", "episode", "lane_changes")
-    + ENDS
-    + ("success_rate", "success_lo", "success_hi", "failure_bound")
-    + ("collision_rate", "collision_lo", "collision_hi")
-    + ("duration_s", "lcm_s", "lcm_start_s", "peak_lat_acc", "peak_lat_jerk")
-    + ("min_ttc_s", "min_thw_s")
-    + LONGITUDINAL
-    + NORM_KEYS
-    + CRIT_KEYS
-    + HAZARD_KEYS
-    + MARGIN_KEYS
-)
 
 
 def fields() -> tuple[str, ...]:
-    """``heldout.csv``'s columns: ``HELDOUT_FIELDS``, then each measure registered with a
+    """``heldout.csv``'s columns: ``HeldoutRow``'s, then each measure registered with a
     held-out summary (``measures.register``), by its name."""
-    return HELDOUT_FIELDS + tuple(m.name for m in measures.registered() if m.heldout)
+    return heldout_fields([*MARGIN_KEYS, *(m.name for m in measures.registered() if m.heldout)])
 
 
 def _summary(m: measures.Measure, values: np.ndarray, ok: np.ndarray) -> float:
@@ -81,17 +79,7 @@ def _summary(m: measures.Measure, values: np.ndarray, ok: np.ndarray) -> float:
     return _p5(values) if m.heldout == "p5" else float(values.sum())
 
 
-COLLISION_FIELDS = (
-    "label",
-    "model",
-    "seed",
-    "episode",
-    "case",
-    "partner",
-    "hazard",
-    "yielding",
-    "hit_speed",
-) + ("time_s", "accept_v", "accept_lead_gap", "accept_lag_gap", "accept_lag_v")
+COLLISION_FIELDS = tuple(f.name for f in dataclass_fields(Collision))
 
 
 def clopper_pearson(k: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, float]:
@@ -156,71 +144,81 @@ def _mean(x: np.ndarray) -> float:
     return float(np.mean(x)) if x.size else math.nan
 
 
-def model_row(out: dict[str, np.ndarray], info: dict[str, np.ndarray], p: int, dt: float) -> dict:
-    """Policy ``p``'s held-out row (``fields()`` less the identity)."""
+def model_row(
+    out: dict[str, np.ndarray],
+    info: dict[str, np.ndarray],
+    p: int,
+    dt: float,
+    policy: Policy = SCRIPTED,
+) -> HeldoutRow:
+    """Policy ``p``'s held-out row, ``policy`` its identity."""
     perf = info["performed"]
     reason = out["reason"][p][perf]
     n = int(perf.sum())
     counts = {e: int((reason == OUTCOMES.index(e)).sum()) for e in ENDS}
     ok = reason == OUTCOMES.index("success")
     m = {k: v[perf] for k, v in lane_change_measures(out, p, dt).items()}
-    fails, hits = n - counts["success"], counts["collision"]
+    wins, hits = counts["success"], counts["collision"]
+    fails = n - wins
     own = [me for me in measures.registered() if me.heldout]  # measures of your own
-    crit = {}
+    crit = {}  # the share of lane changes critical, per vehicle
     for name in ("ttc", "thw"):
         bound = BOUNDS[f"min_{name}_s"]
         for i, v in enumerate(VEHICLES):
             crit[f"{name}_crit_{v}"] = _mean(out[f"min_{name}"][p][perf][:, i] < bound)
-    return {
-        "lane_changes": n,
+    s_lo, s_hi = clopper_pearson(wins, n)
+    c_lo, c_hi = clopper_pearson(hits, n)
+    cuts, brakes = out["cut_ins"][p][perf], out["brakes_near"][p][perf]
+    return HeldoutRow(
+        **policy.as_dict(),
+        lane_changes=n,
         **counts,
-        "success_rate": counts["success"] / n if n else math.nan,
-        **dict(
-            zip(("success_lo", "success_hi"), clopper_pearson(counts["success"], n), strict=True)
-        ),
-        "failure_bound": upper_bound(fails, n),
-        "collision_rate": hits / n if n else math.nan,
-        **dict(zip(("collision_lo", "collision_hi"), clopper_pearson(hits, n), strict=True)),
-        "duration_s": _mean(m["duration_s"][ok]),
-        "lcm_s": _mean(m["lcm_s"][ok]),
-        "lcm_start_s": _mean(m["lcm_start_s"][ok]),
-        "peak_lat_acc": _mean(m["peak_lat_acc"][ok]),
-        "peak_lat_jerk": _mean(m["peak_lat_jerk"][ok]),
-        **{k: _mean(m[k][ok]) for k in LONGITUDINAL},
+        success_rate=wins / n if n else math.nan,
+        success_lo=s_lo,
+        success_hi=s_hi,
+        failure_bound=upper_bound(fails, n),
+        collision_rate=hits / n if n else math.nan,
+        collision_lo=c_lo,
+        collision_hi=c_hi,
+        **{k: _mean(m[k][ok]) for k in MEANS},
         # The low tail is what safety is about: 5th percentiles over the lane changes.
-        "min_ttc_s": _p5(m["min_ttc_s"]),
-        "min_thw_s": _p5(m["min_thw_s"]),
+        **{k: _p5(m[k]) for k in ("min_ttc_s", "min_thw_s")},
         **{k: _mean(m[k]) for k in NORM_KEYS},
         **crit,
-        "cut_ins": int(out["cut_ins"][p][perf].sum()),
-        "met_cut_in": int((out["cut_ins"][p][perf] > 0).sum()),
-        "brakes_near": int(out["brakes_near"][p][perf].sum()),
-        "met_braking": int((out["brakes_near"][p][perf] > 0).sum()),
-        **_margins(out, p, perf),
-        **{me.name: _summary(me, out[me.name][p][perf], ok) for me in own},  # after the rest
-    }
+        cut_ins=int(cuts.sum()),
+        met_cut_in=int((cuts > 0).sum()),
+        brakes_near=int(brakes.sum()),
+        met_braking=int((brakes > 0).sum()),
+        measures={
+            **_margins(out, p, perf),
+            **{me.name: _summary(me, out[me.name][p][perf], ok) for me in own},
+        },
+    )
 
 
 def collisions(
-    out: dict[str, np.ndarray], info: dict[str, np.ndarray], metas: list[dict], dt: float
-) -> list[dict[str, Any]]:
-    """One row per collision (``COLLISION_FIELDS``): the vehicle hit, the ego's speed and
-    time into the manoeuvre, the gaps and lag speed at acceptance, whether the lag yields."""
+    out: dict[str, np.ndarray], info: dict[str, np.ndarray], metas: list[Policy], dt: float
+) -> list[Collision]:
+    """One record per collision: the vehicle hit, the ego's speed and time into the
+    manoeuvre, the gaps and lag speed at acceptance, whether the lag yields."""
     rows = []
     code = OUTCOMES.index("collision")
     for p, meta in enumerate(metas):
         for c in np.nonzero(info["performed"] & (out["reason"][p] == code))[0]:
             rows.append(
-                {
-                    **{k: meta.get(k) for k in ("label", "model", "seed", "episode")},
-                    "case": int(c),
-                    "partner": PARTNERS[int(out["partner"][p][c])],
-                    "hazard": HAZARDS[int(out["hit_hazard"][p][c])],
-                    "yielding": bool(info["yielding"][c]),
-                    "hit_speed": float(out["hit_speed"][p][c]),
-                    "time_s": float(out["steps"][p][c] * dt),
+                Collision(
+                    meta.label,
+                    meta.model,
+                    meta.seed,
+                    meta.episode,
+                    case=int(c),
+                    partner=PARTNERS[int(out["partner"][p][c])],
+                    hazard=HAZARDS[int(out["hit_hazard"][p][c])],
+                    yielding=bool(info["yielding"][c]),
+                    hit_speed=float(out["hit_speed"][p][c]),
+                    time_s=float(out["steps"][p][c] * dt),
                     **{k: float(info[k][c]) for k in COLLISION_FIELDS[-4:]},
-                }
+                )
             )
     return rows
 
@@ -275,59 +273,58 @@ def _two_level(k: np.ndarray, n: np.ndarray, seed: int = 0) -> tuple[float, floa
     return float(lo), float(hi)
 
 
-def cell_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per grid cell of the held-out model rows: the mean success over its seeds
+def cell_rows(rows: list[HeldoutRow]) -> list[HeldoutCell]:
+    """One record per grid cell of the held-out model rows: the mean success over its seeds
     with its interval, pooled failures and collisions with their bounds, the norms' share."""
-    models = [r for r in rows if r["model"] is not None and r["lane_changes"]]
+    models = [r for r in rows if r.model is not None and r.lane_changes]
     cells = []
-    for key in dict.fromkeys(cell_key(r) for r in models):
-        mine = [r for r in models if cell_key(r) == key]
-        k = np.asarray([r["success"] for r in mine])
-        n = np.asarray([r["lane_changes"] for r in mine])
+    for key in dict.fromkeys(r.axes for r in models):
+        mine = [r for r in models if r.axes == key]
+        k = np.asarray([r.success for r in mine])
+        n = np.asarray([r.lane_changes for r in mine])
         if len(mine) >= MIN_BOOT_SEEDS:
             (lo, hi), how = _two_level(k, n), "two-level bootstrap (seeds, then lane changes)"
         else:
-            lo, hi = min(r["success_lo"] for r in mine), max(r["success_hi"] for r in mine)
+            lo, hi = min(r.success_lo for r in mine), max(r.success_hi for r in mine)
             how = (
                 f"range of the {len(mine)} seeds' Clopper-Pearson intervals"
                 if len(mine) > 1
                 else "Clopper-Pearson interval of the one seed"
             )
-        fails, hits, total = int((n - k).sum()), sum(r["collision"] for r in mine), int(n.sum())
+        fails, hits, total = int((n - k).sum()), sum(r.collision for r in mine), int(n.sum())
         cells.append(
-            {
-                "label": mine[0]["label"],
-                **dict(zip(CELL_AXES, key, strict=True)),  # the paper's tag: paper.grid.tag_of
-                "seeds": len(mine),
-                "lane_changes": total,
-                "success_mean": float(np.mean(k / n)),
-                "success_lo": lo,
-                "success_hi": hi,
-                "interval": how,
-                "failures": fails,
-                "failure_bound": upper_bound(fails, total),
-                "collisions": hits,
-                "collision_rate": hits / total,
-                "collision_bound": upper_bound(hits, total),
-                "models_without_failure": int(np.sum(k == n)),
-                "norm_all": float(np.mean([r["norm_all"] for r in mine])),
-                **{k: sum(r.get(k, 0) for r in mine) for k in HAZARD_KEYS},
-            }
+            HeldoutCell(
+                mine[0].label,
+                *key,  # the paper's tag: paper.grid.tag_of
+                seeds=len(mine),
+                lane_changes=total,
+                success_mean=float(np.mean(k / n)),
+                success_lo=lo,
+                success_hi=hi,
+                interval=how,
+                failures=fails,
+                failure_bound=upper_bound(fails, total),
+                collisions=hits,
+                collision_rate=hits / total,
+                collision_bound=upper_bound(hits, total),
+                models_without_failure=int(np.sum(k == n)),
+                norm_all=float(np.mean([r.norm_all for r in mine])),
+                **{h: sum(getattr(r, h) or 0 for r in mine) for h in HAZARD_KEYS},
+            )
         )
     return cells
 
 
-def claim_d(cells: list[dict[str, Any]]) -> dict[str, str]:
+def claim_d(cells: list[HeldoutCell]) -> Claim:
     """Claim (d), "④ succeeds in 100%", as a bound on ④'s held-out failure rate: *supported*
     when the pooled one-sided 95% bound is at most 1 - SOLVED (1%), *not supported* when the
     two-sided interval's lower end lies above it, else undecided."""
-    row = {"claim": CLAIM_D, "paper": "100%"}
     best = next((c for c in cells if is_best(c)), None)
     if best is None:
-        return {**row, "figures": f"the grid has no {BEST_TAG}", "verdict": "n/a"}
-    fails, n, s = best["failures"], best["lane_changes"], best["seeds"]
+        return Claim(CLAIM_D, "100%", figures=f"the grid has no {BEST_TAG}")
+    fails, n, s = best.failures, best.lane_changes, best.seeds
     lo, _ = clopper_pearson(fails, n)
-    bound = best["failure_bound"]
+    bound = best.failure_bound
     if bound <= 1.0 - SOLVED:
         v = "supported"
     elif lo > 1.0 - SOLVED:
@@ -338,7 +335,7 @@ def claim_d(cells: list[dict[str, Any]]) -> dict[str, str]:
         f"{BEST_TAG} fails in fewer than {100 * bound:.2f}% of held-out lane changes (95%, "
         f"Clopper-Pearson: {fails} failures in {n} over {s} seed{'s' * (s != 1)})"
     )
-    return {**row, "figures": figures, "verdict": v}
+    return Claim(CLAIM_D, "100%", figures=figures, verdict=v)
 
 
 def _pct(v: Any, digits: int = 1) -> str:
@@ -346,16 +343,16 @@ def _pct(v: Any, digits: int = 1) -> str:
     return percent(v, digits, unit="", missing=TERMINAL_DASH)
 
 
-def format_rows(rows: list[dict[str, Any]]) -> str:
+def format_rows(rows: list[HeldoutRow]) -> str:
     """Plain-text table of held-out rows for the terminal."""
     lines = [
         "held-out policy            seed  lane ch.  succ% [95% CP]        coll  fail<%  all norms%"
     ]
     for r in rows:
-        ci = f"[{_pct(r['success_lo'])}, {_pct(r['success_hi'])}]"
+        ci = f"[{_pct(r.success_lo)}, {_pct(r.success_hi)}]"
         lines.append(
-            f"{str(r['label'])[:26]:26} {'-' if r['seed'] is None else r['seed']:>4} "
-            f"{r['lane_changes']:9d}  {_pct(r['success_rate'], 2):>6} {ci:14} "
-            f"{r['collision']:5d}  {_pct(r['failure_bound'], 2):>6}  {_pct(r['norm_all']):>9}"
+            f"{str(r.label)[:26]:26} {'-' if r.seed is None else r.seed:>4} "
+            f"{r.lane_changes:9d}  {_pct(r.success_rate, 2):>6} {ci:14} "
+            f"{r.collision:5d}  {_pct(r.failure_bound, 2):>6}  {_pct(r.norm_all):>9}"
         )
     return "\n".join(lines)

@@ -12,8 +12,6 @@ the step cap), so every case lands in exactly one bucket.
 
 from __future__ import annotations
 
-import json
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -28,17 +26,21 @@ from jaxlc.evaluation.cases import (
     evaluate_policies,
     init_actor,
 )
-from jaxlc.evaluation.numbers import csv_text
+from jaxlc.evaluation.numbers import write, write_csv
 from jaxlc.evaluation.results import (
-    META_KEYS,
     OUTCOMES,
     SCRIPTED,
     EvalError,
+    EvalResult,
+    Heldout,
+    Norm,
+    Policy,
+    Row,
     eval_fields,
+    final_rows,
     summarise,
 )
 from jaxlc.evaluation.safety import COUNTED, NORMS
-from jaxlc.evaluation.stats import final_rows
 from jaxlc.study import checkpoint
 from jaxlc.study.rundir import RunDir, checkpoint_network
 
@@ -93,21 +95,23 @@ def _last_episodes(found: list[tuple[Path, dict[str, Any]]]) -> dict[int, int]:
     return last
 
 
-def _row_meta(path: Path, meta: dict[str, Any], run_dir: Path | None) -> dict[str, Any]:
+def _row_meta(path: Path, meta: dict[str, Any], run_dir: Path | None) -> Policy:
     shown = path.relative_to(run_dir) if run_dir and path.is_relative_to(run_dir) else path
-    return {**{k: meta.get(k) for k in META_KEYS}, "checkpoint": str(shown)}
+    named = [f for f in Policy.__dataclass_fields__ if f != "checkpoint"]
+    return Policy(**{k: meta.get(k) for k in named}, checkpoint=str(shown))
 
 
 def load_rows(
     run_dir: Path, chosen: list[tuple[Path, dict[str, Any]]]
 ) -> tuple[config.Config, list[Any], list[dict[str, Any]]]:
     """``(config, actors, metas)`` of the ``chosen`` checkpoints of ``run_dir``: the run's
-    config, their actor params (shapes checked against it) and the row identities, the
-    scripted baseline first."""
+    config, their actor params (shapes checked against it) and the row identities (a
+    ``Policy``'s columns), the scripted baseline first."""
     cfg = _run_config(run_dir)
     shapes = checkpoint.shapes_of(init_actor(cfg))
     actors = [checkpoint.load(p, expect_shapes=shapes)[0] for p, _ in chosen]
-    return cfg, actors, [SCRIPTED] + [_row_meta(p, m, run_dir) for p, m in chosen]
+    metas = [SCRIPTED] + [_row_meta(p, m, run_dir) for p, m in chosen]
+    return cfg, actors, [m.as_dict() for m in metas]
 
 
 def evaluate_run(
@@ -121,20 +125,21 @@ def evaluate_run(
     chunk: int = PROTOCOL.chunk,
     traced: int = PROTOCOL.traced,
     devices: int = 1,
-) -> dict[str, Any]:
+) -> EvalResult:
     """Evaluate a run's checkpoints and the scripted baseline (row 0); writes
     ``run_dir/eval/eval.json``, ``eval.csv``, ``cases.npz``, ``traces.npz``; returns the
     JSON's content."""
     run_dir, rd = Path(run_dir), RunDir(run_dir)
     chosen = select_checkpoints(run_dir, episodes, model)
     cfg, actors, metas = load_rows(run_dir, chosen)
+    metas = [Policy.from_dict(m) for m in metas]
     kw = dict(cases=cases, seed=seed, max_steps=max_steps, chunk=chunk, traced=traced)
     out, trace, info = evaluate_policies(
-        cfg, [None, *actors], [1] + [m["k"] for m in metas[1:]], devices=devices, **kw
+        cfg, [None, *actors], [1] + [m.k for m in metas[1:]], devices=devices, **kw
     )
-    result = _result(cfg, out, info, metas, kw)
+    result = _result(cfg, out, info, metas, seed, max_steps)
     _write(rd.eval, "eval", result, cfg)
-    write_seed_stats(rd.eval, result["rows"])
+    write_seed_stats(rd.eval, result.rows)
     ids = _policy_ids(metas)
     rd.save_npz(rd.cases, {**out, **ids, **info})
     traced_side = info["side"][info["traced"]]
@@ -162,7 +167,7 @@ def evaluate_heldout(
     devices: int = 1,
     traffic: Sequence[str] = (),
     tag: str = "",
-) -> dict[str, Any]:
+) -> Heldout:
     """Every model's final checkpoint (and those of ``episodes``) and the scripted baseline
     on ``lane_changes`` held-out lane changes (``jaxlc.evaluation.heldout``); writes
     ``eval/heldout.json``, ``heldout.csv``, ``heldout_cells.csv``, ``collisions.csv`` and
@@ -174,6 +179,7 @@ def evaluate_heldout(
     run_dir, rd = Path(run_dir), RunDir(run_dir)
     chosen = final_checkpoints(run_dir, episodes)
     cfg, actors, metas = load_rows(run_dir, chosen)
+    metas = [Policy.from_dict(m) for m in metas]
     out_dir = rd.eval
     if traffic:
         cfg = heldout.in_traffic(cfg, traffic)
@@ -182,7 +188,7 @@ def evaluate_heldout(
     out, _, info = evaluate_policies(
         cfg,
         [None, *actors],
-        [1] + [m["k"] for m in metas[1:]],
+        [1] + [m.k for m in metas[1:]],
         started=started,
         max_steps=max_steps,
         chunk=chunk,
@@ -190,40 +196,38 @@ def evaluate_heldout(
         devices=devices,
     )
     dt = cfg.env.dt
-    rows = [{**m, **heldout.model_row(out, info, p, dt)} for p, m in enumerate(metas)]
+    rows = [heldout.model_row(out, info, p, dt, m) for p, m in enumerate(metas)]
     cells = heldout.cell_rows(final_rows(rows))
-    result = {
-        "config_hash": cfg.hash(),
-        "seed": seed,
+    extra = [m.name for m in measures.registered() if m.heldout]
+    result = Heldout(
+        cfg.hash(),
+        seed,
         # the stream's name as every committed heldout.json gives it (keys.stream(seed,
         # HELDOUT, range(n)) since; jaxlc.evaluation.keys says so), so the files stay alike
-        "key_stream": f"jaxlc.evaluation.cases.heldout_keys({seed}, {len(keys)})",
-        "cases": len(keys),
-        "lane_changes": int(info["performed"].sum()),
-        "norms": [
-            dict(zip(("measure", "bound", "below", "source"), n, strict=True)) for n in NORMS
-        ],
-        "conflicts_counted": COUNTED,
-        "traffic": heldout.traffic_of(cfg.env),
-        "traffic_overrides": list(traffic),
-        "rows": rows,
-        "cells": cells,
-        "claim_d": heldout.claim_d(cells),
-        "collisions": heldout.collisions(out, info, metas, dt),
-    }
-    extra = [m.name for m in measures.registered() if m.heldout]
-    if extra:  # measures of your own: the report's table shows them (none: the files as ever)
-        result["measures"] = extra
-    _write_json(out_dir / rd.heldout_json.name, result)
-    _write_table(out_dir / "heldout.csv", rows, heldout.fields())
-    _write_table(out_dir / "heldout_cells.csv", cells)
-    _write_table(out_dir / "collisions.csv", result["collisions"], heldout.COLLISION_FIELDS)
+        f"jaxlc.evaluation.cases.heldout_keys({seed}, {len(keys)})",
+        len(keys),
+        int(info["performed"].sum()),
+        [Norm(*n) for n in NORMS],
+        COUNTED,
+        heldout.traffic_of(cfg.env),
+        list(traffic),
+        rows,
+        cells,
+        heldout.claim_d(cells),
+        heldout.collisions(out, info, metas, dt),
+        # measures of your own: the report's table shows them (none: the files as ever)
+        extra or None,
+    )
+    write(out_dir / rd.heldout_json.name, result)
+    write_csv(out_dir / "heldout.csv", rows, heldout.fields())
+    write_csv(out_dir / "heldout_cells.csv", cells)
+    write_csv(out_dir / "collisions.csv", result.collisions, heldout.COLLISION_FIELDS)
     ids = _policy_ids(metas)
     rd.save_npz(out_dir / rd.heldout_cases.name, {**out, **ids, **info})
     return result
 
 
-def write_convergence(run_dir: Path) -> dict[str, Any] | None:
+def write_convergence(run_dir: Path) -> convergence.Convergence | None:
     """``eval/convergence.json`` and ``convergence.csv``: the learning-speed measures of every
     model from its training curves and the paper's comparisons on them
     (``jaxlc.evaluation.convergence``); None when the run has no episode metrics."""
@@ -232,8 +236,8 @@ def write_convergence(run_dir: Path) -> dict[str, Any] | None:
     if episodes is None or not rd.summary_json.is_file():
         return None
     doc = convergence.study(episodes, rd.read_json(rd.summary_json)["models"])
-    _write_json(rd.convergence, doc)
-    _write_table(rd.eval / "convergence.csv", doc["models"])
+    write(rd.convergence, doc)
+    write_csv(rd.eval / "convergence.csv", doc.models)
     return doc
 
 
@@ -244,7 +248,7 @@ def evaluate_checkpoint(
     cases: int = PROTOCOL.cases,
     seed: int = 0,
     max_steps: int = PROTOCOL.max_steps,
-) -> dict[str, Any]:
+) -> EvalResult:
     """Evaluate one checkpoint file and the scripted baseline; writes
     ``eval/<model dir>_<stem>.json`` (+ ``.csv``) in its run directory (or beside the file).
 
@@ -266,7 +270,7 @@ def evaluate_checkpoint(
     metas = [SCRIPTED, _row_meta(path.resolve(), meta, run_dir and Path(run_dir).resolve())]
     kw = dict(cases=cases, seed=seed, max_steps=max_steps, traced=0)
     out, _, info = evaluate_policies(cfg, [None, params], [1, int(meta.get("k", 1))], **kw)
-    result = _result(cfg, out, info, metas, kw)
+    result = _result(cfg, out, info, metas, seed, max_steps)
     eval_dir = RunDir(run_dir).eval if run_dir else path.parent / "eval"
     _write(eval_dir, f"{path.parent.name}_{path.stem}", result, cfg)
     return result
@@ -276,107 +280,56 @@ def _result(
     cfg: config.Config,
     out: dict[str, np.ndarray],
     info: dict[str, np.ndarray],
-    metas: list[dict[str, Any]],
-    kw: dict[str, Any],
-) -> dict[str, Any]:
+    metas: list[Policy],
+    seed: int,
+    max_steps: int,
+) -> EvalResult:
     """The content of eval.json: the setting, the cases, one row per policy."""
-    rows = summarise(out, cfg.env.dt, cfg.env.reward_terms)
-    rows = [{**m, **r} for m, r in zip(metas, rows, strict=True)]
     # The run up to the gap is the same for every policy, so these counts are the cases'.
     early = out["reason"][0][~info["performed"]]
-    return {
-        "config_hash": cfg.hash(),
-        "cases": int(info["case"].size),
-        "seed": kw["seed"],
-        "max_steps": kw["max_steps"],
-        "performed": int(info["performed"].sum()),
-        "left": int((info["side"] > 0).sum()),
-        "right": int((info["side"] < 0).sum()),
-        "before_rl": {name: int((early == code).sum()) for code, name in enumerate(OUTCOMES)},
-        "traced": info["traced"].tolist(),
-        "success_box": {
-            "offset_m": cfg.env.success_offset,
-            "heading": cfg.env.success_heading,
-            "yaw_rate": cfg.env.success_yaw_rate,
-        },
-        "rows": rows,
-    }
+    box = (cfg.env.success_offset, cfg.env.success_heading, cfg.env.success_yaw_rate)
+    return EvalResult(
+        cfg.hash(),
+        int(info["case"].size),
+        seed,
+        max_steps,
+        int(info["performed"].sum()),
+        int((info["side"] > 0).sum()),
+        int((info["side"] < 0).sum()),
+        {name: int((early == code).sum()) for code, name in enumerate(OUTCOMES)},
+        info["traced"].tolist(),
+        dict(zip(("offset_m", "heading", "yaw_rate"), box, strict=True)),
+        summarise(out, cfg.env.dt, cfg.env.reward_terms, metas),
+    )
 
 
-def _write(out_dir: Path, name: str, result: dict[str, Any], cfg: config.Config) -> None:
-    _write_json(out_dir / f"{name}.json", result)
-    fields = eval_fields(cfg.env.reward_terms)
-    checkpoint.write_text_atomic(out_dir / f"{name}.csv", csv_text(result["rows"], fields))
+def _write(out_dir: Path, name: str, result: EvalResult, cfg: config.Config) -> None:
+    write(out_dir / f"{name}.json", result)
+    write_csv(out_dir / f"{name}.csv", result.rows, eval_fields(cfg.env.reward_terms))
 
 
-def _write_json(path: Path, doc: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    checkpoint.write_text_atomic(path, json.dumps(_json_safe(doc), indent=1) + "\n")
-
-
-def _write_table(path: Path, table: list[dict[str, Any]], fields: Sequence[str] = ()) -> None:
-    """A CSV of ``table``'s rows; its columns ``fields``, else the first row's keys."""
-    fields = fields or (list(table[0]) if table else [])
-    checkpoint.write_text_atomic(path, csv_text(table, fields))
-
-
-def _policy_ids(metas: list[dict[str, Any]]) -> dict[str, np.ndarray]:
+def _policy_ids(metas: list[Policy]) -> dict[str, np.ndarray]:
     """Which model and episode each evaluated row is (-1 and 0 for the scripted baseline)."""
     return {
-        "policy_model": np.asarray([-1 if m["model"] is None else m["model"] for m in metas]),
-        "policy_episode": np.asarray([m["episode"] or 0 for m in metas]),
+        "policy_model": np.asarray([-1 if m.model is None else m.model for m in metas]),
+        "policy_episode": np.asarray([m.episode or 0 for m in metas]),
     }
 
 
-def _json_safe(obj: Any) -> Any:
-    # JSON has no NaN: an undefined mean (no successes) is null.
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
-def write_seed_stats(out_dir: Path, rows: list[dict[str, Any]]) -> dict[str, Any]:
+def write_seed_stats(out_dir: Path, rows: list[Row]) -> stats.SeedStats:
     """``cells.json`` (everything), ``cells.csv`` (per cell and checkpoint) and
     ``improvement.csv`` (P(X > Y) of the final success rate) from eval rows; returns the
     JSON's content."""
     cells = stats.cells_of(rows)
-    doc = {
-        "confidence": stats.CONFIDENCE,
-        "resamples": stats.RESAMPLES,
-        "note": stats.seeds_note(cells),
-        "cells": stats.cell_table(cells),
-        "final": stats.final_table(cells),
-        "improvement": stats.improvement_table(cells),
-    }
-    _write_json(out_dir / "cells.json", doc)
-    for name in ("cells", "improvement"):
-        _write_table(out_dir / f"{name}.csv", doc[name])
+    doc = stats.SeedStats(
+        stats.CONFIDENCE,
+        stats.RESAMPLES,
+        stats.seeds_note(cells),
+        stats.cell_table(cells),
+        stats.final_table(cells),
+        stats.improvement_table(cells),
+    )
+    write(out_dir / "cells.json", doc)
+    write_csv(out_dir / "cells.csv", doc.cells)
+    write_csv(out_dir / "improvement.csv", doc.improvement)
     return doc
-
-
-def _eval_rows(run_dir: Path) -> list[dict[str, Any]]:
-    path = RunDir(run_dir).eval_json
-    if not path.is_file():
-        raise EvalError(f"{path} is missing; run python -m jaxlc.evaluate {run_dir} first")
-    return RunDir.read_json(path)["rows"]
-
-
-def compare_runs(run_a: Path, run_b: Path, out: Path | None = None) -> Path:
-    """Per-cell differences B - A of the mean success rate of two evaluated runs (their
-    ``eval/eval.json``; nothing is re-evaluated): writes ``compare.md``, ``compare.csv`` and
-    ``compare.png`` into ``out`` (default ``run_b/compare_<name of run_a>``); returns it."""
-    run_a, run_b = Path(run_a), Path(run_b)
-    table = stats.compare(stats.cells_of(_eval_rows(run_a)), stats.cells_of(_eval_rows(run_b)))
-    out = Path(out) if out is not None else run_b / f"compare_{run_a.resolve().name}"
-    out.mkdir(parents=True, exist_ok=True)
-    _write_table(out / "compare.csv", table)
-    from jaxlc.evaluation import plots, report_seeds
-
-    plots.fig_compare(table, run_a.name, run_b.name, out / "compare.png")
-    text = report_seeds.compare_markdown(table, run_a, run_b)
-    checkpoint.write_text_atomic(out / "compare.md", text)
-    return out

@@ -20,11 +20,7 @@ Measures: the mean and the interquartile mean (IQM, the mean of the middle 50% o
 Agarwal et al. 2021) of the evaluated success rate and average return; the probability of
 improvement ``P(X > Y) = P(x > y) + 0.5 P(x = y)`` over all pairs of a seed of X and a seed
 of Y; the performance profile, the share of models whose success rate is above each
-level tau in [0, 1].
-
-The paper's claims are not decided here: (a)-(c) on the training curves
-(``jaxlc.evaluation.convergence``), (d) on the held-out failure bound
-(``jaxlc.evaluation.heldout.claim_d``), as ``jaxlc.paper.claims`` states them.
+level tau in [0, 1]. (The claims: ``convergence`` (a)-(c), ``heldout.claim_d`` (d).)
 """
 
 from __future__ import annotations
@@ -38,31 +34,78 @@ from typing import Any
 import numpy as np
 import scipy.stats
 
-from jaxlc.evaluation.numbers import number
+from jaxlc.evaluation.numbers import Record, many, number, optional
+from jaxlc.evaluation.results import CELL_AXES, CellId, Row, final_rows
 
 CONFIDENCE = 0.95
 RESAMPLES = 2000
 BATCH = 250  # resamples per vectorised call: bounds memory for figure bands of many points
 TAUS = np.linspace(0.0, 1.0, 101)
-CELL_AXES = ("k", "memory", "actor_lr", "critic_lr", "noise_sigma")
 SEEDS_NOTE = "intervals need >= 2 seeds per cell"
 RANGE_BELOW = 5  # fewer seeds: a cell's "interval" of a mean is the seeds' range (describe)
 RANGE_NOTE = "with fewer than 5 seeds a cell's interval is the range of its seeds"
 
 
+@dataclass
+class SeedCell(CellId):
+    """A cell's success and return over its seeds at one checkpoint ``episode`` (None: each
+    model's last), mean and IQM with their intervals (``stats.describe``)."""
+
+    episode: int | None = optional()
+    seeds: int = 0
+    success_mean: float | None = None
+    success_mean_lo: float | None = None
+    success_mean_hi: float | None = None
+    success_iqm: float | None = None
+    success_iqm_lo: float | None = None
+    success_iqm_hi: float | None = None
+    return_mean: float | None = None
+    return_mean_lo: float | None = None
+    return_mean_hi: float | None = None
+    return_iqm: float | None = None
+    return_iqm_lo: float | None = None
+    return_iqm_hi: float | None = None
+
+
+@dataclass
+class Improvement(Record):  # P(x > y) of the final success rate of two cells
+    x: str = ""
+    y: str = ""
+    seeds_x: int = 0
+    seeds_y: int = 0
+    p: float | None = None
+    p_lo: float | None = None
+    p_hi: float | None = None
+
+
+@dataclass
+class Difference(CellId):
+    """Run B's mean success rate minus run A's in one cell at one checkpoint (``compare``)."""
+
+    episode: int | None = None
+    seeds_a: int = 0
+    seeds_b: int = 0
+    success_a: float | None = None
+    success_b: float | None = None
+    diff: float | None = None
+    diff_lo: float | None = None
+    diff_hi: float | None = None
+
+
+@dataclass
+class SeedStats(Record):
+    """``cells.json``: per cell and checkpoint, per cell at the end, P(X > Y) of each pair."""
+
+    confidence: float = 0.95
+    resamples: int = 0
+    note: str | None = None
+    cells: list[SeedCell] = many(SeedCell)
+    final: list[SeedCell] = many(SeedCell)
+    improvement: list[Improvement] = many(Improvement)
+
+
 class StatsError(ValueError):
     """Data that cannot be compared; the message names the difference."""
-
-
-def final_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Each model's row at its last evaluated checkpoint (the scripted row left out)."""
-    last: dict[int, dict[str, Any]] = {}
-    for r in rows:
-        if r["model"] is not None and (
-            r["model"] not in last or r["episode"] > last[r["model"]]["episode"]
-        ):
-            last[r["model"]] = r
-    return [last[m] for m in sorted(last)]
 
 
 # --------------------------------------------------------------------------- intervals
@@ -229,37 +272,31 @@ class Cell:
         return dict(zip(CELL_AXES, self.key, strict=True))
 
 
-def cell_key(row: dict[str, Any]) -> tuple:
-    """The cell of an eval row (None for an axis an older eval.json lacks)."""
-    return tuple(row.get(a) for a in CELL_AXES)
-
-
-def cells_of(rows: list[dict[str, Any]]) -> list[Cell]:
+def cells_of(rows: list[Row]) -> list[Cell]:
     """The cells of eval.json rows, in the order of their first model."""
-    models = [r for r in rows if r["model"] is not None]
-    finals = {r["model"]: r for r in final_rows(rows)}
-    keys = list(dict.fromkeys(cell_key(r) for r in models))
+    models = [r for r in rows if r.model is not None]
+    finals = {r.model: r for r in final_rows(rows)}
     cells = []
-    for key in keys:
-        mine = [r for r in models if cell_key(r) == key]
-        seeds = sorted({r["seed"] for r in mine}, key=lambda s: (s is None, s))
-        episodes = sorted({r["episode"] for r in mine})
+    for key in dict.fromkeys(r.axes for r in models):
+        mine = [r for r in models if r.axes == key]
+        seeds = sorted({r.seed for r in mine}, key=lambda s: (s is None, s))
+        episodes = sorted({r.episode for r in mine})
         shape = (len(episodes), len(seeds))
         success, ret = np.full(shape, np.nan), np.full(shape, np.nan)
         for r in mine:
-            at = episodes.index(r["episode"]), seeds.index(r["seed"])
-            success[at], ret[at] = number(r["success_rate"]), number(r["avg_return"])
-        last = {r["seed"]: finals[r["model"]] for r in mine}
+            at = episodes.index(r.episode), seeds.index(r.seed)
+            success[at], ret[at] = number(r.success_rate), number(r.avg_return)
+        last = [finals[next(r.model for r in mine if r.seed == s)] for s in seeds]
         cells.append(
             Cell(
                 key=key,
-                label=mine[0]["label"],
+                label=mine[0].label,
                 seeds=tuple(seeds),
                 episodes=tuple(episodes),
                 success=success,
                 ret=ret,
-                final_success=np.asarray([number(last[s]["success_rate"]) for s in seeds]),
-                final_ret=np.asarray([number(last[s]["avg_return"]) for s in seeds]),
+                final_success=np.asarray([number(r.success_rate) for r in last]),
+                final_ret=np.asarray([number(r.avg_return) for r in last]),
             )
         )
     return cells
@@ -280,68 +317,50 @@ def seeds_note(cells: Sequence[Cell]) -> str | None:
     return f"{SEEDS_NOTE}; this run has {n} seed{'s' * (n != 1)} in its smallest cell"
 
 
-def _prefixed(prefix: str, d: dict[str, float]) -> dict[str, float]:
-    return {f"{prefix}_{k}": v for k, v in d.items()}
+def _described(c: Cell, success: np.ndarray, ret: np.ndarray, **kw: Any) -> SeedCell:
+    both = {
+        f"{m}_{k}": v
+        for m, x in (("success", success), ("return", ret))
+        for k, v in describe(x).items()
+    }
+    return SeedCell(c.label, *c.key, **kw, **both)
 
 
-def cell_table(cells: Sequence[Cell]) -> list[dict[str, Any]]:
+def cell_table(cells: Sequence[Cell]) -> list[SeedCell]:
     """One row per cell and checkpoint episode: seeds, then mean and IQM (with intervals)
     of the success rate and of the average return over the seeds."""
-    rows = []
-    for c in cells:
-        for i, e in enumerate(c.episodes):
-            rows.append(
-                {
-                    "label": c.label,
-                    **c.axes,
-                    "episode": e,
-                    "seeds": int(np.isfinite(c.ret[i]).sum()),
-                    **_prefixed("success", describe(c.success[i])),
-                    **_prefixed("return", describe(c.ret[i])),
-                }
-            )
-    return rows
-
-
-def final_table(cells: Sequence[Cell]) -> list[dict[str, Any]]:
-    """As ``cell_table`` at each model's last evaluated checkpoint, one row per cell."""
     return [
-        {
-            "label": c.label,
-            **c.axes,
-            "seeds": len(c.seeds),
-            **_prefixed("success", describe(c.final_success)),
-            **_prefixed("return", describe(c.final_ret)),
-        }
+        _described(c, c.success[i], c.ret[i], episode=e, seeds=int(np.isfinite(c.ret[i]).sum()))
         for c in cells
+        for i, e in enumerate(c.episodes)
     ]
 
 
-def improvement_table(cells: Sequence[Cell]) -> list[dict[str, Any]]:
+def final_table(cells: Sequence[Cell]) -> list[SeedCell]:
+    """As ``cell_table`` at each model's last evaluated checkpoint, one row per cell."""
+    return [_described(c, c.final_success, c.final_ret, seeds=len(c.seeds)) for c in cells]
+
+
+def improvement_table(cells: Sequence[Cell]) -> list[Improvement]:
     """P(X > Y) of the final success rate for every ordered pair of different cells."""
-    rows = []
-    for x in cells:
-        for y in cells:
-            if x is not y:
-                p, lo, hi = improvement([x.final_success], [y.final_success])
-                rows.append(
-                    {
-                        "x": x.label,
-                        "y": y.label,
-                        "seeds_x": len(x.seeds),
-                        "seeds_y": len(y.seeds),
-                        "p": p,
-                        "p_lo": lo,
-                        "p_hi": hi,
-                    }
-                )
-    return rows
+    return [
+        Improvement(
+            x.label,
+            y.label,
+            len(x.seeds),
+            len(y.seeds),
+            *improvement([x.final_success], [y.final_success]),
+        )
+        for x in cells
+        for y in cells
+        if x is not y
+    ]
 
 
 # --------------------------------------------------------------------------- two runs
 
 
-def compare(a: Sequence[Cell], b: Sequence[Cell]) -> list[dict[str, Any]]:
+def compare(a: Sequence[Cell], b: Sequence[Cell]) -> list[Difference]:
     """Per cell and checkpoint episode that both runs evaluated, the mean success rate of run
     B minus run A with its interval (the runs' seeds resampled independently). Raises
     ``StatsError`` when the runs' cells differ or a cell has no checkpoint episode in both."""
@@ -365,19 +384,16 @@ def compare(a: Sequence[Cell], b: Sequence[Cell]) -> list[dict[str, Any]]:
             )
         for e in common:
             sa, sb = ca.success[ca.episodes.index(e)], cb.success[cb.episodes.index(e)]
-            d, lo, hi = difference(sa, sb)
             rows.append(
-                {
-                    "label": ca.label,
-                    **ca.axes,
-                    "episode": e,
-                    "seeds_a": int(np.isfinite(sa).sum()),
-                    "seeds_b": int(np.isfinite(sb).sum()),
-                    "success_a": float(np.nanmean(sa)) if np.isfinite(sa).any() else math.nan,
-                    "success_b": float(np.nanmean(sb)) if np.isfinite(sb).any() else math.nan,
-                    "diff": d,
-                    "diff_lo": lo,
-                    "diff_hi": hi,
-                }
+                Difference(
+                    ca.label,
+                    *key,
+                    episode=e,
+                    seeds_a=int(np.isfinite(sa).sum()),
+                    seeds_b=int(np.isfinite(sb).sum()),
+                    success_a=float(np.nanmean(sa)) if np.isfinite(sa).any() else math.nan,
+                    success_b=float(np.nanmean(sb)) if np.isfinite(sb).any() else math.nan,
+                    **dict(zip(("diff", "diff_lo", "diff_hi"), difference(sa, sb), strict=True)),
+                )
             )
     return rows

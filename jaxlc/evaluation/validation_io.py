@@ -155,8 +155,8 @@ def scenes_figure(
     kinds = [k for k in validation.KINDS if any(k in c.kinds for c in cases)]
     if not kinds:
         return None
-    from jaxlc.evaluation.plots import _save, plt
-    from jaxlc.evaluation.plots_scenes import draw_scene
+    from jaxlc.report.plots import _save, plt
+    from jaxlc.report.plots_scenes import draw_scene
 
     p = EnvParams.from_config(cfg.env)
     fig, axes = plt.subplots(len(kinds), 1, figsize=(8, 1.3 * len(kinds) + 0.3), squeeze=False)
@@ -212,8 +212,8 @@ def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Pat
 
 
 def _gif(path: Path, tr: dict, cfg: config.Config, case: validation.Case) -> Path:
-    from jaxlc.evaluation.plots import PillowWriter, plt
-    from jaxlc.evaluation.plots_scenes import draw_scene
+    from jaxlc.report.plots import PillowWriter, plt
+    from jaxlc.report.plots_scenes import draw_scene
 
     p = EnvParams.from_config(cfg.env)
     fig, ax = plt.subplots(figsize=(8, 1.5))

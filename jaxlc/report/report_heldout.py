@@ -9,9 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from jaxlc.evaluation import report_text as text
 from jaxlc.evaluation.numbers import defined, fixed, percent
-from jaxlc.evaluation.report_text import EVERY_STEP
+from jaxlc.evaluation.results import Collision, Heldout, HeldoutRow
+from jaxlc.report import report_text as text
+from jaxlc.report.report_text import EVERY_STEP
 
 # How close to each failure (heldout.MARGIN_KEYS), where the rows have them (older: none).
 MARGINS = {
@@ -22,27 +23,25 @@ MARGINS = {
 COLLISION_MEDIANS = ("hit_speed", "time_s", "accept_lag_gap", "accept_lag_v", "accept_v")
 
 
-def _heldout_tables(doc: dict[str, Any]) -> list[str]:
+def _heldout_tables(doc: Heldout) -> list[str]:
     """Per cell and per model: outcomes with intervals, then the norms."""
     lines = [
         "| cell | seeds | lane changes | success, mean [interval] | failures | failure "
         "< (95%) | collisions | collision rate | inside every norm |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for c in doc["cells"]:
-        ci = (
-            f"{percent(c['success_mean'])} [{percent(c['success_lo'])}, {percent(c['success_hi'])}]"
-        )
+    for c in doc.cells:
+        ci = f"{percent(c.success_mean)} [{percent(c.success_lo)}, {percent(c.success_hi)}]"
         lines.append(
-            f"| {c['label']} | {c['seeds']} | {c['lane_changes']} | {ci} | {c['failures']} | "
-            f"{fixed(100 * c['failure_bound'])}% | {c['collisions']} | "
-            f"{fixed(100 * c['collision_rate'], '.2f')}% | {percent(c['norm_all'])} |"
+            f"| {c.label} | {c.seeds} | {c.lane_changes} | {ci} | {c.failures} | "
+            f"{fixed(100 * c.failure_bound)}% | {c.collisions} | "
+            f"{fixed(100 * c.collision_rate, '.2f')}% | {percent(c.norm_all)} |"
         )
-    how = sorted({c["interval"] for c in doc["cells"]})
+    how = sorted({c.interval for c in doc.cells})
     lines += ["", f"Cell intervals: {'; '.join(how)}.", ""]
-    norms = [n["measure"] for n in doc["norms"]]
-    extra = doc.get("measures", [])  # measures registered with a held-out summary
-    margins = [m for m in MARGINS if any(f"{m}_p5" in r for r in doc["rows"])]
+    norms = [n.measure for n in doc.norms]
+    extra = doc.measures or []  # measures registered with a held-out summary
+    margins = [m for m in MARGINS if any(f"{m}_p5" in r.measures for r in doc.rows)]
     lines += [
         "| model | seed | success [95% CP] | out of bounds | collision | timeout | "
         "duration s | R79 manoeuvre s | peak lat. acc. m/s² | peak lat. jerk m/s³ | "
@@ -54,37 +53,38 @@ def _heldout_tables(doc: dict[str, Any]) -> list[str]:
         + "".join(f" {m} |" for m in extra),
         "|---" * (15 + len(norms) + len(margins) + len(extra)) + "|",
     ]
-    for r in doc["rows"]:
+    for r in doc.rows:
         lines.append(
-            f"| {r['label']} | {'' if r['seed'] is None else r['seed']} | "
-            f"{percent(r['success_rate'])} "
-            f"[{percent(r['success_lo'])}, {percent(r['success_hi'])}] "
-            f"| {r['out_of_bounds']} | {r['collision']} | {r['timeout']} | "
-            f"{fixed(r['duration_s'])} | {fixed(r.get('lcm_s'))} | {fixed(r['peak_lat_acc'])} | "
-            f"{fixed(r['peak_lat_jerk'])} | {fixed(r.get('peak_long_acc'))} | "
-            f"{fixed(r.get('peak_long_jerk'))} | "
-            f"{_tail(r, 'min_ttc_s')} | {_tail(r, 'min_thw_s')} | "
-            + " | ".join(percent(r[f"norm_{m}"]) for m in norms)
-            + f" | {percent(r['norm_all'])} |"
-            + "".join(f" {_tail(r, m + '_p5')} / {_tail(r, m + '_p50')} |" for m in margins)
-            + "".join(f" {fixed(r.get(m))} |" for m in extra)
+            f"| {r.label} | {'' if r.seed is None else r.seed} | {percent(r.success_rate)} "
+            f"[{percent(r.success_lo)}, {percent(r.success_hi)}] "
+            f"| {r.out_of_bounds} | {r.collision} | {r.timeout} | "
+            f"{fixed(r.duration_s)} | {fixed(r.lcm_s)} | {fixed(r.peak_lat_acc)} | "
+            f"{fixed(r.peak_lat_jerk)} | {fixed(r.peak_long_acc)} | {fixed(r.peak_long_jerk)} | "
+            f"{_tail(r, r.min_ttc_s)} | {_tail(r, r.min_thw_s)} | "
+            + " | ".join(percent(r.get(f"norm_{m}")) for m in norms)
+            + f" | {percent(r.norm_all)} |"
+            + "".join(
+                f" {_tail(r, r.measures.get(m + '_p5'))} / {_tail(r, r.measures.get(m + '_p50'))} |"
+                for m in margins
+            )
+            + "".join(f" {fixed(r.measures.get(m))} |" for m in extra)
         )
     return lines
 
 
-def _tail(r: dict[str, Any], key: str) -> str:
+def _tail(r: HeldoutRow, value: float | None) -> str:
     """A TTC or headway percentile; JSON holds an infinite one (no closing) as null."""
-    return "∞" if r[key] is None and r["lane_changes"] else fixed(r[key])
+    return "∞" if value is None and r.lane_changes else fixed(value)
 
 
-def collision_tally(doc: dict[str, Any]) -> list[str]:
-    hits = doc["collisions"]
+def collision_tally(doc: Heldout) -> list[str]:
+    hits = doc.collisions
     if not hits:
         return [text.NO_COLLISIONS, ""]
-    hazards = any("hazard" in h for h in hits)  # evaluated where the traffic has hazards
-    groups: dict[tuple[str, str, bool], list[dict[str, Any]]] = {}
+    hazards = any(h.hazard is not None for h in hits)  # the traffic has hazards
+    groups: dict[tuple[str, str, bool], list[Collision]] = {}
     for h in hits:
-        groups.setdefault((h["partner"], h.get("hazard", ""), h["yielding"]), []).append(h)
+        groups.setdefault((h.partner, h.hazard or "", h.yielding), []).append(h)
     lines = [
         text.COLLISIONS.format(n=len(hits), doing=text.COLLISIONS_DOING if hazards else ""),
         "",
@@ -95,7 +95,7 @@ def collision_tally(doc: dict[str, Any]) -> list[str]:
         "|---|---|---|---|---|---|---|---|" + ("---|" if hazards else ""),
     ]
     for (who, hz, ylds), hs in sorted(groups.items(), key=lambda kv: -len(kv[1])):
-        med = {k: _median([h[k] for h in hs]) for k in COLLISION_MEDIANS}
+        med = {k: _median([getattr(h, k) for h in hs]) for k in COLLISION_MEDIANS}
         lines.append(
             f"| {who.replace('_', ' ')} | "
             + (f"{hz.replace('_', ' ')} | " if hazards else "")
@@ -113,31 +113,30 @@ def _median(values: list[Any]) -> float:
     return float(np.median(kept)) if kept else math.nan
 
 
-def section(doc: dict[str, Any] | None, tag: str = "") -> list[str]:
+def section(doc: Heldout | None, tag: str = "") -> list[str]:
     """``eval/heldout.json``'s content (``doc``; None: the run has no held-out evaluation),
     or that of ``eval/heldout_TAG/heldout.json``, driven in another traffic."""
     if doc is None:
         return []
-    norms = "; ".join(n["source"] for n in doc["norms"])
-    d = doc["claim_d"]
+    norms = "; ".join(n.source for n in doc.norms)
     where = f" in another traffic (`{tag}`)" if tag else ""
-    overrides = ", ".join(f"`{o}`" for o in doc.get("traffic_overrides", []))
+    overrides = ", ".join(f"`{o}`" for o in doc.traffic_overrides or [])
     return [
         f"## Held-out lane changes{where}",
         "",
-        f"Measured in {doc.get('traffic', 'the training traffic')}"
+        f"Measured in {doc.traffic or 'the training traffic'}"
         + (f" (overrides {overrides})." if overrides else ".")
         + (text.HELDOUT_HAZARDS if overrides else ""),
         "",
         text.HELDOUT.format(
-            lane_changes=doc["lane_changes"],
-            cases=doc["cases"],
-            key_stream=doc["key_stream"],
+            lane_changes=doc.lane_changes,
+            cases=doc.cases,
+            key_stream=doc.key_stream,
             norms=norms,
-            counted=doc.get("conflicts_counted", EVERY_STEP),
+            counted=doc.conflicts_counted or EVERY_STEP,
         ),
         "",
-        text.CLAIM_D.format(**d),
+        text.CLAIM_D.format(figures=doc.claim_d.figures, verdict=doc.claim_d.verdict),
         "",
         *_heldout_tables(doc),
         "",

@@ -1,39 +1,65 @@
 """The figures of single lane changes from a run's evaluation (``eval/traces.npz``): Fig. 5
 scenes at chosen checkpoints, Fig. 7 trajectories, the speeds and gaps of the drawn cases,
 ``learning.gif`` (lane changes across checkpoints) and ``draw_scene`` (one frame, also the
-validation's replay); drawn on the road's bend where the case had one. The rest of the
-figures: ``jaxlc.evaluation.plots``; what they share: ``jaxlc.evaluation.plots_io``."""
+validation's replay); drawn on the road's bend where the case had one. Also what every figure
+module shares: matplotlib on its file backend (Agg: files only, no display on training
+machines), a run's evaluation files, a figure saved. The rest of the figures:
+``jaxlc.report.plots``."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
+import matplotlib
 import numpy as np
 
-from jaxlc.evaluation.plots_io import SCENE_AHEAD, SCENE_BEHIND, PillowWriter, Rectangle, plt
-from jaxlc.evaluation.plots_io import eval_files as _eval
-from jaxlc.evaluation.plots_io import save as _save
-from jaxlc.evaluation.results import OUTCOMES, rank_models
-from jaxlc.sim.render import road_to_world
-from jaxlc.sim.road import origin_lane, reference_y
-from jaxlc.study.rundir import RunDir
+matplotlib.use("Agg")  # before pyplot is imported anywhere
+
+import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.animation import PillowWriter  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
+
+from jaxlc.evaluation.numbers import read  # noqa: E402
+from jaxlc.evaluation.results import OUTCOMES, EvalResult, rank_models  # noqa: E402
+from jaxlc.sim.render import road_to_world  # noqa: E402
+from jaxlc.sim.road import origin_lane, reference_y  # noqa: E402
+from jaxlc.study.rundir import RunDir  # noqa: E402
+
+SCENE_BEHIND, SCENE_AHEAD = 90.0, 30.0  # m of road shown behind and ahead of the ego
+npz = RunDir.load_npz
 
 
-def _best(result: dict[str, Any]) -> tuple[int, list[int]] | None:
+def eval_files(run_dir: Path) -> tuple[EvalResult, dict, dict] | None:
+    """``(eval.json, traces.npz, cases.npz)`` of an evaluated run; None when one is missing."""
+    path = RunDir(run_dir).eval_json
+    traces, cases = npz(RunDir(run_dir).traces), npz(RunDir(run_dir).cases)
+    if not path.is_file() or traces is None or cases is None:
+        return None
+    return read(path, EvalResult), traces, cases
+
+
+def save(fig: Any, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def _best(result: EvalResult) -> tuple[int, list[int]] | None:
     """Best model and its evaluated policy rows (eval.json order), by episode."""
-    ranked = rank_models(result["rows"])
+    ranked = rank_models(result.rows)
     if not ranked:
         return None
-    m = ranked[0]["model"]
-    rows = [i for i, r in enumerate(result["rows"]) if r["model"] == m]
-    return m, sorted(rows, key=lambda i: result["rows"][i]["episode"])
+    m = ranked[0].model
+    rows = [i for i, r in enumerate(result.rows) if r.model == m]
+    return m, sorted(rows, key=lambda i: result.rows[i].episode)
 
 
-def _best_traces(run_dir: Path) -> tuple[dict, dict, dict, Any, list[int]] | None:
+def _best_traces(run_dir: Path) -> tuple[EvalResult, dict, dict, Any, list[int]] | None:
     """``(result, traces, cases, env config, best model's policy rows by episode)`` of an
     evaluated run; None when it has no evaluation or no model was ranked."""
-    data = _eval(run_dir)
+    data = eval_files(run_dir)
     best = None if data is None else _best(data[0])
     if best is None:
         return None
@@ -105,9 +131,9 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
                 lab = "scripted controller"
             a.plot(x, y, label=lab, **kw)
     _lanes(a, p, 0, span, kappa)
-    label = result["rows"][final]["label"]
+    label = result.rows[final].label
     a.set(
-        title=f"(a) {label}, checkpoint {result['rows'][final]['episode']}",
+        title=f"(a) {label}, checkpoint {result.rows[final].episode}",
         xlabel=_along(kappa),
         ylabel="y (m)",
     )
@@ -129,7 +155,7 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
             y,
             color="tab:red" if last else cmap(n_i / max(1, len(prows) - 1)),
             lw=2.2 if last else 1.1,
-            label=f"episode {result['rows'][pi]['episode']}",
+            label=f"episode {result.rows[pi].episode}",
         )
     _lanes(b, p, 0, span, kappa)
     b.set(
@@ -139,7 +165,7 @@ def fig7_trajectories(run_dir: Path) -> Path | None:
     )
     b.legend(fontsize=7, ncols=4, loc="center right")
     fig.suptitle("Fig. 7  Lane-change trajectories")
-    return _save(fig, RunDir(run_dir).figure("fig7_trajectories.png"))
+    return save(fig, RunDir(run_dir).figure("fig7_trajectories.png"))
 
 
 def speed_gaps(run_dir: Path) -> Path | None:
@@ -173,12 +199,12 @@ def speed_gaps(run_dir: Path) -> Path | None:
     ):
         ax.set(xlabel="time since the manoeuvre began (s)", ylabel=what)
     axes[0].legend(fontsize=7)
-    row = result["rows"][final]
+    row = result.rows[final]
     fig.suptitle(
-        f"Speed and gaps: {row['label']}, checkpoint {row['episode']} (solid); "
+        f"Speed and gaps: {row.label}, checkpoint {row.episode} (solid); "
         "scripted controller, IDM speed (dashed)"
     )
-    return _save(fig, RunDir(run_dir).figure("speed_gaps.png"))
+    return save(fig, RunDir(run_dir).figure("speed_gaps.png"))
 
 
 def draw_scene(ax: Any, tr: dict[str, np.ndarray], pi: int, j: int, f: int, p: Any) -> None:
@@ -250,7 +276,7 @@ def fig5_scenes(run_dir: Path, panels: int = 6) -> Path | None:
         draw_scene(ax, tr, pi, j, f, p)
         reason = OUTCOMES[int(cases["reason"][pi, tr["traced"][j]])]
         ax.set_title(
-            f"checkpoint {result['rows'][pi]['episode']}: {reason.replace('_', ' ')} "
+            f"checkpoint {result.rows[pi].episode}: {reason.replace('_', ' ')} "
             f"after {f * p.dt:.1f} s",
             fontsize=9,
             loc="left",
@@ -258,9 +284,9 @@ def fig5_scenes(run_dir: Path, panels: int = 6) -> Path | None:
     axes[-1, 0].set_xlabel("x (m)")
     fig.suptitle(
         f"Fig. 5  Case {tr['traced'][j]} at chosen checkpoints of "
-        f"{result['rows'][prows[-1]]['label']} (red: ego, green: gap, blue: others)"
+        f"{result.rows[prows[-1]].label} (red: ego, green: gap, blue: others)"
     )
-    return _save(fig, RunDir(run_dir).figure("fig5_scenes.png"))
+    return save(fig, RunDir(run_dir).figure("fig5_scenes.png"))
 
 
 def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | None:
@@ -296,7 +322,7 @@ def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | 
                 loc="left",
             )
         fig.suptitle(
-            f"{result['rows'][pi]['label']}, checkpoint {result['rows'][pi]['episode']}",
+            f"{result.rows[pi].label}, checkpoint {result.rows[pi].episode}",
             fontsize=10,
         )
 

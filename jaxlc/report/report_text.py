@@ -1,5 +1,5 @@
 """The prose of ``report.md`` and ``compare.md``: each paragraph and claim row a template whose
-``{fields}`` ``jaxlc.evaluation.report`` fills with the run's numbers (``str.format``)."""
+``{fields}`` ``jaxlc.report.report`` fills with the run's numbers (``str.format``)."""
 
 from __future__ import annotations
 

@@ -28,14 +28,15 @@ import numpy as np
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator
 
 from jaxlc.evaluation import heldout, stats
-from jaxlc.evaluation import plots_scenes as scenes
 from jaxlc.evaluation.convergence import moving
-from jaxlc.evaluation.numbers import number
-from jaxlc.evaluation.plots_io import PillowWriter, plt  # noqa: F401  (validation_io's; on Agg)
-from jaxlc.evaluation.plots_io import eval_files as _eval
-from jaxlc.evaluation.plots_io import npz as _npz
-from jaxlc.evaluation.plots_io import save as _save
+from jaxlc.evaluation.numbers import number, read
+from jaxlc.evaluation.results import EvalResult, Heldout
 from jaxlc.paper import grid as paper_grid
+from jaxlc.report import plots_scenes as scenes
+from jaxlc.report.plots_scenes import PillowWriter, plt  # noqa: F401  (validation_io's; on Agg)
+from jaxlc.report.plots_scenes import eval_files as _eval
+from jaxlc.report.plots_scenes import npz as _npz
+from jaxlc.report.plots_scenes import save as _save
 from jaxlc.study.rundir import RunDir
 
 BAND_POINTS = 300  # bootstrap a training curve's band at this many points, not every episode
@@ -174,7 +175,7 @@ def fig6_checkpoints(run_dir: Path) -> Path | None:
         return None
     result = data[0]
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained")
-    for i, c in enumerate(stats.cells_of(result["rows"])):  # in model order
+    for i, c in enumerate(stats.cells_of(result.rows)):  # in model order
         colour = _colour(c.axes, i)
         for ax, vals, scale in ((a, c.ret, 1.0), (b, c.success, 100.0)):
             with warnings.catch_warnings():  # a checkpoint with no lane change: all NaN
@@ -184,10 +185,10 @@ def fig6_checkpoints(run_dir: Path) -> Path | None:
             if len(c.seeds) > 1:
                 lo, hi = stats.mean_band(vals.T)
                 ax.fill_between(c.episodes, scale * lo, scale * hi, color=colour, alpha=0.2, lw=0)
-    for r in result["rows"]:
-        if r["model"] is None:
-            a.axhline(number(r["avg_return"]), color="k", ls="--", lw=1, label="scripted")
-            b.axhline(100 * number(r["success_rate"]), color="k", ls="--", lw=1)
+    for r in result.rows:
+        if r.model is None:
+            a.axhline(number(r.avg_return), color="k", ls="--", lw=1, label="scripted")
+            b.axhline(100 * number(r.success_rate), color="k", ls="--", lw=1)
     a.set(title="(a) average total return", xlabel="checkpoint (training episode)")
     _return_axis(a)
     b.set(
@@ -197,7 +198,7 @@ def fig6_checkpoints(run_dir: Path) -> Path | None:
         ax.grid(alpha=0.3)
     a.legend(fontsize=7)
     fig.suptitle(
-        f"Fig. 6  {result['cases']} cases per checkpoint, {result['performed']} with a lane "
+        f"Fig. 6  {result.cases} cases per checkpoint, {result.performed} with a lane "
         "change (averages over those; band: 95% interval of the mean over seeds)"
     )
     return _save(fig, RunDir(run_dir).figure("fig6_checkpoints.png"))
@@ -209,7 +210,7 @@ def profiles(run_dir: Path) -> Path | None:
     path = RunDir(run_dir).eval_json
     if not path.is_file():
         return None
-    cells = stats.cells_of(json.loads(path.read_text())["rows"])
+    cells = stats.cells_of(read(path, EvalResult).rows)
     if not cells:
         return None
     ks = sorted({c.axes["k"] for c in cells}, key=lambda k: (k is None, k))
@@ -241,18 +242,19 @@ def profiles(run_dir: Path) -> Path | None:
     return _save(fig, RunDir(run_dir).figure("profiles.png"))
 
 
-def fig_compare(table: list[dict[str, Any]], name_a: str, name_b: str, path: Path) -> Path:
+def fig_compare(table: list[stats.Difference], name_a: str, name_b: str, path: Path) -> Path:
     """``--compare``: B - A of the mean success rate per cell (rows of ``stats.compare``),
     (a) at the last checkpoint with its interval, (b) over checkpoints with bands."""
-    labels = list(dict.fromkeys(r["label"] for r in table))
-    last = max(r["episode"] for r in table)
+    labels = list(dict.fromkeys(r.label for r in table))
+    last = max(r.episode for r in table)
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 0.35 * len(labels) + 2.5), layout="constrained")
     for i, label in enumerate(labels):
-        mine = sorted((r for r in table if r["label"] == label), key=lambda r: r["episode"])
+        mine = sorted((r for r in table if r.label == label), key=lambda r: r.episode)
         d, lo, hi = (
-            100 * np.asarray([number(r[k]) for r in mine]) for k in ("diff", "diff_lo", "diff_hi")
+            100 * np.asarray([number(getattr(r, k)) for r in mine])
+            for k in ("diff", "diff_lo", "diff_hi")
         )
-        ep = [r["episode"] for r in mine]
+        ep = [r.episode for r in mine]
         colour = _colour(mine[0], i)
         j = ep.index(last)
         err = None if not np.isfinite(lo[j]) else [[d[j] - lo[j]], [hi[j] - d[j]]]
@@ -284,30 +286,30 @@ def heldout_norms(run_dir: Path) -> Path | None:
     cases = _npz(rd.heldout_cases)
     if cases is None or not rd.heldout_json.is_file():
         return None
-    doc = json.loads(rd.heldout_json.read_text())
+    doc = read(rd.heldout_json, Heldout)
     dt = rd.load_config().env.dt
     perf = cases["performed"]
     measures = [
         {k: v[perf] for k, v in heldout.lane_change_measures(cases, row, dt).items()}
-        for row in range(len(doc["rows"]))
+        for row in range(len(doc.rows))
     ]
     groups: dict[str, list[int]] = {}  # cell tag (or "scripted") -> policy rows
-    for row, r in enumerate(doc["rows"]):
-        tag = "scripted" if r["model"] is None else r["label"].split(" ")[0]
+    for row, r in enumerate(doc.rows):
+        tag = "scripted" if r.model is None else r.label.split(" ")[0]
         groups.setdefault(tag, []).append(row)
-    fig, axes = plt.subplots(1, len(doc["norms"]), figsize=(3.2 * len(doc["norms"]), 3.6))
-    for ax, norm in zip(axes, doc["norms"], strict=True):
-        name = norm["measure"]
+    fig, axes = plt.subplots(1, len(doc.norms), figsize=(3.2 * len(doc.norms), 3.6))
+    for ax, norm in zip(axes, doc.norms, strict=True):
+        name = norm.measure
         data = [np.concatenate([measures[i][name] for i in rows]) for rows in groups.values()]
         if name.startswith("min_"):
             data = [np.minimum(d, TTC_SHOWN) for d in data]
         data = [d[np.isfinite(d)] for d in data]
         ax.boxplot(data, whis=(1, 99), showfliers=True, flierprops={"markersize": 2})
-        ax.axhline(norm["bound"], color="red", ls="--", lw=1)
+        ax.axhline(norm.bound, color="red", ls="--", lw=1)
         ax.set_xticks(range(1, len(groups) + 1), list(groups), rotation=90, fontsize=7)
         ax.set_title(name.replace("_", " "), fontsize=9)
     fig.suptitle(
-        f"{doc['lane_changes']} held-out lane changes per model (whiskers 1-99%; successes "
+        f"{doc.lane_changes} held-out lane changes per model (whiskers 1-99%; successes "
         f"only for the R79 manoeuvre; TTC/THW drawn at most {TTC_SHOWN:g} s)",
         fontsize=9,
     )
