@@ -81,7 +81,8 @@ class Mixture:
         tilted, shares = int((c >= 0).sum()), self.shares
         if tilted:
             shares = tuple(int((c == k).sum()) / tilted for k in range(len(shares)))
-        return dataclasses.replace(self, alpha=float((c < 0).mean()), shares=shares)
+        alpha = float((c < 0).mean()) if c.size else self.alpha  # none drawn yet: as asked
+        return dataclasses.replace(self, alpha=alpha, shares=shares)
 
     def to_dict(self) -> dict[str, Any]:
         tilts = {f.name: np.asarray(getattr(self.tilts, f.name)).tolist() for f in _FIELDS}
