@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from jaxlc.sim.params import ConfigError, EnvParams, settings
+from jaxlc.sim.params import ConfigError, EnvParams, settings, value_range
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 PAPER_CONFIG = CONFIG_DIR / "paper.toml"  # the paper's method as written
@@ -294,12 +294,13 @@ def _cross_checks(cfg: Config) -> None:
     e, d, g = cfg.env, cfg.ddpg, cfg.grid
     if not e.reward_terms or len(set(e.reward_terms)) != len(e.reward_terms):
         raise ConfigError("config key 'env.reward_terms': must name one term or more, each once")
-    if e.entry_speed_min > e.entry_speed_max:
-        raise ConfigError("config key 'env.entry_speed_min': must be <= env.entry_speed_max")
-    if e.desired_speed_min > e.desired_speed_max:
-        raise ConfigError("config key 'env.desired_speed_min': must be <= env.desired_speed_max")
-    if e.inflow_min > e.inflow_max:
-        raise ConfigError("config key 'env.inflow_min': must be <= env.inflow_max")
+    for lo, hi in (
+        ("entry_speed_min", "entry_speed_max"),
+        ("desired_speed_min", "desired_speed_max"),
+        ("inflow_min", "inflow_max"),
+    ):  # each may be a range drawn per episode: its ends no higher than the other's
+        if any(a > b for a, b in zip(*(value_range(getattr(e, k)) for k in (lo, hi)), strict=True)):
+            raise ConfigError(f"config key 'env.{lo}': must be <= env.{hi} (at each end)")
     for lo, hi in (
         ("lane_change_time_min", "lane_change_time_max"),
         ("braking_decel_min", "braking_decel_max"),
@@ -312,7 +313,7 @@ def _cross_checks(cfg: Config) -> None:
             f"config key 'env.braking_decel_max': must be <= env.idm_b_max ({e.idm_b_max:g} "
             "m/s^2): a follower must be able to brake as hard as its leader"
         )
-    if e.lane_width > e.border:
+    if value_range(e.lane_width)[1] > e.border:
         raise ConfigError(
             f"config key 'env.lane_width': must be <= env.border ({e.border:g} m): the ego "
             f"starts one lane width from its target lane and is out of bounds beyond the border"

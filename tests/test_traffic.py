@@ -275,3 +275,67 @@ def test_every_config_file_spells_the_traffic_keys_off_but_reactive():
     assert changed_env_keys("reactive.toml", config.load()) == {"mobil", "braking"}
     reactive = config.load(config.CONFIG_DIR / "reactive.toml")
     assert dataclasses.replace(reactive, env=config.load().env) == config.load()
+
+
+# Every key of params.RANGED as a range at once: stop-and-go to free flow, no MOBIL or braking
+# to far past SPEC's rates, politeness 0 to 1 (the lane width at its range in its own test).
+RANGES = (
+    "env.entry_speed_min=[0.0, 20.0]",
+    "env.entry_speed_max=[20.0, 100.0]",
+    "env.desired_speed_min=[10.0, 80.0]",
+    "env.desired_speed_max=[30.0, 130.0]",
+    "env.inflow_min=[400.0, 1600.0]",
+    "env.inflow_max=[1600.0, 2400.0]",
+    "env.mobil_politeness=[0.0, 1.0]",
+    "env.mobil_threshold=[0.0, 0.3]",
+    "env.mobil_rate=[0.1, 5.0]",
+    "env.braking_rate=[0.0, 60.0]",
+)
+
+
+def test_ranged_keys_are_drawn_per_env_and_episode_within_their_ranges():
+    cfg = config.load(overrides=(*HAZARDS, *RANGES, "env.lane_width=[3.0, 4.5]", "env.border=4.5"))
+    env, p = jaxlc.make(cfg)
+    assert set(p.drawn) == {"lane_width", *(o.split("=")[0][4:] for o in RANGES)}
+    reset = jax.jit(jax.vmap(env.reset, (0, None)))
+    _, s = reset(jax.random.split(jax.random.PRNGKey(0), 64), p)
+    step = jax.jit(jax.vmap(env.step, (0, 0, None, None)))
+    starts, before = [], s.drawn
+    for k in jax.random.split(jax.random.PRNGKey(1), 300):
+        _, s, _, _, _, info = step(jax.random.split(k, 64), s, jnp.zeros(1), p)
+        ended = np.asarray(info["reason"]) != 0
+        for (lo, hi), old, new in zip(p.ranges, before, s.drawn, strict=True):
+            new = np.asarray(new)
+            assert np.all((new >= lo - 1e-6) & (new <= hi + 1e-6))
+            # a draw changes only as an episode ends, and the envs draw apart
+            assert np.array_equal(np.asarray(old)[~ended], new[~ended])
+            assert np.std(new) > 0.1 * (hi - lo)
+        w = np.asarray(s.drawn[p.drawn.index("lane_width")])
+        rl_start = np.asarray(info["lane_change"])  # the RL phase starts one lane width out
+        assert np.allclose(np.abs(np.asarray(info["offset"]))[rl_start], w[rl_start], atol=1e-3)
+        starts.append(int(rl_start.sum()))
+        before = s.drawn
+    assert sum(starts) > 20
+
+
+def test_the_traffic_stays_physical_over_the_ranges():
+    from benchmarks import traffic_properties as bench
+
+    t = bench.check(32, 300, RANGES, chunk=300)
+    assert t["overlaps"] == 0 and t["negative_speeds"] == 0 and t["off_road"] == 0
+    assert t["unsafe_starts"] == 0
+    assert t["lc_started"] > 10 and t["brake_started"] > 10
+
+
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ("env.inflow_min=[2000.0, 2500.0]", "env.inflow_min"),  # above inflow_max's 1600
+        ("env.lane_width=[3.0, 4.0]", "env.lane_width"),  # past the border's 3.7
+        ("env.mobil_politeness=[0.5, 0.2]", "env.mobil_politeness"),
+        ("env.braking_rate=[0.0, 1e5]", "env.braking_rate"),
+    ],
+)
+def test_a_bad_range_names_its_key(override, key):
+    with pytest.raises(config.ConfigError, match=key.replace(".", r"\.")):
+        config.load(overrides=(override,))

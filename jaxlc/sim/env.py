@@ -84,6 +84,8 @@ from jaxlc.sim.state import (  # noqa: F401 (the state types and phases re-expor
     TrafficDraws,
     action_dim,
     between,
+    draw_episode,
+    episode_params,
 )
 
 
@@ -134,6 +136,7 @@ def _advance(
     """One dt of traffic and ego; returns ``(state, reward, info)`` (no observation); ``info``
     holds each of ``p.reward_terms`` under its name. ``draws``: the step's ``(Draws,
     TrafficDraws)`` given instead of drawn from ``key`` (a proposal's: ``jaxlc.validate``)."""
+    p = episode_params(state, p)
     eg = state.ego
     u, ut = traffic_mod.step_draws(key, p, draws)
     kappa = road_curvature(state, p)
@@ -176,7 +179,12 @@ def _advance(
         ep_return=ep_return,
     )
     road = kappa if p.curvature_drawn else None
-    state = EnvState(traffic, ego, nb, leader_gap, leader_v, state.time + 1, road)
+    drawn = state.drawn  # an episode that ends draws the next one's (its ego not yet spawned)
+    if p.drawn:
+        drawn = tuple(
+            jnp.where(ended, n, o) for n, o in zip(draw_episode(key, p), drawn, strict=True)
+        )
+    state = EnvState(traffic, ego, nb, leader_gap, leader_v, state.time + 1, road, drawn)
     info = {
         "rl_step": in_rl,
         "phase": ego.phase,
@@ -196,6 +204,7 @@ def _advance(
 def _warm_traffic(key: Array, state: EnvState, p: EnvParams) -> EnvState:
     """One warm-up step of the traffic alone: ``_advance``'s traffic, with its draws, while no
     ego is on the road and none spawns; the ego is not moved."""
+    p = episode_params(state, p)
     u, ut = traffic_mod.step_draws(key, p)
     zero, kappa = jnp.float32(0.0), road_curvature(state, p)
     t = traffic_mod.step(state, u, ut, zero, zero, jnp.bool_(False), p, kappa)
@@ -228,6 +237,8 @@ class LaneChangeEnv:
         a few lanes in 10^4."""
         p, lanes = params, params.lanes
         k_init, k_warm = jax.random.split(key)
+        drawn = draw_episode(k_init, p) if p.drawn else None  # the first episode's
+        p = episode_params(EnvState(*(None,) * 7, drawn), p)
         u = jax.random.uniform(k_init, (4, lanes))
         traffic = traffic_mod.empty(u, p)
         ego = parked_ego(p)
@@ -238,7 +249,7 @@ class LaneChangeEnv:
         nb, leader_gap, leader_v = observe_lanes(
             traffic, ego, p, p.curvature if road is None else road
         )
-        state = EnvState(traffic, ego, nb, leader_gap, leader_v, jnp.int32(0), road)
+        state = EnvState(traffic, ego, nb, leader_gap, leader_v, jnp.int32(0), road, drawn)
 
         def warm(s: EnvState, k: Array) -> tuple[EnvState, None]:
             if traffic_only:
@@ -262,6 +273,9 @@ class LaneChangeEnv:
         manoeuvre (a timeout truncates unless ``params.terminal_timeout``); ``info`` has the
         reward terms, phase and ``reason`` codes of ``jaxlc.sim.reward.REASONS``. ``draws``:
         see ``_advance``."""
+        # The observation is read with this step's episode values: on the step an episode
+        # ends, the terminal observation is that episode's, not the next one's draw.
+        p = episode_params(state, params)
         state, r, info = _advance(key, state, action, params, spawn=True, draws=draws)
         reason = info["reason"]
         rl = info["rl_step"]
@@ -275,7 +289,7 @@ class LaneChangeEnv:
         terminal_timeout = jnp.asarray(params.terminal_timeout, bool)
         terminated = terminated | (timeout & terminal_timeout)
         truncated = timeout & ~terminal_timeout
-        return observation(state, params), state, r, terminated, truncated, info
+        return observation(state, p), state, r, terminated, truncated, info
 
 
 def make(config: Config | EnvConfig | None = None, k: int = 1) -> tuple[LaneChangeEnv, EnvParams]:
