@@ -159,6 +159,11 @@ class EvalConfig:
         doc='[env] overrides ("env.KEY=VALUE") of the traffic the held-out lane changes are '
         "driven in, when it is not the training's (written to eval/heldout_traffic/)",
     )
+    suite: str = _f(
+        "",
+        doc="the held-out suite of --suite: a file of named settings, or its name in configs/ "
+        "('suite': configs/suite.toml); '' for configs/suite.toml",
+    )
 
 
 @dataclass(frozen=True)
@@ -218,6 +223,10 @@ def _check_scalar(key: str, value: Any, typ: type, meta: dict[str, Any]) -> Any:
             raise ConfigError(
                 f"config key '{key}': each entry must be env.KEY=VALUE, got {value!r}"
             )
+        return value
+    if key == "eval.suite":  # a file, read where it is used (jaxlc.evaluation.suite.load)
+        if not isinstance(value, str):
+            raise ConfigError(f"config key '{key}': must be a file name, got {value!r}")
         return value
     allowed = meta.get("choices")
     if typ is str and not allowed:  # a name another layer resolves (a reward term)
@@ -312,6 +321,11 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError(
             f"config key 'env.braking_decel_max': must be <= env.idm_b_max ({e.idm_b_max:g} "
             "m/s^2): a follower must be able to brake as hard as its leader"
+        )
+    speeds = e.operating_speed
+    if len(speeds) not in (0, 2) or list(speeds) != sorted(speeds) or any(v < 0 for v in speeds):
+        raise ConfigError(
+            "config key 'env.operating_speed': must be [] (off) or [min, max] km/h, 0 <= min <= max"
         )
     if value_range(e.lane_width)[1] > e.border:
         raise ConfigError(

@@ -42,6 +42,7 @@ from jaxlc.evaluation.results import SCRIPTED, EvalError
 from jaxlc.evaluation.validation_io import replay_case, write_outputs
 from jaxlc.paper.grid import tag_of
 from jaxlc.sim.env import EnvParams
+from jaxlc.sim.params import value_range
 from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
 from jaxlc.study.rundir import RunDir
@@ -224,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
         if (
             args.method == "is"
             and args.family == "mixture"
-            and not (cfg.env.braking and cfg.env.braking_rate > 0)
+            and not (cfg.env.braking and value_range(cfg.env.braking_rate)[1] > 0)
         ):
             raise EvalError(
                 "--family mixture tilts braking events, and this traffic has none "

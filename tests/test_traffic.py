@@ -339,3 +339,43 @@ def test_the_traffic_stays_physical_over_the_ranges():
 def test_a_bad_range_names_its_key(override, key):
     with pytest.raises(config.ConfigError, match=key.replace(".", r"\.")):
         config.load(overrides=(override,))
+
+
+def test_the_suite_runs_each_setting_and_its_counts_add_up(smoke_run, tmp_path):
+    """``--suite FILE``: a row per policy and setting in eval/suite/suite.csv, the commands
+    split into declined, no gap, not started and lane changes, these into their ends; a
+    harsher traffic changes what the policies meet, an operating range declines commands."""
+    import csv
+
+    from jaxlc.evaluate import main
+    from jaxlc.evaluation import suite
+
+    run_dir, _ = smoke_run
+    path = tmp_path / "tiny.toml"
+    path.write_text(
+        'base = ["env.mobil=false"]\n[settings]\npaper = []\n'
+        'harsh = ["env.mobil=true", "env.braking=true", "env.braking_rate=600.0", '
+        '"env.mobil_politeness=0.0"]\n'
+        'ranged = ["env.operating_speed=[55.0, 250.0]"]\n'
+    )
+    assert main([str(run_dir), "--suite", str(path), "--lane-changes", "12"]) == 0
+    with open(run_dir / "eval" / "suite" / "suite.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert tuple(rows[0]) == suite.FIELDS and (run_dir / "eval" / "suite" / "suite.png").is_file()
+    by = {s: [r for r in rows if r["setting"] == s] for s in ("paper", "harsh", "ranged")}
+    assert len({len(v) for v in by.values()}) == 1 and len(by["paper"]) == len(rows) // 3 > 1
+    for r in rows:
+        n = {k: int(r[k]) for k in (*suite.FIELDS[5:10], *heldout.ENDS)}
+        assert n["lane_changes"] == sum(n[e] for e in heldout.ENDS) >= 12
+        assert n["commands"] == n["lane_changes"] + n["declined"] + n["no_gap"] + n["not_started"]
+        assert 0.0 <= float(r["success_lo"]) <= float(r["success_rate"]) <= float(r["success_hi"])
+    assert all(int(r["declined"]) == 0 for r in by["paper"] + by["harsh"])
+    assert all(int(r["declined"]) > 0 for r in by["ranged"])
+
+    def seen(r):
+        return (*(r[e] for e in heldout.ENDS), r["duration_s"], r["min_ttc_s"])
+
+    assert any(seen(a) != seen(b) for a, b in zip(by["paper"], by["harsh"], strict=True))
+    path.write_text('base = []\n[settings]\nbad = ["env.braking_rate=-1"]\n')
+    with pytest.raises(config.ConfigError, match="suite setting 'bad'.*env.braking_rate"):
+        suite.load(path)

@@ -105,6 +105,16 @@ class Box:
         return jnp.all((x >= self.low) & (x <= self.high))
 
 
+def commanded(ego: Ego) -> Array:
+    """``()`` bool: the ego got its command on this step (it entered GAP, ``ego_phase``)."""
+    return (ego.phase == GAP) & (ego.gap_time == 0.0)
+
+
+def outside(v: Array, speeds: tuple[float, float]) -> Array:
+    """``()`` bool: ``v`` (m/s) is outside ``speeds``, the operating range ``(min, max)``."""
+    return (v < speeds[0]) | (v > speeds[1])
+
+
 def episode_end_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
     """``()`` int32 reason code of ``jaxlc.sim.reward.REASONS``: the RL manoeuvre's own, else a
     collision or no gap before it, else NONE."""
@@ -166,6 +176,10 @@ def _advance(
     rl_reason = reward.end_reason(offset, ego.psi, yaw_rate, ego.steps, crashed, p)
     accept, no_gap = gap_decision(ego, nb, p, kappa)
     reason = episode_end_reason(in_rl, rl_reason, crashed, no_gap)
+    if p.operating_speed:  # static: a command outside the operating range is declined
+        declined = commanded(ego) & ~crashed & outside(ego.v, p.operating_speed)
+        accept = accept & ~declined
+        reason = jnp.where(declined, reward.DECLINED, reason).astype(jnp.int32)
     ended = reason != reward.NONE
 
     ep_return = jnp.where(in_rl, eg.ep_return + r, 0.0)
@@ -273,9 +287,7 @@ class LaneChangeEnv:
         manoeuvre (a timeout truncates unless ``params.terminal_timeout``); ``info`` has the
         reward terms, phase and ``reason`` codes of ``jaxlc.sim.reward.REASONS``. ``draws``:
         see ``_advance``."""
-        # The observation is read with this step's episode values: on the step an episode
-        # ends, the terminal observation is that episode's, not the next one's draw.
-        p = episode_params(state, params)
+        drawn = state.drawn
         state, r, info = _advance(key, state, action, params, spawn=True, draws=draws)
         reason = info["reason"]
         rl = info["rl_step"]
@@ -289,7 +301,10 @@ class LaneChangeEnv:
         terminal_timeout = jnp.asarray(params.terminal_timeout, bool)
         terminated = terminated | (timeout & terminal_timeout)
         truncated = timeout & ~terminal_timeout
-        return observation(state, p), state, r, terminated, truncated, info
+        # Read with this step's episode values: on the step an episode ends, the terminal
+        # observation is that episode's, not with the next one's draw.
+        obs = observation(state.replace(drawn=drawn), params)
+        return obs, state, r, terminated, truncated, info
 
 
 def make(config: Config | EnvConfig | None = None, k: int = 1) -> tuple[LaneChangeEnv, EnvParams]:

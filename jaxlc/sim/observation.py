@@ -31,7 +31,7 @@ from jaxlc.sim.road import (
     road_curvature,
     target_frame,
 )
-from jaxlc.sim.state import Ego, EnvParams, EnvState, Traffic
+from jaxlc.sim.state import Ego, EnvParams, EnvState, Traffic, episode_params
 
 
 class Entry(NamedTuple):
@@ -175,7 +175,8 @@ def target_gaps_of(nb: gap.Neighbours, ego: Ego, kappa: Array, p: EnvParams) -> 
 
 def observation(state: EnvState, p: EnvParams) -> Array:
     """``(OBS_DIM,)`` normalised observation of ``state``: the entries of ``LAYOUT``, each raw
-    value divided by its scale."""
+    value divided by its scale; read with the episode's drawn values (``EnvState.drawn``)."""
+    p = episode_params(state, p)
     eg, nb = state.ego, state.nb
 
     def gap_m(g: Array, present: Array) -> Array:

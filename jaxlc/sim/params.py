@@ -293,6 +293,16 @@ class EnvParams:
         doc="with an assist, the share of each action bound the policy's residual may take: "
         "the executed action is clip(assist + assist_authority * action)",
     )
+    operating_speed: tuple[float, ...] = setting(
+        (),
+        unit="km/h",
+        static=True,  # on, it adds the command's check to the program
+        toml=tuple[float, ...],
+        si=lambda v: tuple(kmh(x) for x in v),
+        doc="[] (off: every command is taken) or [min, max]: the ego's speed at the command "
+        "within which a lane change is taken (UN R79, ACSF category C: [60, 130]); a command "
+        "outside it ends the episode as 'declined', counted apart from the failures",
+    )
     # Traffic that cuts in and brakes ([D], SPEC "Beyond the paper"): off in the paper's
     # traffic. The switches are static (they add state); every number below is traced.
     mobil: bool = setting(
