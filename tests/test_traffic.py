@@ -379,3 +379,24 @@ def test_the_suite_runs_each_setting_and_its_counts_add_up(smoke_run, tmp_path):
     path.write_text('base = []\n[settings]\nbad = ["env.braking_rate=-1"]\n')
     with pytest.raises(config.ConfigError, match="suite setting 'bad'.*env.braking_rate"):
         suite.load(path)
+
+
+def test_any_road_draws_every_range_and_the_paper_and_default_draw_none():
+    """configs/any_road.toml: every key of params.RANGED a range, its suite a valid file; the
+    paper's and the default's configs keep constants and every command taken."""
+    from jaxlc.evaluation import suite
+    from jaxlc.sim.params import RANGED
+
+    cfg = config.load(config.CONFIG_DIR / "any_road.toml")
+    p = jaxlc.make(cfg)[1]
+    assert set(p.drawn) == set(RANGED) and p.curvature_drawn and cfg.env.mobil and cfg.env.braking
+    settings = suite.load(cfg.eval.suite)
+    assert {"paper", "reactive", "harsh", "stop_and_go"} <= set(settings)
+    harsh = heldout.in_traffic(cfg, settings["harsh"]).env
+    assert (
+        harsh.braking_rate >= 10 * config.load(config.CONFIG_DIR / "reactive.toml").env.braking_rate
+    )
+    assert harsh.mobil_politeness == 0.0
+    for name in ("paper.toml", "default.toml"):
+        q = jaxlc.make(config.load(config.CONFIG_DIR / name))[1]
+        assert q.drawn == () and q.operating_speed == () and not q.curvature_drawn, name
