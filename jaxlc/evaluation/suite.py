@@ -13,6 +13,7 @@ Clopper-Pearson interval) and ``suite.png`` (success by setting).
 from __future__ import annotations
 
 import re
+import sys
 import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -22,7 +23,8 @@ import numpy as np
 
 from jaxlc import config
 from jaxlc.evaluation import heldout
-from jaxlc.evaluation.protocol import _write_table, evaluate_heldout
+from jaxlc.evaluation.protocol import _write_table, evaluate_heldout, final_checkpoints, load_rows
+from jaxlc.evaluation.results import EvalError
 from jaxlc.sim.reward import DECLINED, NO_GAP
 from jaxlc.study.rundir import RunDir
 
@@ -76,10 +78,17 @@ def _starts(path: Path) -> dict[str, int]:
 def run_suite(run_dir: Path, suite: str | Path | None = None, **heldout_kw: Any) -> list[dict]:
     """Every setting of ``suite`` (``load``) on ``run_dir``'s final checkpoints, with
     ``heldout_kw`` of ``evaluate_heldout``; writes ``eval/suite/suite.csv`` and ``suite.png``
-    and returns the CSV's rows."""
+    and returns the CSV's rows. A setting whose cases start too few lane changes (every
+    command declined, say) gets rows of 0 lane changes and no counts."""
     rows, rd = [], RunDir(run_dir)
     for name, overrides in load(suite).items():
-        result = evaluate_heldout(run_dir, traffic=overrides, tag=_tag(name), **heldout_kw)
+        try:
+            result = evaluate_heldout(run_dir, traffic=overrides, tag=_tag(name), **heldout_kw)
+        except EvalError as err:  # e.g. every command declined: the setting's rows say so
+            print(f"suite setting '{name}': {err}", file=sys.stderr)
+            metas = load_rows(run_dir, final_checkpoints(run_dir))[2]
+            rows += [{**m, "setting": name, "lane_changes": 0} for m in metas]
+            continue
         starts = _starts(rd.eval / f"heldout_{_tag(name)}" / rd.heldout_cases.name)
         for r in result["rows"]:
             rows.append({**r, "setting": name, "commands": result["cases"], **starts})
