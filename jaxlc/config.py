@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from jaxlc.sim.params import ConfigError, EnvParams, settings
+from jaxlc.sim.params import ConfigError, EnvParams, settings, value_range
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 PAPER_CONFIG = CONFIG_DIR / "paper.toml"  # the paper's method as written
@@ -159,6 +159,11 @@ class EvalConfig:
         doc='[env] overrides ("env.KEY=VALUE") of the traffic the held-out lane changes are '
         "driven in, when it is not the training's (written to eval/heldout_traffic/)",
     )
+    suite: str = _f(
+        "",
+        doc="the held-out suite of --suite: a file of named settings, or its name in configs/ "
+        "('suite': configs/suite.toml); '' for configs/suite.toml",
+    )
 
 
 @dataclass(frozen=True)
@@ -218,6 +223,10 @@ def _check_scalar(key: str, value: Any, typ: type, meta: dict[str, Any]) -> Any:
             raise ConfigError(
                 f"config key '{key}': each entry must be env.KEY=VALUE, got {value!r}"
             )
+        return value
+    if key == "eval.suite":  # a file, read where it is used (jaxlc.evaluation.suite.load)
+        if not isinstance(value, str):
+            raise ConfigError(f"config key '{key}': must be a file name, got {value!r}")
         return value
     allowed = meta.get("choices")
     if typ is str and not allowed:  # a name another layer resolves (a reward term)
@@ -294,12 +303,13 @@ def _cross_checks(cfg: Config) -> None:
     e, d, g = cfg.env, cfg.ddpg, cfg.grid
     if not e.reward_terms or len(set(e.reward_terms)) != len(e.reward_terms):
         raise ConfigError("config key 'env.reward_terms': must name one term or more, each once")
-    if e.entry_speed_min > e.entry_speed_max:
-        raise ConfigError("config key 'env.entry_speed_min': must be <= env.entry_speed_max")
-    if e.desired_speed_min > e.desired_speed_max:
-        raise ConfigError("config key 'env.desired_speed_min': must be <= env.desired_speed_max")
-    if e.inflow_min > e.inflow_max:
-        raise ConfigError("config key 'env.inflow_min': must be <= env.inflow_max")
+    for lo, hi in (
+        ("entry_speed_min", "entry_speed_max"),
+        ("desired_speed_min", "desired_speed_max"),
+        ("inflow_min", "inflow_max"),
+    ):  # each may be a range drawn per episode: its ends no higher than the other's
+        if any(a > b for a, b in zip(*(value_range(getattr(e, k)) for k in (lo, hi)), strict=True)):
+            raise ConfigError(f"config key 'env.{lo}': must be <= env.{hi} (at each end)")
     for lo, hi in (
         ("lane_change_time_min", "lane_change_time_max"),
         ("braking_decel_min", "braking_decel_max"),
@@ -312,7 +322,12 @@ def _cross_checks(cfg: Config) -> None:
             f"config key 'env.braking_decel_max': must be <= env.idm_b_max ({e.idm_b_max:g} "
             "m/s^2): a follower must be able to brake as hard as its leader"
         )
-    if e.lane_width > e.border:
+    speeds = e.operating_speed
+    if len(speeds) not in (0, 2) or list(speeds) != sorted(speeds) or any(v < 0 for v in speeds):
+        raise ConfigError(
+            "config key 'env.operating_speed': must be [] (off) or [min, max] km/h, 0 <= min <= max"
+        )
+    if value_range(e.lane_width)[1] > e.border:
         raise ConfigError(
             f"config key 'env.lane_width': must be <= env.border ({e.border:g} m): the ego "
             f"starts one lane width from its target lane and is out of bounds beyond the border"

@@ -4,6 +4,7 @@
     python -m jaxlc.evaluate runs/paper --episodes 100,5000 --model 3
     python -m jaxlc.evaluate --checkpoint runs/paper/checkpoints/m03_s0/ep05000.msgpack
     python -m jaxlc.evaluate runs/smoke --heldout-only --traffic env.mobil=true env.braking=true
+    python -m jaxlc.evaluate runs/smoke --suite      # every setting of configs/suite.toml
 
 The cases and the program that runs every policy on them are ``jaxlc.evaluation.cases``; what
 a result row holds is ``jaxlc.evaluation.results``. This module is the command: it picks the
@@ -114,6 +115,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--traffic", nargs="+", metavar="env.KEY=VALUE", help="eval.traffic")
     ap.add_argument("--tag", default="traffic", help="--traffic: eval/heldout_TAG/")
     ap.add_argument("--heldout-only", action="store_true", help="held-out lane changes only")
+    ap.add_argument("--suite", nargs="?", const="", help="the held-out suite (eval.suite) only")
     ap.add_argument(
         "--heldout-episodes",
         type=_episodes_arg,
@@ -145,6 +147,13 @@ def _evaluate_run_dir(args: argparse.Namespace, ev: config.EvalConfig, devices: 
         raise EvalError("give a run directory (or --checkpoint FILE)")
     kw = dict(max_steps=ev.max_steps, chunk=ev.chunk, devices=devices)
     held = dict(lane_changes=ev.lane_changes, seed=ev.heldout_seed, traffic=ev.traffic, **kw)
+    if args.suite is not None:  # jaxlc.evaluation.suite: every named setting, one CSV
+        from jaxlc.evaluation import suite
+
+        held.pop("traffic")
+        rows = suite.run_suite(args.run_dir, args.suite or ev.suite, **held)
+        print(f"Wrote {RunDir(args.run_dir).eval / 'suite'}: {len(rows)} rows")
+        return 0
     if args.heldout_only:
         result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)
         print(heldout.format_rows(result.rows))

@@ -35,6 +35,7 @@ from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.evaluation.results import SCRIPTED, EvalError
 from jaxlc.evaluation.validation_io import replay_case, validate_dir, write_outputs
 from jaxlc.paper.grid import tag_of
+from jaxlc.sim.params import value_range
 from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
 from jaxlc.study.rundir import RunDir
@@ -146,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         if (
             args.method == "is"
             and args.family == "mixture"
-            and not (cfg.env.braking and cfg.env.braking_rate > 0)
+            and not (cfg.env.braking and value_range(cfg.env.braking_rate)[1] > 0)
         ):
             raise EvalError(
                 "--family mixture tilts braking events, and this traffic has none "

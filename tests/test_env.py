@@ -670,3 +670,25 @@ def test_paper_defaults_are_written_once():
     # And a changed config default would move EnvParams with it (units converted).
     faster = E.EnvParams.from_config(EnvConfig(desired_speed_max=150.0))
     assert faster.desired_speed_max == pytest.approx(150.0 / 3.6)
+
+
+def test_a_command_outside_the_operating_range_is_declined_and_only_then():
+    """``env.operating_speed = [min, max]``: a command at a speed outside it ends the episode
+    as 'declined' (never an RL phase), one inside it goes on as before; off by default."""
+    assert jaxlc.make()[1].operating_speed == ()
+    cfg = config.load(None, ["env.operating_speed=[55.0, 250.0]"])
+    env, p = jaxlc.make(cfg)
+    keys = jax.random.split(jax.random.PRNGKey(0), 64)
+    obs, s = jax.jit(jax.vmap(env.reset, (0, None)))(keys, p)
+    step = jax.jit(jax.vmap(env.step, (0, 0, 0, None)))
+    declined, taken = [], []
+    for k in jax.random.split(jax.random.PRNGKey(1), 400):
+        phase = np.asarray(s.ego.phase)
+        obs, s, _, _, _, info = step(jax.random.split(k, 64), s, scripted_action(obs, p), p)
+        v = np.asarray(s.ego.v) * 3.6  # km/h at the step (kept as a declined episode ends)
+        gone = np.asarray(info["reason"]) == reward.DECLINED
+        assert np.all(phase[gone] == E.CRUISE)  # declined at the command, before any gap
+        declined += list(v[gone])
+        taken += list(v[np.asarray(E.commanded(s.ego))])
+    assert len(declined) > 5 and len(taken) > 5
+    assert max(declined) < 55.0 <= min(taken)

@@ -19,8 +19,12 @@ from jaxlc.sim.params import STATIC, settings
 
 ENV = LaneChangeEnv()
 # The fields that are no [env] key: read from the table, or handed in by the learner.
-DERIVED = {"mobil_deciders", "curvature_min", "curvature_max", "curvature_drawn", "gamma", "k"}
-DERIVED |= {"draws"}  # the source of the traffic's draws: None (the traffic's own), no leaf
+DERIVED = {
+    *("mobil_deciders", "curvature_min", "curvature_max", "curvature_drawn", "drawn", "ranges"),
+    *("gamma", "k"),
+}
+# the source of the traffic's draws: None (the traffic's own), no leaf
+DERIVED |= {"draws"}
 
 
 def test_every_env_config_field_is_a_param_converted_by_the_table():
@@ -36,7 +40,8 @@ def test_every_env_config_field_is_a_param_converted_by_the_table():
     # Static fields are not leaves: a vmapped batch may differ in every other field.
     leaves = len(jax.tree_util.tree_leaves(p))
     statics = STATIC | {"warmup_steps", "mobil_deciders", "curvature_drawn", "reward_terms"}
-    assert leaves == len(params) - len(statics) - 1  # draws: None, no leaf
+    # draws: None, no leaf; ranges: () unless a key is a range
+    assert leaves == len(params) - len(statics) - 2
 
 
 def test_env_params_spells_env_config_in_its_order_with_its_converted_defaults():
@@ -50,7 +55,8 @@ def test_env_params_spells_env_config_in_its_order_with_its_converted_defaults()
     assert EnvParams().gamma == config.DDPGConfig().gamma  # the learner's default discount
     assert STATIC == {
         "lanes", "slots_per_lane", "longitudinal", "assist", "mobil", "braking",
-        "warmup_steps", "mobil_deciders", "curvature_drawn", "reward_terms",
+        "warmup_steps", "mobil_deciders", "curvature_drawn", "drawn", "reward_terms",
+        "operating_speed",
     }  # fmt: skip
 
 

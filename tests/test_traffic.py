@@ -275,3 +275,128 @@ def test_every_config_file_spells_the_traffic_keys_off_but_reactive():
     assert changed_env_keys("reactive.toml", config.load()) == {"mobil", "braking"}
     reactive = config.load(config.CONFIG_DIR / "reactive.toml")
     assert dataclasses.replace(reactive, env=config.load().env) == config.load()
+
+
+# Every key of params.RANGED as a range at once: stop-and-go to free flow, no MOBIL or braking
+# to far past SPEC's rates, politeness 0 to 1 (the lane width at its range in its own test).
+RANGES = (
+    "env.entry_speed_min=[0.0, 20.0]",
+    "env.entry_speed_max=[20.0, 100.0]",
+    "env.desired_speed_min=[10.0, 80.0]",
+    "env.desired_speed_max=[30.0, 130.0]",
+    "env.inflow_min=[400.0, 1600.0]",
+    "env.inflow_max=[1600.0, 2400.0]",
+    "env.mobil_politeness=[0.0, 1.0]",
+    "env.mobil_threshold=[0.0, 0.3]",
+    "env.mobil_rate=[0.1, 5.0]",
+    "env.braking_rate=[0.0, 60.0]",
+)
+
+
+def test_ranged_keys_are_drawn_per_env_and_episode_within_their_ranges():
+    cfg = config.load(overrides=(*HAZARDS, *RANGES, "env.lane_width=[3.0, 4.5]", "env.border=4.5"))
+    env, p = jaxlc.make(cfg)
+    assert set(p.drawn) == {"lane_width", *(o.split("=")[0][4:] for o in RANGES)}
+    reset = jax.jit(jax.vmap(env.reset, (0, None)))
+    _, s = reset(jax.random.split(jax.random.PRNGKey(0), 64), p)
+    step = jax.jit(jax.vmap(env.step, (0, 0, None, None)))
+    starts, before = [], s.episode
+    for k in jax.random.split(jax.random.PRNGKey(1), 300):
+        _, s, _, _, _, info = step(jax.random.split(k, 64), s, jnp.zeros(1), p)
+        ended = np.asarray(info["reason"]) != 0
+        for (lo, hi), old, new in zip(p.ranges, before, s.episode, strict=True):
+            new = np.asarray(new)
+            assert np.all((new >= lo - 1e-6) & (new <= hi + 1e-6))
+            # a draw changes only as an episode ends, and the envs draw apart
+            assert np.array_equal(np.asarray(old)[~ended], new[~ended])
+            assert np.std(new) > 0.1 * (hi - lo)
+        w = np.asarray(s.episode[p.drawn.index("lane_width")])
+        rl_start = np.asarray(info["lane_change"])  # the RL phase starts one lane width out
+        assert np.allclose(np.abs(np.asarray(info["offset"]))[rl_start], w[rl_start], atol=1e-3)
+        starts.append(int(rl_start.sum()))
+        before = s.episode
+    assert sum(starts) > 20
+
+
+def test_the_traffic_stays_physical_over_the_ranges():
+    from benchmarks import traffic_properties as bench
+
+    t = bench.check(32, 300, RANGES, chunk=300)
+    assert t["overlaps"] == 0 and t["negative_speeds"] == 0 and t["off_road"] == 0
+    assert t["unsafe_starts"] == 0
+    assert t["lc_started"] > 10 and t["brake_started"] > 10
+
+
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ("env.inflow_min=[2000.0, 2500.0]", "env.inflow_min"),  # above inflow_max's 1600
+        ("env.lane_width=[3.0, 4.0]", "env.lane_width"),  # past the border's 3.7
+        ("env.mobil_politeness=[0.5, 0.2]", "env.mobil_politeness"),
+        ("env.braking_rate=[0.0, 1e5]", "env.braking_rate"),
+    ],
+)
+def test_a_bad_range_names_its_key(override, key):
+    with pytest.raises(config.ConfigError, match=key.replace(".", r"\.")):
+        config.load(overrides=(override,))
+
+
+def test_the_suite_runs_each_setting_and_its_counts_add_up(smoke_run, tmp_path):
+    """``--suite FILE``: a row per policy and setting in eval/suite/suite.csv, the commands
+    split into declined, no gap, not started and lane changes, these into their ends; a
+    harsher traffic changes what the policies meet, an operating range declines commands."""
+    import csv
+
+    from jaxlc.evaluate import main
+    from jaxlc.evaluation import suite
+
+    run_dir, _ = smoke_run
+    path = tmp_path / "tiny.toml"
+    path.write_text(
+        'base = ["env.mobil=false"]\n[settings]\npaper = []\n'
+        'harsh = ["env.mobil=true", "env.braking=true", "env.braking_rate=600.0", '
+        '"env.mobil_politeness=0.0"]\n'
+        'ranged = ["env.operating_speed=[55.0, 250.0]"]\n'
+    )
+    assert main([str(run_dir), "--suite", str(path), "--lane-changes", "12"]) == 0
+    with open(run_dir / "eval" / "suite" / "suite.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert tuple(rows[0]) == suite.FIELDS and (run_dir / "eval" / "suite" / "suite.png").is_file()
+    by = {s: [r for r in rows if r["setting"] == s] for s in ("paper", "harsh", "ranged")}
+    assert len({len(v) for v in by.values()}) == 1 and len(by["paper"]) == len(rows) // 3 > 1
+    for r in rows:
+        n = {k: int(r[k]) for k in (*suite.FIELDS[5:10], *heldout.ENDS)}
+        assert n["lane_changes"] == sum(n[e] for e in heldout.ENDS) >= 12
+        assert n["commands"] == n["lane_changes"] + n["declined"] + n["no_gap"] + n["not_started"]
+        assert 0.0 <= float(r["success_lo"]) <= float(r["success_rate"]) <= float(r["success_hi"])
+    assert all(int(r["declined"]) == 0 for r in by["paper"] + by["harsh"])
+    assert all(int(r["declined"]) > 0 for r in by["ranged"])
+
+    def seen(r):
+        return (*(r[e] for e in heldout.ENDS), r["duration_s"], r["min_ttc_s"])
+
+    assert any(seen(a) != seen(b) for a, b in zip(by["paper"], by["harsh"], strict=True))
+    path.write_text('base = []\n[settings]\nbad = ["env.braking_rate=-1"]\n')
+    with pytest.raises(config.ConfigError, match="suite setting 'bad'.*env.braking_rate"):
+        suite.load(path)
+
+
+def test_any_road_draws_every_range_and_the_paper_and_default_draw_none():
+    """configs/any_road.toml: every key of params.RANGED a range, its suite a valid file; the
+    paper's and the default's configs keep constants and every command taken."""
+    from jaxlc.evaluation import suite
+    from jaxlc.sim.params import RANGED
+
+    cfg = config.load(config.CONFIG_DIR / "any_road.toml")
+    p = jaxlc.make(cfg)[1]
+    assert set(p.drawn) == set(RANGED) and p.curvature_drawn and cfg.env.mobil and cfg.env.braking
+    settings = suite.load(cfg.eval.suite)
+    assert {"paper", "reactive", "harsh", "stop_and_go"} <= set(settings)
+    harsh = heldout.in_traffic(cfg, settings["harsh"]).env
+    assert (
+        harsh.braking_rate >= 10 * config.load(config.CONFIG_DIR / "reactive.toml").env.braking_rate
+    )
+    assert harsh.mobil_politeness == 0.0
+    for name in ("paper.toml", "default.toml"):
+        q = jaxlc.make(config.load(config.CONFIG_DIR / name))[1]
+        assert q.drawn == () and q.operating_speed == () and not q.curvature_drawn, name

@@ -237,20 +237,25 @@ def in_traffic(cfg: config.Config, overrides: Sequence[str]) -> config.Config:
     return config.from_dict(data)
 
 
+def _g(v: float | tuple[float, float]) -> str:
+    """A number, or a range drawn per episode as ``lo–hi``."""
+    return "–".join(f"{x:g}" for x in v) if isinstance(v, tuple) else f"{v:g}"
+
+
 def traffic_of(env: config.EnvConfig) -> str:
     """One line naming the traffic of ``env``: the paper's, or its lane changes and braking
     events with their settings."""
-    parts = []
+    parts, g = [], _g
     if env.mobil:
         parts.append(
-            f"MOBIL lane changes (politeness {env.mobil_politeness:g}, threshold "
-            f"{env.mobil_threshold:g} m/s², right bias {env.mobil_bias_right:g} m/s², acting at "
-            f"{env.mobil_rate:g}/s, {env.lane_change_time_min:g}–{env.lane_change_time_max:g} s, "
+            f"MOBIL lane changes (politeness {g(env.mobil_politeness)}, threshold "
+            f"{g(env.mobil_threshold)} m/s², right bias {env.mobil_bias_right:g} m/s², acting at "
+            f"{g(env.mobil_rate)}/s, {env.lane_change_time_min:g}–{env.lane_change_time_max:g} s, "
             f"one per {env.mobil_interval:g} s)"
         )
     if env.braking:
         parts.append(
-            f"braking events ({env.braking_rate:g} per vehicle-hour, "
+            f"braking events ({g(env.braking_rate)} per vehicle-hour, "
             f"{env.braking_decel_min:g}–{env.braking_decel_max:g} m/s² for "
             f"{env.braking_time_min:g}–{env.braking_time_max:g} s)"
         )

@@ -84,6 +84,8 @@ from jaxlc.sim.state import (  # noqa: F401 (the state types and phases re-expor
     TrafficDraws,
     action_dim,
     between,
+    draw_episode,
+    episode_params,
 )
 
 
@@ -101,6 +103,16 @@ class Box:
 
     def contains(self, x: Array) -> Array:
         return jnp.all((x >= self.low) & (x <= self.high))
+
+
+def commanded(ego: Ego) -> Array:
+    """``()`` bool: the ego got its command on this step (it entered GAP, ``ego_phase``)."""
+    return (ego.phase == GAP) & (ego.gap_time == 0.0)
+
+
+def outside(v: Array, speeds: tuple[float, float]) -> Array:
+    """``()`` bool: ``v`` (m/s) is outside ``speeds``, the operating range ``(min, max)``."""
+    return (v < speeds[0]) | (v > speeds[1])
 
 
 def episode_end_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
@@ -134,6 +146,7 @@ def _advance(
     """One dt of traffic and ego; returns ``(state, reward, info)`` (no observation); ``info``
     holds each of ``p.reward_terms`` under its name. The draws are ``p.draws``' (None: the
     traffic's own; a proposal's: ``jaxlc.validate``)."""
+    p = episode_params(state, p)
     eg = state.ego
     u, ut = traffic_mod.step_draws(key, p, state)
     kappa = road_curvature(state, p)
@@ -163,6 +176,10 @@ def _advance(
     rl_reason = reward.end_reason(offset, ego.psi, yaw_rate, ego.steps, crashed, p)
     accept, no_gap = gap_decision(ego, nb, p, kappa)
     reason = episode_end_reason(in_rl, rl_reason, crashed, no_gap)
+    if p.operating_speed:  # static: a command outside the operating range is declined
+        declined = commanded(ego) & ~crashed & outside(ego.v, p.operating_speed)
+        accept = accept & ~declined
+        reason = jnp.where(declined, reward.DECLINED, reason).astype(jnp.int32)
     ended = reason != reward.NONE
 
     ep_return = jnp.where(in_rl, eg.ep_return + r, 0.0)
@@ -176,7 +193,14 @@ def _advance(
         ep_return=ep_return,
     )
     road = kappa if p.curvature_drawn else None
-    state = EnvState(traffic, ego, nb, leader_gap, leader_v, state.time + 1, road, state.drawn)
+    episode = state.episode  # an episode that ends draws the next one's (its ego not yet spawned)
+    if p.drawn:
+        episode = tuple(
+            jnp.where(ended, n, o) for n, o in zip(draw_episode(key, p), episode, strict=True)
+        )
+    state = EnvState(
+        traffic, ego, nb, leader_gap, leader_v, state.time + 1, road, state.drawn, episode
+    )
     info = {
         "rl_step": in_rl,
         "phase": ego.phase,
@@ -196,6 +220,7 @@ def _advance(
 def _warm_traffic(key: Array, state: EnvState, p: EnvParams) -> EnvState:
     """One warm-up step of the traffic alone: ``_advance``'s traffic, with its draws, while no
     ego is on the road and none spawns; the ego is not moved."""
+    p = episode_params(state, p)
     u, ut = traffic_mod.step_draws(key, p)
     zero, kappa = jnp.float32(0.0), road_curvature(state, p)
     t = traffic_mod.step(state, u, ut, zero, zero, jnp.bool_(False), p, kappa)
@@ -228,6 +253,8 @@ class LaneChangeEnv:
         a few lanes in 10^4. The warm-up draws the traffic's own, whatever ``params.draws``."""
         p, lanes = params.replace(draws=None), params.lanes
         k_init, k_warm = jax.random.split(key)
+        episode = draw_episode(k_init, p) if p.drawn else None  # the first episode's
+        p = episode_params(EnvState(*(None,) * 8, episode), p)
         u = jax.random.uniform(k_init, (4, lanes))
         traffic = traffic_mod.empty(u, p)
         ego = parked_ego(p)
@@ -238,7 +265,9 @@ class LaneChangeEnv:
         nb, leader_gap, leader_v = observe_lanes(
             traffic, ego, p, p.curvature if road is None else road
         )
-        state = EnvState(traffic, ego, nb, leader_gap, leader_v, jnp.int32(0), road)
+        state = EnvState(
+            traffic, ego, nb, leader_gap, leader_v, jnp.int32(0), road, episode=episode
+        )
 
         def warm(s: EnvState, k: Array) -> tuple[EnvState, None]:
             if traffic_only:
@@ -261,6 +290,7 @@ class LaneChangeEnv:
         terminated (), truncated (), info)``: ``terminated``/``truncated`` refer to the RL
         manoeuvre (a timeout truncates unless ``params.terminal_timeout``); ``info`` has the
         reward terms, phase and ``reason`` codes of ``jaxlc.sim.reward.REASONS``."""
+        episode = state.episode
         state, r, info = _advance(key, state, action, params, spawn=True)
         reason = info["reason"]
         rl = info["rl_step"]
@@ -274,7 +304,10 @@ class LaneChangeEnv:
         terminal_timeout = jnp.asarray(params.terminal_timeout, bool)
         terminated = terminated | (timeout & terminal_timeout)
         truncated = timeout & ~terminal_timeout
-        return observation(state, params), state, r, terminated, truncated, info
+        # Read with this step's episode values: on the step an episode ends, the terminal
+        # observation is that episode's, not with the next one's draw.
+        obs = observation(state.replace(episode=episode), params)
+        return obs, state, r, terminated, truncated, info
 
 
 def make(config: Config | EnvConfig | None = None, k: int = 1) -> tuple[LaneChangeEnv, EnvParams]:

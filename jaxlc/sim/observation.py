@@ -31,7 +31,7 @@ from jaxlc.sim.road import (
     road_curvature,
     target_frame,
 )
-from jaxlc.sim.state import Ego, EnvParams, EnvState, Traffic
+from jaxlc.sim.state import Ego, EnvParams, EnvState, Traffic, episode_params
 
 
 class Entry(NamedTuple):
@@ -74,6 +74,13 @@ def scale(name: str, params: EnvParams):
     return getattr(params, s) if isinstance(s, str) else s
 
 
+def _highest(p: EnvParams, name: str) -> float:
+    """The field's value, or its range's upper end where it is drawn per episode."""
+    drawn = getattr(p, "drawn", ())
+    v = float(getattr(p, name))
+    return max(v, float(p.ranges[drawn.index(name)][1])) if name in drawn else v
+
+
 def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` float32 bounds of every observation taken while the ego is under RL
     control (the only ones the decision-step wrappers return).
@@ -92,14 +99,14 @@ def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     A*dt*k + 2*K*v_max at step k: psi gains 2*K*v_max*n*dt over the straight road's bound.
     """
     p = params
-    v_max = max(float(p.entry_speed_max), float(p.desired_speed_max))
+    v_max = max(_highest(p, "entry_speed_max"), _highest(p, "desired_speed_max"))
     dt = float(p.dt)
     n = int(step_limit(p))
     drawn = bool(getattr(p, "curvature_drawn", False))
     ends = (p.curvature_min, p.curvature_max) if drawn else (p.curvature,)
     kappa = max(abs(float(k)) for k in ends)
-    offset = max(float(p.lane_width), float(p.border)) + v_max * dt
-    d_max = 0.5 * (int(p.lanes) - 1) * float(p.lane_width) + offset  # from the road's centre
+    offset = max(_highest(p, "lane_width"), float(p.border)) + v_max * dt
+    d_max = 0.5 * (int(p.lanes) - 1) * _highest(p, "lane_width") + offset  # from the road's centre
     # Past kappa*d = 1 the lines would cross the bend's centre: no bound (no sane road).
     k_path = kappa / (1.0 - kappa * d_max) if kappa * d_max < 1.0 else np.inf
     omega = k_path * v_max + float(p.max_yaw_acc) * dt * n
@@ -168,7 +175,8 @@ def target_gaps_of(nb: gap.Neighbours, ego: Ego, kappa: Array, p: EnvParams) -> 
 
 def observation(state: EnvState, p: EnvParams) -> Array:
     """``(OBS_DIM,)`` normalised observation of ``state``: the entries of ``LAYOUT``, each raw
-    value divided by its scale."""
+    value divided by its scale; read with the episode's drawn values (``EnvState.episode``)."""
+    p = episode_params(state, p)
     eg, nb = state.ego, state.nb
 
     def gap_m(g: Array, present: Array) -> Array:

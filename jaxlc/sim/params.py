@@ -47,10 +47,35 @@ def per_hour(v: float) -> float:
 
 
 def curvature_range(value: float | tuple[float, float]) -> tuple[float, float]:
-    """``(min, max)`` of a config's ``env.curvature``: a number (a constant road) or a range."""
+    """``(min, max)`` of a config value that is a number (a constant) or a range, e.g.
+    ``env.curvature``."""
     if isinstance(value, tuple | list):
         return float(value[0]), float(value[1])
     return float(value), float(value)
+
+
+value_range = curvature_range  # any key declared with ``ranged``
+
+
+def ranged(si: Callable[[Any], Any] = lambda v: v) -> dict[str, Any]:
+    """A ``setting``'s arguments for a key that is a number or a range ``[min, max]`` drawn
+    per episode from U(min, max) (``EnvParams.drawn``): the field holds ``si`` of the number,
+    or of the range's middle, which the episode's draw replaces (``jaxlc.sim.env``)."""
+    return dict(toml=float | tuple[float, float], si=lambda v: si(_constant_curvature(v)))
+
+
+def _ranges(env: Any) -> tuple[tuple[float, float], ...]:
+    """``(min, max)`` in SI of each key of ``_drawn(env)``, in its order."""
+    fields = {f.name: f for f in dataclasses.fields(EnvParams)}
+    convert = {n: fields[n].metadata["si"] for n in _drawn(env)}
+    return tuple(tuple(convert[n](v) for v in value_range(getattr(env, n))) for n in convert)
+
+
+def _drawn(env: Any) -> tuple[str, ...]:
+    """The keys given as a range (min < max): drawn per episode."""
+    return tuple(
+        n for n in RANGED if value_range(getattr(env, n))[0] < value_range(getattr(env, n))[1]
+    )
 
 
 def _constant_curvature(value: float | tuple[float, float]) -> float:
@@ -108,7 +133,8 @@ def _curvature_drawn(env: Any) -> bool:
 
 
 def _mobil_deciders(env: Any) -> int:
-    return deciders(env.lanes * env.slots_per_lane, -math.expm1(-env.mobil_rate * env.dt))
+    rate = value_range(env.mobil_rate)[1]  # a drawn rate's highest
+    return deciders(env.lanes * env.slots_per_lane, -math.expm1(-rate * env.dt))
 
 
 @flax.struct.dataclass
@@ -121,7 +147,7 @@ class EnvParams:
     lanes: int = setting(
         3, 2, 8, unit="", static=True, doc="the ego's way; it starts on lanes // 2"
     )
-    lane_width: float = setting(3.7, 2.0, 6.0, unit="m")
+    lane_width: float = setting(3.7, 2.0, 6.0, unit="m", **ranged())
     # The road's curvature (> 0 bends toward the higher lanes): the constant, or with a range
     # the middle of it; each episode then draws its own (``curvature_drawn``).
     curvature: float = setting(
@@ -137,15 +163,15 @@ class EnvParams:
     dt: float = setting(0.1, 0.0, 1.0, unit="s", open_lo=True)
     vehicle_length: float = setting(5.0, 1.0, 20.0, unit="m")
     vehicle_width: float = setting(1.8, 1.0, 3.0, unit="m")
-    entry_speed_min: float = setting(0.0, 0.0, 200.0, unit="km/h", si=kmh)
-    entry_speed_max: float = setting(40.0, 0.0, 200.0, unit="km/h", si=kmh)
+    entry_speed_min: float = setting(0.0, 0.0, 200.0, unit="km/h", **ranged(kmh))
+    entry_speed_max: float = setting(40.0, 0.0, 200.0, unit="km/h", **ranged(kmh))
     # Below 10 km/h an ego crawls: at 5 km/h no gap is ever accepted (tests/test_ranges.py).
-    desired_speed_min: float = setting(80.0, 10.0, 250.0, unit="km/h", si=kmh)
-    desired_speed_max: float = setting(120.0, 10.0, 250.0, unit="km/h", si=kmh)
+    desired_speed_min: float = setting(80.0, 10.0, 250.0, unit="km/h", **ranged(kmh))
+    desired_speed_max: float = setting(120.0, 10.0, 250.0, unit="km/h", **ranged(kmh))
     # The ego is the next vehicle to enter the middle lane: at 60 veh/h it waits a minute on
     # average, and far fewer would leave episodes waiting past the decision loop's cap.
-    inflow_min: float = setting(800.0, 60.0, 4000.0, unit="veh/h per lane", si=per_hour)
-    inflow_max: float = setting(1600.0, 60.0, 4000.0, unit="veh/h per lane", si=per_hour)
+    inflow_min: float = setting(800.0, 60.0, 4000.0, unit="veh/h per lane", **ranged(per_hour))
+    inflow_max: float = setting(1600.0, 60.0, 4000.0, unit="veh/h per lane", **ranged(per_hour))
     slots_per_lane: int = setting(16, 2, 256, unit="", static=True, doc="vehicle slots per lane")
     warmup_steps: int = setting(
         40.0,
@@ -267,6 +293,16 @@ class EnvParams:
         doc="with an assist, the share of each action bound the policy's residual may take: "
         "the executed action is clip(assist + assist_authority * action)",
     )
+    operating_speed: tuple[float, ...] = setting(
+        (),
+        unit="km/h",
+        static=True,  # on, it adds the command's check to the program
+        toml=tuple[float, ...],
+        si=lambda v: tuple(kmh(x) for x in v),
+        doc="[] (off: every command is taken) or [min, max]: the ego's speed at the command "
+        "within which a lane change is taken (UN R79, ACSF category C: [60, 130]); a command "
+        "outside it ends the episode as 'declined', counted apart from the failures",
+    )
     # Traffic that cuts in and brakes ([D], SPEC "Beyond the paper"): off in the paper's
     # traffic. The switches are static (they add state); every number below is traced.
     mobil: bool = setting(
@@ -277,9 +313,11 @@ class EnvParams:
         "false: they keep their lane (the paper's traffic)",
     )
     mobil_politeness: float = setting(
-        0.2, 0.0, 1.0, unit="", doc="MOBIL's p: weight of the others' gain"
+        0.2, 0.0, 1.0, unit="", doc="MOBIL's p: weight of the others' gain", **ranged()
     )
-    mobil_threshold: float = setting(0.1, 0.0, 5.0, unit="m/s^2", doc="MOBIL's switching threshold")
+    mobil_threshold: float = setting(
+        0.1, 0.0, 5.0, unit="m/s^2", doc="MOBIL's switching threshold", **ranged()
+    )
     mobil_bias_right: float = setting(
         0.0,
         -2.0,
@@ -295,6 +333,7 @@ class EnvParams:
         unit="1/s",
         open_lo=True,
         doc="a driver acts on an allowed lane change at this rate (a drawn latency)",
+        **ranged(),
     )
     mobil_interval: float = setting(
         10.0, 0.0, 600.0, unit="s", doc="least time between a vehicle's lane change starts"
@@ -311,7 +350,12 @@ class EnvParams:
         "jaxlc.sim.braking); false: only for its leader (the paper's traffic)",
     )
     braking_rate: float = setting(
-        2.0, 0.0, 3600.0, unit="per vehicle-hour", si=per_hour, doc="braking events (Poisson)"
+        2.0,
+        0.0,
+        3600.0,
+        unit="per vehicle-hour",
+        doc="braking events (Poisson)",
+        **ranged(per_hour),
     )
     braking_decel_min: float = setting(
         3.0, 0.0, 9.0, unit="m/s^2", doc="an event brakes at U(min, max)"
@@ -335,6 +379,10 @@ class EnvParams:
         0.0, lambda env: curvature_range(env.curvature)[1], unit="1/m", static=False
     )
     curvature_drawn: bool = derived(False, _curvature_drawn, unit="", static=True)
+    # The keys of ``RANGED`` given as a range (static: they add ``EnvState.episode``) and their
+    # ranges in SI; each episode draws its own values, which replace the fields' (``env``).
+    drawn: tuple[str, ...] = derived((), _drawn, unit="", static=True)
+    ranges: tuple[tuple[float, float], ...] = derived((), _ranges, unit="", static=False)
     gamma: float = derived(GAMMA, None, unit="", static=False)  # eq. (11)'s discount
     k: int = derived(1, None, unit="", static=False)  # an action is held for k RL steps
     # The source of the traffic's draws: None, the traffic's own (no leaf: the nominal
@@ -382,6 +430,22 @@ def deciders(n: int, q: float, tail: float = 1e-6) -> int:
         k -= 1
     return k
 
+
+# The keys that may be a range [min, max], drawn per episode (besides ``curvature``, whose
+# draw is the road's own: ``curvature_drawn``).
+RANGED = (
+    "lane_width",
+    "entry_speed_min",
+    "entry_speed_max",
+    "desired_speed_min",
+    "desired_speed_max",
+    "inflow_min",
+    "inflow_max",
+    "mobil_politeness",
+    "mobil_threshold",
+    "mobil_rate",
+    "braking_rate",
+)
 
 # The fields that fix array shapes or loop lengths (declared ``static`` above).
 STATIC = frozenset(

@@ -174,8 +174,10 @@ def total(values: dict[str, Array]) -> Array:
 
 
 # Why an episode ended (info["reason"]).
-NONE, SUCCESS, OUT_OF_BOUNDS, COLLISION, TIMEOUT, NO_GAP = 0, 1, 2, 3, 4, 5
-REASONS = ("none", "success", "out_of_bounds", "collision", "timeout", "no_gap")
+# DECLINED: a lane change commanded outside the operating range (env.operating_speed) is not
+# taken; the episode ends at the command, apart from the failures (none in its absence).
+NONE, SUCCESS, OUT_OF_BOUNDS, COLLISION, TIMEOUT, NO_GAP, DECLINED = 0, 1, 2, 3, 4, 5, 6
+REASONS = ("none", "success", "out_of_bounds", "collision", "timeout", "no_gap", "declined")
 
 
 def step_limit(p) -> Array:

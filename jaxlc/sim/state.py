@@ -85,6 +85,23 @@ class EnvState:
     curvature: Array | None = None
     # () a proposal's statistics of the draws so far (``params.draws``); None (no leaf) else
     drawn: Array | None = None
+    # The episode's values of the keys drawn per episode (``params.drawn``, in its order);
+    # None (no leaf) when every key is a constant.
+    episode: tuple[Array, ...] | None = None
+
+
+def draw_episode(key: Array, p: EnvParams) -> tuple[Array, ...]:
+    """An episode's values of ``p.drawn``, each U(min, max) of ``p.ranges``, from
+    ``fold_in(key, 2)`` (the step's other draws are left as they were)."""
+    u = jax.random.uniform(jax.random.fold_in(key, 2), (len(p.drawn),))
+    return tuple(between(u[i], lo, hi) for i, (lo, hi) in enumerate(p.ranges))
+
+
+def episode_params(state: EnvState, p: EnvParams) -> EnvParams:
+    """``p`` with the episode's drawn values (``state.episode``) in place of the ranges' middles."""
+    return (
+        p if state.episode is None else p.replace(**dict(zip(p.drawn, state.episode, strict=True)))
+    )
 
 
 class Draws(NamedTuple):
