@@ -11,8 +11,8 @@ from pathlib import Path
 from benchmarks.tables.common import BENCHMARKS, load
 from jaxlc import config
 from jaxlc.evaluation import rare, validation
-from jaxlc.evaluation.validation_io import Validation
 from jaxlc.evaluation.results import Claim
+from jaxlc.evaluation.validation_io import Validation
 from jaxlc.paper import claims
 from jaxlc.paper.grid import is_best
 from jaxlc.study.rundir import RunDir
