@@ -6,10 +6,9 @@
     python -m jaxlc.evaluate runs/smoke --heldout-only --traffic env.mobil=true env.braking=true
     python -m jaxlc.evaluate runs/smoke --suite      # every setting of configs/suite.toml
 
-The cases and the program that runs every policy on them are ``jaxlc.evaluation.cases``; what
-a result row holds is ``jaxlc.evaluation.results``. This module is the command: it picks the
-checkpoints, runs them and writes the files. Outcome buckets are the reason codes of
-``jaxlc.sim.reward`` with 0 read as "unfinished" (hit the step cap). Writes
+The cases are ``jaxlc.evaluation.cases``, a result row ``jaxlc.evaluation.results``; this
+module picks the checkpoints, runs them and writes the files (outcomes: the reason codes of
+``jaxlc.sim.reward``, 0 read as "unfinished", hit the step cap). Writes
 ``RUN_DIR/eval/eval.json``, ``eval.csv``, ``cases.npz``, ``traces.npz``, the statistics over
 seeds (``jaxlc.evaluation.stats``), then the figures and ``RUN_DIR/report.md``.
 
@@ -17,9 +16,8 @@ Beside the paper's 100 cases, each model's final checkpoint (and those of
 ``--heldout-episodes``) drives ``--lane-changes`` held-out lane changes (``--heldout-seed``):
 failure rates with binomial intervals, the safety and comfort norms, every collision
 attributed (``jaxlc.evaluation.heldout``), into ``eval/heldout.json``, ``heldout*.csv``,
-``collisions.csv`` and ``heldout_cases.npz``; with ``--traffic env.KEY=VALUE ...`` (or
-``[eval] traffic``) driven in that traffic instead of the training's, into
-``eval/heldout_TAG/``.
+``collisions.csv``, ``heldout_cases.npz``; with ``--traffic env.KEY=VALUE ...`` (or ``[eval]
+traffic``) in that traffic instead of the training's, into ``eval/heldout_TAG/``.
 
     python -m jaxlc.evaluate --compare RUN_A RUN_B [--out DIR]
 
@@ -149,10 +147,12 @@ def _evaluate_run_dir(args: argparse.Namespace, ev: config.EvalConfig, devices: 
     held = dict(lane_changes=ev.lane_changes, seed=ev.heldout_seed, traffic=ev.traffic, **kw)
     if args.suite is not None:  # jaxlc.evaluation.suite: every named setting, one CSV
         from jaxlc.evaluation import suite
+        from jaxlc.report.plots import suite_figure
 
-        held.pop("traffic")
+        del held["traffic"]
         rows = suite.run_suite(args.run_dir, args.suite or ev.suite, **held)
-        print(f"Wrote {RunDir(args.run_dir).eval / 'suite'}: {len(rows)} rows")
+        png = suite_figure({args.run_dir.name: rows}, RunDir(args.run_dir).eval / "suite/suite.png")
+        print(f"Wrote {png.parent}: {len(rows)} rows")
         return 0
     if args.heldout_only:
         result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)

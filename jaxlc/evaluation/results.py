@@ -76,6 +76,7 @@ class Row(Policy):
     collision: int = 0
     timeout: int = 0
     no_gap: int = 0
+    declined: int = 0
     success_rate: float | None = None
     avg_return: float | None = None
     duration_s: float | None = None

@@ -15,7 +15,6 @@ from __future__ import annotations
 import re
 import sys
 import tomllib
-from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +22,8 @@ import numpy as np
 
 from jaxlc import config
 from jaxlc.evaluation import heldout
-from jaxlc.evaluation.protocol import _write_table, evaluate_heldout, final_checkpoints, load_rows
+from jaxlc.evaluation.numbers import write_csv
+from jaxlc.evaluation.protocol import evaluate_heldout, final_checkpoints, load_rows
 from jaxlc.evaluation.results import EvalError
 from jaxlc.sim.reward import DECLINED, NO_GAP
 from jaxlc.study.rundir import RunDir
@@ -90,32 +90,9 @@ def run_suite(run_dir: Path, suite: str | Path | None = None, **heldout_kw: Any)
             rows += [{**m, "setting": name, "lane_changes": 0} for m in metas]
             continue
         starts = _starts(rd.eval / f"heldout_{_tag(name)}" / rd.heldout_cases.name)
-        for r in result["rows"]:
-            rows.append({**r, "setting": name, "commands": result["cases"], **starts})
+        for r in result.rows:
+            rows.append({**r.as_dict(), "setting": name, "commands": result.cases, **starts})
     rows = [{k: r.get(k) for k in FIELDS} for r in rows]
     (rd.eval / "suite").mkdir(parents=True, exist_ok=True)
-    _write_table(rd.eval / "suite" / "suite.csv", rows, FIELDS)
-    figure({Path(run_dir).name: rows}, rd.eval / "suite" / "suite.png")
+    write_csv(rd.eval / "suite" / "suite.csv", rows, FIELDS)
     return rows
-
-
-def figure(runs: Mapping[str, Sequence[dict]], path: Path) -> Path:
-    """Success (%) by setting, each run's models side by side (a run per colour, a dot per
-    model with its 95% interval; the scripted controller's rows left out)."""
-    from jaxlc.evaluation.plots_io import plt, save
-
-    names = list(dict.fromkeys(r["setting"] for rows in runs.values() for r in rows))
-    fig, ax = plt.subplots(figsize=(1.2 + 1.1 * len(names), 3.6))
-    width = 0.8 / max(len(runs), 1)
-    for i, (run, rows) in enumerate(runs.items()):
-        mine = [r for r in rows if r["model"] is not None and r["lane_changes"]]
-        x = np.asarray([names.index(r["setting"]) for r in mine], float)
-        x += (i + 0.5) * width - 0.4 + np.linspace(-0.3, 0.3, len(mine)) * width / max(len(mine), 1)
-        y = 100 * np.asarray([r["success_rate"] for r in mine])
-        lo = y - 100 * np.asarray([r["success_lo"] for r in mine])
-        hi = 100 * np.asarray([r["success_hi"] for r in mine]) - y
-        ax.errorbar(x, y, yerr=[lo, hi], fmt="o", ms=3, capsize=2, label=run)
-    ax.set_xticks(range(len(names)), names, rotation=30, ha="right")
-    ax.set_ylabel("held-out success (%)")
-    ax.legend(fontsize="small")
-    return save(fig, path)
