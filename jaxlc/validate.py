@@ -127,7 +127,7 @@ def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[tuple[Any
     cfg, actors, metas = load_rows(run_dir, chosen)
     if which == "scripted":
         return cfg, [(None, 1, dict(SCRIPTED))]
-    return cfg, [(a, int(m["k"] or 1), m) for a, m in zip(actors, metas[1:], strict=True)]
+    return cfg, [(a, int(m.k or 1), m.as_dict()) for a, m in zip(actors, metas[1:], strict=True)]
 
 
 def main(argv: list[str] | None = None) -> int:

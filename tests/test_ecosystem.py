@@ -15,7 +15,7 @@ ALGOS = ("ppo", "sac")
 # and -210 against -2004 and -1946; on 100: -130 and -205 against -2007 and -1985); at half
 # of it (level 1 alone) PPO's margin was 57.
 SMOKE_DECISIONS = 32_768
-# Fixed cases driven: fewer than the evaluation's spill batch (``cases.SPILL_MIN_BATCH``), so
+# Fixed cases driven: fewer than the evaluation's spill batch (``engine.SPILL_MIN_BATCH``), so
 # each rollout compiles as one loop (the benchmark's 100: 25 s of the fixture's 71; 32: 11 of 56).
 SMOKE_CASES = 32
 

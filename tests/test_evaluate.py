@@ -230,8 +230,9 @@ def test_a_measure_declared_once_reaches_heldout_csv_and_the_report(run, tmp_pat
     before = np.load(run_dir / "eval" / "heldout_cases.npz")
     # the outcome's columns, the new one after the built-ins, then the ids and case info
     assert [f for f in per_case.files if f != "top_speed"] == before.files
-    assert per_case.files.index("top_speed") == before.files.index("tilt") + 1
-    for name in ("reason", "steps", "min_ttc", "partner", "log_w"):  # the built-ins unchanged
+    last = measures.BUILTIN[-1].name  # the registered measures follow every built-in one
+    assert per_case.files.index("top_speed") == before.files.index(last) + 1
+    for name in ("reason", "steps", "min_ttc", "partner", "tilt"):  # the built-ins unchanged
         np.testing.assert_array_equal(per_case[name], before[name], err_msg=name)
     top_v, perf = per_case["top_speed"], per_case["performed"]
     assert np.all(top_v[:, perf] > 0.0) and np.all(top_v[:, ~perf] == 0.0)  # fill: no steps
@@ -318,14 +319,14 @@ def test_a_batch_of_case_starts_is_each_case_started_alone() -> None:
     blocks of ``n // SPILL``: every case's start equals the plain vmapped start bit for bit,
     and the batch's approach lengths differ (so both stages ran)."""
     base = EnvParams.from_config(config.load(SMOKE).env)
-    n = cases.SPILL_MIN_BATCH
+    n = engine.SPILL_MIN_BATCH
     keys = streams.stream(0, streams.HELDOUT, range(n))
-    plain = jax.jit(jax.vmap(cases.make_start_case(base, 600)))(keys)
+    plain = jax.jit(jax.vmap(engine.make_start_case(base, 600)))(keys)
     batched = jax.jit(cases.make_start_cases(base, 600))(keys)
     for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(batched), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     steps = np.asarray(plain.state.time)
-    assert steps.max() > np.sort(steps)[-(n // cases.SPILL) - 1], steps
+    assert steps.max() > np.sort(steps)[-(n // engine.SPILL) - 1], steps
 
 
 @pytest.mark.slow
@@ -336,7 +337,7 @@ def test_a_rollout_of_a_batch_is_each_case_rolled_out_alone(monkeypatch) -> None
     both stages ran)."""
     cfg = config.load(SMOKE)
     base = EnvParams.from_config(cfg.env)
-    n = cases.SPILL_MIN_BATCH
+    n = engine.SPILL_MIN_BATCH
     cs = jax.jit(cases.make_start_cases(base, 600))(streams.stream(0, streams.HELDOUT, range(n)))
     actor = cases.init_actor(cfg, jax.random.PRNGKey(1))
     pol = cases.Policies(
@@ -352,8 +353,8 @@ def test_a_rollout_of_a_batch_is_each_case_rolled_out_alone(monkeypatch) -> None
     for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(batched), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     steps = np.asarray(plain[0]["steps"]).max(axis=0)  # (cases,) the longest of the policies'
-    assert np.asarray(cs.performed).sum() > n // cases.SPILL
-    assert steps.max() > np.sort(steps)[-(n // cases.SPILL) - 1], steps
+    assert np.asarray(cs.performed).sum() > n // engine.SPILL
+    assert steps.max() > np.sort(steps)[-(n // engine.SPILL) - 1], steps
 
 
 @pytest.mark.slow

@@ -55,7 +55,7 @@ def _rows(success: dict[tuple[int, int], list[float]]) -> list[results.Row]:
                 )
     for r in rows:  # what the report's every-model table reads
         r.update({o: 0 for o in OUTCOMES}, cases=100, performed=70, checkpoint=None)
-        r.update(dict.fromkeys(results.MEASURES[2:], 0.0))
+        r.update(dict.fromkeys(results.measures()[2:], 0.0))
         r.setdefault("success_rate", 1.0)
         r.setdefault("avg_return", -140.0)
     return [results.Row.from_dict(r) for r in rows]

@@ -98,7 +98,7 @@ def test_mc_estimate_is_clopper_pearson():
 # The command on a smoke run, in the traffic that brakes (the tilt's own draws included).
 TRAFFIC = ["env.braking=true", "env.braking_rate=200", "env.gap_min_ttc=0"]
 # Cases per program: the fixture's and the nominal test's, so one program serves both; fewer
-# than ``cases.SPILL_MIN_BATCH``, so the program runs each phase as one loop (at 64 the fixture
+# than ``engine.SPILL_MIN_BATCH``, so the program runs each phase as one loop (at 64 the fixture
 # took 37 s, its program compiling both phases twice over; 23 s at 63, whose cases hold as
 # many failures: one, a timeout, in 99 lane changes against 100).
 CHUNK = 63

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import jax
@@ -24,19 +25,11 @@ from jax.sharding import PartitionSpec as P
 from jaxlc import config
 from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation import measures
-from jaxlc.evaluation.engine import (  # noqa: F401  (the engine's names, where callers look)
-    SPILL,
-    SPILL_MIN_BATCH,
-    Cases,
-    Policies,
-    make_rollout,
-    make_start_case,
-    make_start_cases,
-)
+from jaxlc.evaluation.engine import Cases, Policies, make_rollout, make_start_cases
 from jaxlc.evaluation.measures import Outcome
+from jaxlc.evaluation.numbers import Record
 from jaxlc.evaluation.results import EvalError
-from jaxlc.evaluation.trace import Trace  # noqa: F401
-from jaxlc.evaluation.trace import pick_traced as _pick
+from jaxlc.evaluation.trace import pick_traced
 from jaxlc.learn.networks import make_networks
 from jaxlc.learn.train import check_devices
 from jaxlc.sim.env import EnvParams, action_dim
@@ -108,11 +101,6 @@ def _programs(cfg: config.Config, max_steps: int, devices: int, registered: tupl
     return jax.jit(make_start_cases(base, max_steps)), jax.jit(rollout)
 
 
-def pick_traced(cases: Cases, n: int) -> np.ndarray:
-    """Up to ``n`` performed cases to draw, alternating left and right lane changes."""
-    return _pick(np.asarray(cases.side), np.asarray(cases.performed), n)
-
-
 def init_actor(cfg: config.Config, key: Array | None = None) -> Any:
     """Fresh actor params for ``cfg`` (a "random-params" baseline, and a shape template)."""
     actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
@@ -133,14 +121,14 @@ def evaluate_policies(
     traced: int = PROTOCOL.traced,
     devices: int = 1,
     started: Cases | None = None,
-) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], CaseInfo]:
     """Evaluate actors (``None``: the scripted controller) with action-update steps ``ks`` on
     the protocol cases (``keys.stream(seed, PROTOCOL, range(cases))``), or on the cases of
     ``keys`` if given, or on
     ``started`` (the cases of ``cases_for_lane_changes``, not started again).
 
-    Returns numpy dicts ``(outcome (policies, cases), trace (policies, traced, ...),
-    case info (cases,))``. Policies run in chunks of ``chunk`` (the last padded to full size,
+    Returns ``(outcome (policies, cases), trace (policies, traced, ...))`` as numpy dicts and
+    the cases' ``CaseInfo``. Policies run in chunks of ``chunk`` (the last padded to full size,
     so one compiled program serves all) to bound memory; a chunk is a multiple of ``devices``,
     over which its policies are laid.
     """
@@ -169,8 +157,7 @@ def evaluate_policies(
         n = min(size, len(rows) - lo)
         outs.append(jax.tree.map(lambda a, n=n: a[:n], out))
         traces.append(jax.tree.map(lambda a, n=n: a[:n], trace))
-    info = {"case": np.arange(cs.reason.shape[0]), "traced": idx, **case_info(cs, cfg)}
-    return _concat(outs), _concat(traces), info
+    return _concat(outs), _concat(traces), case_info(cs, cfg, idx)
 
 
 def _the_cases(
@@ -186,24 +173,41 @@ def _the_cases(
     return start(streams.stream(seed, streams.PROTOCOL, range(cases)) if keys is None else keys)
 
 
-def case_info(cs: Cases, cfg: config.Config) -> dict[str, np.ndarray]:
-    """``(cases,)`` arrays of what each case was at the manoeuvre's start (the same for every
-    policy): performed, side, the ego's speed, the target lane's gaps and the lag's speed at
-    acceptance, whether the lag was drawn yielding."""
+@dataclass
+class CaseInfo(Record):
+    """``(cases,)`` arrays of what each case was at the manoeuvre's start, the same for every
+    policy (``heldout_cases.npz`` and ``cases.npz`` keep them by these names): its index,
+    ``traced`` (the indices of those drawn, ``(traced,)``), performed, side, the ego's speed,
+    the target lane's gaps and the lag's speed at acceptance, whether the lag was drawn
+    yielding."""
+
+    case: np.ndarray
+    traced: np.ndarray
+    performed: np.ndarray
+    side: np.ndarray
+    accept_v: np.ndarray
+    accept_lead_gap: np.ndarray  # m along the target lane, NaN: no lead
+    accept_lag_gap: np.ndarray
+    accept_lag_v: np.ndarray
+    yielding: np.ndarray
+
+
+def case_info(cs: Cases, cfg: config.Config, traced: np.ndarray) -> CaseInfo:
+    """The ``CaseInfo`` of the cases ``cs``, ``traced`` those drawn."""
     eg, nb = cs.state.ego, cs.state.nb
     p = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    lead_gap, lag_gap = jax.device_get(target_gaps(cs.state, p))  # m along the target lane
-    lead = np.where(nb.has_a1, lead_gap, np.nan)
-    lag = np.where(nb.has_b1, lag_gap, np.nan)
-    return {
-        "performed": np.asarray(cs.performed),
-        "side": np.asarray(cs.side),
-        "accept_v": np.asarray(eg.v),
-        "accept_lead_gap": np.asarray(lead),
-        "accept_lag_gap": np.asarray(lag),
-        "accept_lag_v": np.asarray(np.where(nb.has_b1, nb.b1_v, np.nan)),
-        "yielding": np.asarray(eg.yielding),
-    }
+    lead_gap, lag_gap = jax.device_get(target_gaps(cs.state, p))
+    return CaseInfo(
+        case=np.arange(cs.reason.shape[0]),
+        traced=traced,
+        performed=np.asarray(cs.performed),
+        side=np.asarray(cs.side),
+        accept_v=np.asarray(eg.v),
+        accept_lead_gap=np.asarray(np.where(nb.has_a1, lead_gap, np.nan)),
+        accept_lag_gap=np.asarray(np.where(nb.has_b1, lag_gap, np.nan)),
+        accept_lag_v=np.asarray(np.where(nb.has_b1, nb.b1_v, np.nan)),
+        yielding=np.asarray(eg.yielding),
+    )
 
 
 def columns(x: Any) -> dict[str, Any]:

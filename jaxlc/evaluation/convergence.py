@@ -161,26 +161,28 @@ def model_measures(ret: np.ndarray, steps: np.ndarray, reason: np.ndarray) -> di
         "success95": float(_first(ok >= 0.95, n + 1)),
         "steps_rise": float(_first(st >= half, n + 1)) if st.max() > st[0] else math.nan,
         "auc": float(ma.mean()),
-        "auc_lo": float(ma.min()),
-        "auc_hi": float(ma.max()),
         "plateau": plateau,
     }
 
 
+def _runs(episodes: dict[str, np.ndarray]) -> list[tuple[np.ndarray, ...]]:
+    """Each model's ``(ret, steps, reason)`` over its episodes (``metrics/episodes.npz``)."""
+    cols = (episodes["ret"], episodes["steps"], episodes["reason"])
+    return [tuple(c[m, : int(n)] for c in cols) for m, n in enumerate(episodes["episodes"])]
+
+
+def _span(runs: list[tuple[np.ndarray, ...]]) -> tuple[float, float]:
+    """The lowest and highest moving average of any model's return."""
+    curves = [moving(ret) for ret, *_ in runs]
+    return float(min(map(np.min, curves))), float(max(map(np.max, curves)))
+
+
 def run_measures(episodes: dict[str, np.ndarray]) -> list[dict[str, float]]:
     """Every model's measures from ``metrics/episodes.npz``, ``auc`` normalised over the run."""
-    rows = []
-    for m in range(episodes["ret"].shape[0]):
-        n = int(episodes["episodes"][m])
-        rows.append(
-            model_measures(
-                episodes["ret"][m, :n], episodes["steps"][m, :n], episodes["reason"][m, :n]
-            )
-        )
-    lo, hi = min(r["auc_lo"] for r in rows), max(r["auc_hi"] for r in rows)
+    runs = _runs(episodes)
+    rows, (lo, hi) = [model_measures(*r) for r in runs], _span(runs)
     for r in rows:
         r["auc"] = (r["auc"] - lo) / (hi - lo) if hi > lo else math.nan
-        del r["auc_lo"], r["auc_hi"]
     return rows
 
 
@@ -188,12 +190,11 @@ def margins(episodes: dict[str, np.ndarray]) -> dict[str, float]:
     """Each measure's margin of "no practical difference" for a run (``MARGIN`` of its
     axis): episodes for the episode counts, return for ``plateau``, unit for ``auc``."""
     n = int(np.max(episodes["episodes"]))
-    curves = [moving(episodes["ret"][m, : int(c)]) for m, c in enumerate(episodes["episodes"])]
-    span = max(map(np.max, curves)) - min(map(np.min, curves))
+    lo, hi = _span(_runs(episodes))
     # In MEASURES' order: the set's would follow the process's string hashing, and the
     # margins' order in convergence.json would change from one run to the next.
     out = {m: MARGIN * n for m in MEASURES if m in LOWER_IS_BETTER}
-    return out | {"auc": MARGIN, "plateau": MARGIN * float(span)}
+    return out | {"auc": MARGIN, "plateau": MARGIN * (hi - lo)}
 
 
 def decide(lo: float, hi: float, margin: float, seeds: int) -> str:

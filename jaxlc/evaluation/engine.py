@@ -60,9 +60,8 @@ class Cases:
     reason: Array  # (cases,) int32: end before the RL phase (no_gap, collision), else 0
     performed: Array  # (cases,) bool: reached the RL phase
     side: Array  # (cases,) int32: +1 toward higher y (left), -1 right, 0 no lane change
-    # A proposal's (jaxlc.validate): the log likelihood ratio of the draws so far and their
-    # sufficient statistics (info["log_w"], info["tilt"] of its env); 0, (cases, 0) otherwise.
-    log_w: Array | float = 0.0  # (cases,)
+    # A proposal's (jaxlc.validate): its records of the draws so far (state.drawn, the sum of
+    # its env's info["tilt"], log ratios included); None otherwise.
     tilt: Array | None = None  # (cases, stats)
 
 
@@ -116,31 +115,31 @@ def _start_parts(
     """``(begin, going, step, finish)`` of one case's start: ``begin(key) -> carry`` resets
     (``env.reset``'s ``traffic_only`` warm-up with ``traffic_warmup``),
     ``step`` advances the carry one dt with no action while ``going``, ``finish(carry) ->
-    Cases``. The carry is ``(state, reason, log_w, k_run)``."""
+    Cases``. The carry is ``(state, reason, k_run)``."""
     env = LaneChangeEnv() if env is None else env
     zero, origin = jnp.zeros(action_dim(base)), origin_lane(base)
 
     def begin(key: Array) -> tuple:
         k_reset, k_run = jax.random.split(key)
         _, state = env.reset(k_reset, base, traffic_only=traffic_warmup)
-        return state, jnp.int32(0), jnp.float32(0.0), k_run
+        return state, jnp.int32(0), k_run
 
     def going(c: tuple) -> Array:
         s, reason, *_ = c
         return (reason == 0) & (s.ego.phase != RL) & (s.time < max_steps)
 
     def step(c: tuple) -> tuple:
-        s, _, log_w, k_run = c
+        s, _, k_run = c
         *_, s, _, _, _, info = env.step(jax.random.fold_in(k_run, s.time), s, zero, base)
-        return s, info["reason"], log_w + info.get("log_w", 0.0), k_run
+        return s, info["reason"], k_run
 
     def finish(c: tuple) -> Cases:
-        state, reason, log_w, k_run = c
+        state, reason, k_run = c
         performed = (reason == 0) & (state.ego.phase == RL)
         side = jnp.where(performed, state.ego.target - origin, 0).astype(jnp.int32)
         obs = observation(state, base)
         # a proposal's statistics of the approach: the sum its env keeps in the state
-        return Cases(state, obs, k_run, reason, performed, side, log_w, state.drawn)
+        return Cases(state, obs, k_run, reason, performed, side, state.drawn)
 
     return begin, going, step, finish
 
@@ -150,7 +149,7 @@ def make_start_case(
 ) -> Callable[[Array], Cases]:
     """``key -> Cases`` (unbatched): reset, then step with no action until the RL phase
     begins, the episode ends before it, or ``max_steps`` pass (``env``: a proposal's, whose
-    ``step`` adds ``info["log_w"]`` and ``info["tilt"]``, ``env.stats`` of them)."""
+    ``step`` adds ``info["tilt"]``, the sum of which it keeps in ``state.drawn``)."""
     begin, going, step, finish = _start_parts(base, max_steps, env)
     return lambda key: finish(jax.lax.while_loop(going, step, begin(key)))
 
@@ -176,18 +175,13 @@ def make_start_cases(
     return start_cases
 
 
-def _tilt_of(cs: Cases) -> Array:
-    """``(cases, stats)`` a proposal's statistics of the start cases (``(cases, 0)`` none)."""
-    return jnp.zeros(cs.reason.shape + (0,)) if cs.tilt is None else cs.tilt
-
-
 def _start_step(
     cs: Cases, state: EnvState, side: Array, performed: Array, counted: Array, bcast: Callable
 ) -> Step:
     """The manoeuvre's start as step 0 (``(policies, cases)`` leaves): the case's reason, its
-    approach's log weight and statistics (a proposal's), no reward or jerk yet."""
+    approach's records (a proposal's), no reward or jerk yet."""
     zero = jnp.zeros(performed.shape, jnp.float32)
-    log_w = jnp.broadcast_to(jnp.asarray(cs.log_w, jnp.float32), cs.reason.shape)  # (cases,)
+    tilt = jnp.zeros(cs.reason.shape + (0,)) if cs.tilt is None else cs.tilt  # (cases, stats)
     return Step(
         state=state,
         reason=bcast(cs.reason),
@@ -199,8 +193,7 @@ def _start_step(
         lat_jerk=zero,
         long_jerk=zero,
         counted=counted,
-        log_w=bcast(log_w),
-        tilt=bcast(_tilt_of(cs)),
+        tilt=bcast(tilt),
     )
 
 
@@ -246,7 +239,6 @@ def make_rollout(
                 lat_jerk=lat_jerk,
                 long_jerk=long_jerk,
                 counted=counted,
-                log_w=info.get("log_w", 0.0),
                 tilt=info.get("tilt", 0.0),
             )
             out = measures.fold(ms, out, s, live, base)

@@ -34,6 +34,7 @@ import scipy.stats
 
 from jaxlc import config
 from jaxlc.evaluation import measures
+from jaxlc.evaluation.cases import CaseInfo
 from jaxlc.evaluation.numbers import TERMINAL_DASH, percent
 from jaxlc.evaluation.results import (
     OUTCOMES,
@@ -126,18 +127,15 @@ def lane_change_measures(out: dict[str, np.ndarray], p: int, dt: float) -> dict[
     return {**m, **inside}
 
 
-def _p5(x: np.ndarray) -> float:
-    return float(np.percentile(x, 5, method="lower")) if x.size else math.nan
+def _p5(x: np.ndarray, q: int = 5) -> float:
+    """The ``q``th percentile (an observed value), NaN of none."""
+    return float(np.percentile(x, q, method="lower")) if x.size else math.nan
 
 
 def _margins(out: dict[str, np.ndarray], p: int, perf: np.ndarray) -> dict[str, float]:
     """``MARGIN_KEYS`` of policy ``p``'s lane changes (outcomes without margins: none)."""
-    row = {}
-    for name in (m for m in measures.MARGINS.values() if m in out):
-        x = out[name][p][perf]
-        for q in (5, 50):
-            row[f"{name}_p{q}"] = float(np.percentile(x, q, method="lower")) if x.size else math.nan
-    return row
+    names = [m for m in measures.MARGINS.values() if m in out]
+    return {f"{m}_p{q}": _p5(out[m][p][perf], q) for m in names for q in (5, 50)}
 
 
 def _mean(x: np.ndarray) -> float:
@@ -146,13 +144,13 @@ def _mean(x: np.ndarray) -> float:
 
 def model_row(
     out: dict[str, np.ndarray],
-    info: dict[str, np.ndarray],
+    info: CaseInfo,
     p: int,
     dt: float,
     policy: Policy = SCRIPTED,
 ) -> HeldoutRow:
     """Policy ``p``'s held-out row, ``policy`` its identity."""
-    perf = info["performed"]
+    perf = info.performed
     reason = out["reason"][p][perf]
     n = int(perf.sum())
     counts = {e: int((reason == OUTCOMES.index(e)).sum()) for e in ENDS}
@@ -197,14 +195,14 @@ def model_row(
 
 
 def collisions(
-    out: dict[str, np.ndarray], info: dict[str, np.ndarray], metas: list[Policy], dt: float
+    out: dict[str, np.ndarray], info: CaseInfo, metas: list[Policy], dt: float
 ) -> list[Collision]:
     """One record per collision: the vehicle hit, the ego's speed and time into the
     manoeuvre, the gaps and lag speed at acceptance, whether the lag yields."""
     rows = []
     code = OUTCOMES.index("collision")
     for p, meta in enumerate(metas):
-        for c in np.nonzero(info["performed"] & (out["reason"][p] == code))[0]:
+        for c in np.nonzero(info.performed & (out["reason"][p] == code))[0]:
             rows.append(
                 Collision(
                     meta.label,
@@ -214,10 +212,10 @@ def collisions(
                     case=int(c),
                     partner=PARTNERS[int(out["partner"][p][c])],
                     hazard=HAZARDS[int(out["hit_hazard"][p][c])],
-                    yielding=bool(info["yielding"][c]),
+                    yielding=bool(info.yielding[c]),
                     hit_speed=float(out["hit_speed"][p][c]),
                     time_s=float(out["steps"][p][c] * dt),
-                    **{k: float(info[k][c]) for k in COLLISION_FIELDS[-4:]},
+                    **{k: float(getattr(info, k)[c]) for k in COLLISION_FIELDS[-4:]},
                 )
             )
     return rows

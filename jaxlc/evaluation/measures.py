@@ -17,7 +17,7 @@ Reducers, each over the steps where the case is live (still in its manoeuvre): `
 ``max`` and ``min`` as named; ``last`` keeps the value at the manoeuvre's last step; ``first``
 keeps the first value other than ``fill`` (``fill`` means "not yet"). ``from_start``: the
 manoeuvre's start state counts as a step (step 0; ``Step.reason`` the case's, its
-proposal's log weight and statistics those of its approach); else the value starts at
+proposal's records those of its approach); else the value starts at
 ``fill``, with ``shape``'s axes past ``(policies, cases)``. ``at_end``: the function is read
 once, on the state the case froze in (its last step's, so the same as ``last``), where it
 costs one evaluation, not one per step; it may read ``state``, ``reason``, ``steps`` and
@@ -66,8 +66,8 @@ class Step:
     lat_jerk: Array  # windowed lateral jerk, m/s^3 (safety.observe)
     long_jerk: Array  # windowed longitudinal jerk, m/s^3
     counted: Array  # (..., 3) bool: whose headway and TTC count (safety.VEHICLES)
-    log_w: Array | float  # a proposal's log likelihood ratio of the step (0: none)
-    tilt: Array | float  # a proposal's statistics of the step, (..., stats)
+    log_w: Array | float = 0.0  # unread: ams.py builds a Step by position; goes when it doesn't
+    tilt: Array | float = 0.0  # a proposal's records of the step, (..., stats)
 
 
 class Measure(NamedTuple):
@@ -191,8 +191,7 @@ BUILTIN: tuple[Measure, ...] = (
     Measure("cut_ins", "sum", lambda s, p: s.info.get("cut_in", False), 0, I32),
     Measure("brakes_near", "sum", lambda s, p: s.info.get("brake_near", 0), 0, I32),
     Measure("hit_hazard", "last", _hazard, 0, I32, at_end=True),
-    # A proposal's log likelihood ratio and statistics (jaxlc.validate), the approach's included.
-    Measure("log_w", "sum", lambda s, p: s.log_w, from_start=True),
+    # A proposal's records: log ratios and statistics (jaxlc.validate), the approach's included.
     Measure("tilt", "sum", lambda s, p: s.tilt, from_start=True),  # (..., stats)
     # How close each lane change came to each failure (MARGINS), over its RL steps.
     Measure("margin_gap", "min", gap_margin, jnp.inf),  # m, least clearance

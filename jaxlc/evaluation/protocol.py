@@ -22,6 +22,7 @@ from jaxlc import config
 from jaxlc.evaluation import convergence, heldout, measures, stats
 from jaxlc.evaluation.cases import (
     PROTOCOL,
+    CaseInfo,
     cases_for_lane_changes,
     evaluate_policies,
     init_actor,
@@ -103,15 +104,15 @@ def _row_meta(path: Path, meta: dict[str, Any], run_dir: Path | None) -> Policy:
 
 def load_rows(
     run_dir: Path, chosen: list[tuple[Path, dict[str, Any]]]
-) -> tuple[config.Config, list[Any], list[dict[str, Any]]]:
+) -> tuple[config.Config, list[Any], list[Policy]]:
     """``(config, actors, metas)`` of the ``chosen`` checkpoints of ``run_dir``: the run's
-    config, their actor params (shapes checked against it) and the row identities (a
-    ``Policy``'s columns), the scripted baseline first."""
+    config, their actor params (shapes checked against it) and the rows' ``Policy``, the
+    scripted baseline first."""
     cfg = _run_config(run_dir)
     shapes = checkpoint.shapes_of(init_actor(cfg))
     actors = [checkpoint.load(p, expect_shapes=shapes)[0] for p, _ in chosen]
     metas = [SCRIPTED] + [_row_meta(p, m, run_dir) for p, m in chosen]
-    return cfg, actors, [m.as_dict() for m in metas]
+    return cfg, actors, metas
 
 
 def evaluate_run(
@@ -132,7 +133,6 @@ def evaluate_run(
     run_dir, rd = Path(run_dir), RunDir(run_dir)
     chosen = select_checkpoints(run_dir, episodes, model)
     cfg, actors, metas = load_rows(run_dir, chosen)
-    metas = [Policy.from_dict(m) for m in metas]
     kw = dict(cases=cases, seed=seed, max_steps=max_steps, chunk=chunk, traced=traced)
     out, trace, info = evaluate_policies(
         cfg, [None, *actors], [1] + [m.k for m in metas[1:]], devices=devices, **kw
@@ -141,9 +141,9 @@ def evaluate_run(
     _write(rd.eval, "eval", result, cfg)
     write_seed_stats(rd.eval, result.rows)
     ids = _policy_ids(metas)
-    rd.save_npz(rd.cases, {**out, **ids, **info})
-    traced_side = info["side"][info["traced"]]
-    rd.save_npz(rd.traces, {**trace, **ids, "traced": info["traced"], "side": traced_side})
+    rd.save_npz(rd.cases, {**out, **ids, **info.as_dict()})
+    traced_side = info.side[info.traced]
+    rd.save_npz(rd.traces, {**trace, **ids, "traced": info.traced, "side": traced_side})
     return result
 
 
@@ -179,7 +179,6 @@ def evaluate_heldout(
     run_dir, rd = Path(run_dir), RunDir(run_dir)
     chosen = final_checkpoints(run_dir, episodes)
     cfg, actors, metas = load_rows(run_dir, chosen)
-    metas = [Policy.from_dict(m) for m in metas]
     out_dir = rd.eval
     if traffic:
         cfg = heldout.in_traffic(cfg, traffic)
@@ -206,7 +205,7 @@ def evaluate_heldout(
         # HELDOUT, range(n)) since; jaxlc.evaluation.keys says so), so the files stay alike
         f"jaxlc.evaluation.cases.heldout_keys({seed}, {len(keys)})",
         len(keys),
-        int(info["performed"].sum()),
+        int(info.performed.sum()),
         [Norm(*n) for n in NORMS],
         COUNTED,
         heldout.traffic_of(cfg.env),
@@ -223,7 +222,7 @@ def evaluate_heldout(
     write_csv(out_dir / "heldout_cells.csv", cells)
     write_csv(out_dir / "collisions.csv", result.collisions, heldout.COLLISION_FIELDS)
     ids = _policy_ids(metas)
-    rd.save_npz(out_dir / rd.heldout_cases.name, {**out, **ids, **info})
+    rd.save_npz(out_dir / rd.heldout_cases.name, {**out, **ids, **info.as_dict()})
     return result
 
 
@@ -279,25 +278,25 @@ def evaluate_checkpoint(
 def _result(
     cfg: config.Config,
     out: dict[str, np.ndarray],
-    info: dict[str, np.ndarray],
+    info: CaseInfo,
     metas: list[Policy],
     seed: int,
     max_steps: int,
 ) -> EvalResult:
     """The content of eval.json: the setting, the cases, one row per policy."""
     # The run up to the gap is the same for every policy, so these counts are the cases'.
-    early = out["reason"][0][~info["performed"]]
+    early = out["reason"][0][~info.performed]
     box = (cfg.env.success_offset, cfg.env.success_heading, cfg.env.success_yaw_rate)
     return EvalResult(
         cfg.hash(),
-        int(info["case"].size),
+        int(info.case.size),
         seed,
         max_steps,
-        int(info["performed"].sum()),
-        int((info["side"] > 0).sum()),
-        int((info["side"] < 0).sum()),
+        int(info.performed.sum()),
+        int((info.side > 0).sum()),
+        int((info.side < 0).sum()),
         {name: int((early == code).sum()) for code, name in enumerate(OUTCOMES)},
-        info["traced"].tolist(),
+        info.traced.tolist(),
         dict(zip(("offset_m", "heading", "yaw_rate"), box, strict=True)),
         summarise(out, cfg.env.dt, cfg.env.reward_terms, metas),
     )

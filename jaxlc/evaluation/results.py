@@ -101,9 +101,6 @@ def eval_fields(terms: Sequence[str] = PAPER_TERMS) -> tuple[str, ...]:
     return CSV_ID + ("cases", "performed") + OUTCOMES + measures(terms)
 
 
-MEASURES = measures()  # with the paper's reward terms
-
-
 @dataclass
 class EvalResult(Record):
     """``eval.json``: the setting, the cases (``before_rl``: how those without a lane change

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import flax.struct
 import jax
 import jax.numpy as jnp
@@ -89,9 +91,10 @@ def record(
     )
 
 
-def pick_traced(side: np.ndarray, performed: np.ndarray, n: int) -> np.ndarray:
-    """Up to ``n`` performed cases to draw, alternating left and right lane changes (``side``,
-    ``performed``: ``(cases,)``)."""
+def pick_traced(cases: Any, n: int) -> np.ndarray:
+    """Up to ``n`` performed cases to draw, alternating left and right lane changes (``cases``:
+    an ``engine.Cases``, its ``side`` and ``performed`` ``(cases,)``)."""
+    side, performed = np.asarray(cases.side), np.asarray(cases.performed)
     left = list(np.nonzero(performed & (side > 0))[0])
     right = list(np.nonzero(performed & (side < 0))[0])
     picked: list[int] = []

@@ -156,23 +156,29 @@ def scenes_figure(
     if not kinds:
         return None
     from jaxlc.report.plots import _save, plt
-    from jaxlc.report.plots_scenes import draw_scene
 
     p = EnvParams.from_config(cfg.env)
     fig, axes = plt.subplots(len(kinds), 1, figsize=(8, 1.3 * len(kinds) + 0.3), squeeze=False)
     for ax, kind in zip(axes[:, 0], kinds, strict=True):
         case = next(c for c in cases if kind in c.kinds)  # highest weight first
         tr, _ = _rerun(run_dir, cfg, doc, case)
-        draw_scene(ax, tr, 0, 0, max(int(tr["frames"][0, 0]) - 1, 0), p)
-        ax.set_axis_off()
         n = sum(kind in c.kinds for c in cases)
-        ax.set_title(
-            f"{kind} ({n} saved): {case.label}, case {case.index}, {case.reason}, "
-            f"log10 w = {case.log_w / math.log(10):.2f}",
-            fontsize=8,
-            loc="left",
-        )
+        title = f"{kind} ({n} saved): {case.label}, case {case.index}, {case.reason}, "
+        _draw(ax, tr, max(int(tr["frames"][0, 0]) - 1, 0), p, title + _log10_w(case))
     return _save(fig, out / "scenes.png")
+
+
+def _log10_w(case: validation.Case) -> str:
+    return f"log10 w = {case.log_w / math.log(10):.2f}"
+
+
+def _draw(ax: Any, tr: dict, frame: int, p: EnvParams, title: str) -> None:
+    """A saved case's scene at ``frame`` (the ego red, the gap's lead and lag green)."""
+    from jaxlc.report.plots_scenes import draw_scene
+
+    draw_scene(ax, tr, 0, 0, frame, p)
+    ax.set_axis_off()
+    ax.set_title(title, fontsize=8, loc="left")
 
 
 def _rerun(run_dir: Path, cfg: config.Config, doc: Validation, case: validation.Case) -> tuple:
@@ -213,7 +219,6 @@ def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Pat
 
 def _gif(path: Path, tr: dict, cfg: config.Config, case: validation.Case) -> Path:
     from jaxlc.report.plots import PillowWriter, plt
-    from jaxlc.report.plots_scenes import draw_scene
 
     p = EnvParams.from_config(cfg.env)
     fig, ax = plt.subplots(figsize=(8, 1.5))
@@ -221,14 +226,8 @@ def _gif(path: Path, tr: dict, cfg: config.Config, case: validation.Case) -> Pat
     with writer.saving(fig, path, dpi=90):
         for f in range(max(int(tr["frames"][0, 0]), 1)):
             ax.clear()
-            draw_scene(ax, tr, 0, 0, f, p)
-            ax.set_axis_off()
-            ax.set_title(
-                f"{case.label}  t = {f * p.dt:4.1f} s  {case.reason}  "
-                f"log10 w = {case.log_w / math.log(10):.2f}",
-                fontsize=8,
-                loc="left",
-            )
+            title = f"{case.label}  t = {f * p.dt:4.1f} s  {case.reason}  "
+            _draw(ax, tr, f, p, title + _log10_w(case))
             writer.grab_frame()
     plt.close(fig)
     return path
