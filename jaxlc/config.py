@@ -327,6 +327,11 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError(
             "config key 'env.operating_speed': must be [] (off) or [min, max] km/h, 0 <= min <= max"
         )
+    if e.manoeuvre_distance and e.manoeuvre_time_max < e.manoeuvre_time_limit:
+        raise ConfigError(
+            "config key 'env.manoeuvre_time_max': must be >= env.manoeuvre_time_limit "
+            "with env.manoeuvre_distance on"
+        )
     if value_range(e.lane_width)[1] > e.border:
         raise ConfigError(
             f"config key 'env.lane_width': must be <= env.border ({e.border:g} m): the ego "

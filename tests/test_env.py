@@ -137,6 +137,53 @@ def test_end_reason_fires_exactly_at_thresholds(env_params):
     assert reason(0.0, collided=True) == reward.COLLISION
 
 
+def test_a_time_limit_that_follows_the_speed_worked_by_hand(env_params):
+    """``env.manoeuvre_distance`` D = 150 m, limit 10 s, longest 30 s, dt 0.1 s: a manoeuvre
+    at v m/s times out after clip(150 / v, 10, 30) s: 25 m/s 10 s (100 steps), 10 m/s 15 s,
+    7.5 m/s 20 s, 2 m/s and standing 30 s (the longest); off, 10 s at any speed."""
+    _, off = env_params
+    on = off.replace(manoeuvre_distance=150.0, manoeuvre_time_max=30.0)
+    assert reward.step_limit(off) == 100 and reward.step_limit(on) == 300  # the programs' cap
+
+    def reason(p, v, steps):
+        f32 = jnp.float32
+        args = f32(1.0), f32(0.0), f32(0.0), jnp.int32(steps), jnp.bool_(False), p, f32(v)
+        return int(reward.end_reason(*args))
+
+    for v, steps in ((25.0, 100), (10.0, 150), (7.5, 200), (2.0, 300), (0.0, 300)):
+        assert reason(on, v, steps - 1) == reward.NONE, v
+        assert reason(on, v, steps) == reward.TIMEOUT, v
+        assert reason(off, v, 99) == reward.NONE and reason(off, v, 100) == reward.TIMEOUT
+    with pytest.raises(ValueError, match="speed"):  # on, the limit needs the speed
+        reward.end_reason(jnp.float32(1.0), 0.0, 0.0, jnp.int32(5), jnp.bool_(False), on)
+    bad = ["env.manoeuvre_distance=150.0", "env.manoeuvre_time_max=5.0"]
+    with pytest.raises(config.ConfigError, match="env.manoeuvre_time_max"):
+        config.load(None, bad)
+
+
+def test_each_timeout_under_a_speed_limit_comes_when_its_speed_says():
+    """With ``env.manoeuvre_distance`` on, a policy that never steers times out, each on the
+    first step whose count reaches what the speed then allows (``reward.steps_allowed``; one
+    more where the ego sped up), and not all at 10 s."""
+    cfg = config.load(None, ["env.manoeuvre_distance=300.0", "env.manoeuvre_time_max=40.0"])
+    env, p = jaxlc.make(cfg)
+    keys = jax.random.split(jax.random.PRNGKey(0), 16)
+    obs, s = jax.jit(jax.vmap(env.reset, (0, None)))(keys, p)
+    step = jax.jit(jax.vmap(env.step, (0, 0, 0, None)))
+    still = jnp.zeros((16, 1))
+    ends = []  # (steps, allowed now, allowed a step before) of each timeout
+    before = np.asarray(reward.steps_allowed(s.ego.v, p))
+    for k in jax.random.split(jax.random.PRNGKey(1), 900):
+        obs, s, _, _, _, info = step(jax.random.split(k, 16), s, still, p)
+        out = np.asarray(info["reason"]) == reward.TIMEOUT
+        allowed = np.asarray(reward.steps_allowed(s.ego.v, p))
+        ends += list(zip(np.asarray(s.ego.steps)[out], allowed[out], before[out], strict=True))
+        before = allowed
+    assert len(ends) >= 5
+    assert all(a <= n < b + 1 for n, a, b in ends), ends
+    assert len({n for n, *_ in ends}) > 1 and max(n for n, *_ in ends) > 100
+
+
 # --- kinematics ------------------------------------------------------------------------------
 
 

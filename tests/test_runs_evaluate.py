@@ -188,3 +188,37 @@ def test_figures_of_a_missing_run_directory_exit_2(tmp_path, capsys) -> None:
         figures.main([str(tmp_path / "absent")])
     assert stop.value.code == 2
     assert "is not a directory" in capsys.readouterr().err
+
+
+def _suite_csv(run: Path, rates: dict[str, float]) -> None:
+    """A synthetic ``eval/suite/suite.csv``: per setting the scripted controller and two
+    models (one of them 2 points lower), and a setting whose commands were all declined."""
+    lines = ["setting,label,model,cell,seed,lane_changes,success_rate,success_lo,success_hi"]
+    for setting, rate in rates.items():
+        lines.append(f"{setting},scripted,,,,1000,1.0,0.9963,1.0")
+        for model, r in enumerate((rate, rate - 0.02)):
+            lines.append(f"{setting},k=1,{model},0,{model},1000,{r},{r - 0.01},{min(r + 0.01, 1)}")
+    lines.append("all_declined,k=1,0,0,0,0,,,")
+    (run / figures.SUITE_CSV).parent.mkdir(parents=True)
+    (run / figures.SUITE_CSV).write_text("\n".join(lines) + "\n")
+
+
+def test_figures_draw_suites_side_by_side_and_refuse_a_run_without_one(tmp_path, capsys):
+    runs = [tmp_path / "default", tmp_path / "any_road"]
+    _suite_csv(runs[0], {"paper": 0.999, "harsh": 0.99})
+    _suite_csv(runs[1], {"paper": 1.0, "harsh": 0.995})
+    rows = figures.suite_rows(runs[0] / figures.SUITE_CSV)
+    scripted, model = rows[0], rows[1]
+    assert scripted["model"] is None and model["model"] == 0 and model["lane_changes"] == 1000
+    assert model["success_rate"] == 0.999 and rows[-1]["success_rate"] is None
+    out = tmp_path / "side_by_side.png"
+    assert figures.main(["--suite", *map(str, runs), "--out", str(out)]) == 0
+    assert out.stat().st_size > 0 and capsys.readouterr().out.strip() == str(out)
+    absent = tmp_path / "never_evaluated"
+    absent.mkdir()
+    assert figures.main(["--suite", str(runs[0]), str(absent), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "never_evaluated" in err and "--suite" in err
+    with pytest.raises(SystemExit) as stop:  # several runs without --suite: a usage error
+        figures.main([str(runs[0]), str(runs[1])])
+    assert stop.value.code == 2

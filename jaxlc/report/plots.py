@@ -336,18 +336,22 @@ def make_all(run_dir: Path) -> list[Path]:
 
 def suite_figure(runs: Mapping[str, Sequence[dict]], path: Path) -> Path:
     """Success (%) by setting, each run's models side by side (a run per colour, a dot per
-    model with its 95% interval; the scripted controller's rows left out)."""
+    model with its 95% interval; the scripted controller's rows left out; dotted: 99.9%)."""
     names = list(dict.fromkeys(r["setting"] for rows in runs.values() for r in rows))
     fig, ax = plt.subplots(figsize=(1.2 + 1.1 * len(names), 3.6))
     width = 0.8 / max(len(runs), 1)
     for i, (run, rows) in enumerate(runs.items()):
         mine = [r for r in rows if r["model"] is not None and r["lane_changes"]]
-        x = np.asarray([names.index(r["setting"]) for r in mine], float)
-        x += (i + 0.5) * width - 0.4 + np.linspace(-0.3, 0.3, len(mine)) * width / max(len(mine), 1)
+        at = [names.index(r["setting"]) for r in mine]
+        # the setting's models spread across the run's share of the setting's width
+        nth = [at[:j].count(s) for j, s in enumerate(at)]
+        x = np.asarray(at, float) + (i + 0.5) * width - 0.4
+        x += (np.asarray(nth) / np.maximum([at.count(s) - 1 for s in at], 1) - 0.5) * 0.6 * width
         y = 100 * np.asarray([r["success_rate"] for r in mine])
         lo = y - 100 * np.asarray([r["success_lo"] for r in mine])
         hi = 100 * np.asarray([r["success_hi"] for r in mine]) - y
         ax.errorbar(x, y, yerr=[lo, hi], fmt="o", ms=3, capsize=2, label=run)
+    ax.axhline(99.9, color="0.5", lw=0.8, ls=":")  # the suite's bar (issue 79)
     ax.set_xticks(range(len(names)), names, rotation=30, ha="right")
     ax.set_ylabel("held-out success (%)")
     ax.legend(fontsize="small")

@@ -173,7 +173,7 @@ def _advance(
     x = reward.Inputs(yaw_rate, a_lat, offset, crashed, ego, nb, eg, gaps, overlap)
     terms = {n: jnp.where(in_rl, v, 0.0) for n, v in reward.terms(x, p).items()}
     r = reward.total(terms)
-    rl_reason = reward.end_reason(offset, ego.psi, yaw_rate, ego.steps, crashed, p)
+    rl_reason = reward.end_reason(offset, ego.psi, yaw_rate, ego.steps, crashed, p, ego.v)
     accept, no_gap = gap_decision(ego, nb, p, kappa)
     reason = episode_end_reason(in_rl, rl_reason, crashed, no_gap)
     if p.operating_speed:  # static: a command outside the operating range is declined

@@ -215,6 +215,20 @@ class EnvParams:
         0.5, 0.0, 10.0, unit="rad/s^2", open_lo=True, doc="A in a_lat = A*action"
     )
     manoeuvre_time_limit: float = setting(10.0, 0.0, 120.0, unit="s", open_lo=True)
+    # A limit that follows the speed (issue 79: lane changes in jams at 0-9 m/s time out);
+    # static, so off (0) compiles today's program.
+    manoeuvre_distance: float = setting(
+        0.0,
+        0.0,
+        10000.0,
+        unit="m",
+        static=True,
+        doc="0 (off: every manoeuvre has manoeuvre_time_limit) or D: a manoeuvre at speed v "
+        "(now) times out after clip(D / v, manoeuvre_time_limit, manoeuvre_time_max) s",
+    )
+    manoeuvre_time_max: float = setting(
+        30.0, 0.0, 120.0, unit="s", open_lo=True, static=True, doc="with manoeuvre_distance on"
+    )
     terminal_timeout: bool = setting(
         False,
         unit="",

@@ -183,26 +183,49 @@ REASONS = ("none", "success", "out_of_bounds", "collision", "timeout", "no_gap",
 def step_limit(p) -> Array:
     """``()`` RL steps a manoeuvre may take before it times out, ``round(manoeuvre_time_limit
     / dt)`` (counting steps, not summing dt, keeps the limit exact in float32); a Python
-    ``int`` unless either is traced, so a program's static step cap reads it under ``jit``."""
-    t, dt = p.manoeuvre_time_limit, p.dt
+    ``int`` unless either is traced, so a program's static step cap reads it under ``jit``.
+    With ``manoeuvre_distance`` on, the longest, ``manoeuvre_time_max``'s (``steps_allowed``
+    is a manoeuvre's own)."""
+    t = p.manoeuvre_time_max if p.manoeuvre_distance else p.manoeuvre_time_limit
+    dt = p.dt
     if isinstance(t, jax.core.Tracer) or isinstance(dt, jax.core.Tracer):
         return jnp.round(t / dt)
     return round(float(t) / float(dt))
 
 
+def steps_allowed(v: Array | None, p) -> Array:
+    """``()`` RL steps a manoeuvre at speed ``v`` (m/s, now) may take: ``step_limit``; with
+    ``manoeuvre_distance`` D on, ``round(clip(D / v, manoeuvre_time_limit,
+    manoeuvre_time_max) / dt)``: as long as the distance takes at that speed, within the two."""
+    if not p.manoeuvre_distance:  # static: today's program
+        return step_limit(p)
+    if v is None:
+        raise ValueError("env.manoeuvre_distance is on: the timeout needs the ego's speed")
+    slowest = p.manoeuvre_distance / p.manoeuvre_time_max  # at or below it: the longest limit
+    t = p.manoeuvre_distance / jnp.maximum(v, slowest)
+    return jnp.round(jnp.clip(t, p.manoeuvre_time_limit, p.manoeuvre_time_max) / p.dt)
+
+
 def end_reason(
-    offset: Array, psi: Array, omega: Array, manoeuvre_steps: Array, collided: Array, p
+    offset: Array,
+    psi: Array,
+    omega: Array,
+    manoeuvre_steps: Array,
+    collided: Array,
+    p,
+    v: Array | None = None,
 ) -> Array:
     """``()`` int32 reason code of the manoeuvre after an RL step: the first that holds of
-    collision, out of bounds, success, timeout (NONE while it goes on); the episode's own, any
-    phase, is ``env.episode_end_reason``'s."""
+    collision, out of bounds, success, timeout (NONE while it goes on; ``v``, the ego's speed,
+    sets the limit where ``manoeuvre_distance`` is on); the episode's own, any phase, is
+    ``env.episode_end_reason``'s."""
     out = jnp.abs(offset) > p.border
     success = (
         (jnp.abs(offset) <= p.success_offset)
         & (jnp.abs(psi) <= p.success_heading)
         & (jnp.abs(omega) <= p.success_yaw_rate)
     )
-    timeout = manoeuvre_steps >= step_limit(p)
+    timeout = manoeuvre_steps >= steps_allowed(v, p)
     return jnp.select(
         [collided, out, success, timeout],
         [COLLISION, OUT_OF_BOUNDS, SUCCESS, TIMEOUT],
