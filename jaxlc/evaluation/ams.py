@@ -32,10 +32,8 @@ after. An unbranched particle's keys are the engine's, ``fold_in(case key, time)
 approach and in the lane change: ``max_rounds=0`` is the validation's crude MC on the same
 cases (tested). The policy is deterministic; the traffic's draws are the only randomness.
 
-First version (87739e3): the start cached up to the command, split in the lane change only.
-With the smoke config's scripted controller the least clearance was mostly set at the
-command (a vehicle alongside, ~1.9 m), where no split reached: clones collapsed onto one
-ancestor, 3x crude MC's steps for a 7x wider interval (benchmarks/ams_sim_cpu_2026-11-29).
+Measured (benchmarks/ams_sim_cpu_2026-11-29): no gain over crude MC, each run following its
+initial cases; the last rounds still branch in the lane change, where the margin seldom moves.
 """
 
 from __future__ import annotations
@@ -95,9 +93,7 @@ class Point(Record):
 
 
 @dataclass
-class Miss(Record):
-    """A nearest miss: its run, margin and key chain (first key: the case's)."""
-
+class Miss(Record):  # a nearest miss: its run, margin and key chain (first key: the case's)
     repeat: int
     margin: float
     steps: list
