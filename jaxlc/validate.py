@@ -91,7 +91,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--out", type=Path, default=None, help="default: RUN_DIR/validate")
     ap.add_argument("--replay", type=int, default=None, metavar="CASE", help="cases.json index")
     # --method ams (jaxlc.evaluation.ams): P(margin <= --margin) by adaptive multilevel splitting
-    ap.add_argument("--particles", type=int, default=1000, help="ams: lane changes per run")
+    ap.add_argument("--particles", type=int, default=1000, help="ams: cases per run")
     ap.add_argument("--kill", type=float, default=0.1, help="ams: share killed per round")
     ap.add_argument("--repeats", type=int, default=10, help="ams: independent runs (interval)")
     ap.add_argument("--margin", type=float, default=0.0, help="ams: the margin m (0: failure)")

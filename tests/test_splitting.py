@@ -149,67 +149,69 @@ def test_the_log_interval_covers_a_skewed_mean_where_t_misses_low():
 
 
 # On the simulator (jaxlc.evaluation.ams): the smoke config's scripted controller, few
-# particles; the start's batch small so that the starts cost little.
-SIM_N, SIM_KILL, SIM_ROUNDS, SIM_STEPS, SIM_BATCH = 12, 0.25, 6, 1500, 24
+# particles (cases, split from their reset on).
+SIM_N, SIM_KILL, SIM_ROUNDS, SIM_STEPS, SIM_CAP = 12, 0.25, 6, 1500, 2.6
 
 
 @pytest.fixture(scope="module")
 def sim():
-    """The lane changes, the policy, the AMS program at SIM_ROUNDS and at 0 rounds (one
-    compile each), and the engine's crude-MC program of the validation on the same keys."""
+    """The cases, the policy, the AMS program at SIM_ROUNDS and at 0 rounds (one compile
+    each), and the engine's crude-MC program of the validation on the same keys."""
     from jaxlc import config
     from jaxlc.evaluation import ams as sim_ams
     from jaxlc.evaluation import keys, validation
 
     cfg = config.load(config.CONFIG_DIR / "smoke.toml")
-    cs, lo, begun = sim_ams.starts(cfg, SIM_N, 0, 0, SIM_STEPS, batch=SIM_BATCH)
+    cs = sim_ams.starts(cfg, SIM_N, 0, 0)
     pol = validation.policies(cfg, None, 1)
     one = jax.tree.map(lambda x: x[0], pol)
     prog = {
         r: sim_ams.program(cfg, "collision", SIM_N, SIM_KILL, r, SIM_STEPS) for r in (0, SIM_ROUNDS)
     }
     crude = validation.program(cfg, SIM_STEPS, False)
-    out, _ = crude(None, pol, keys.stream(0, keys.VALIDATE, range(lo)))
-    return dict(cfg=cfg, cs=cs, pol=one, prog=prog, out=jax.device_get(out), begun=begun)
+    out, _ = crude(None, pol, keys.stream(0, keys.VALIDATE, range(SIM_N)))
+    return dict(cfg=cfg, cs=cs, pol=one, prog=prog, out=jax.device_get(out))
 
 
 @pytest.mark.slow
-def test_a_lane_change_particle_replays_bit_for_bit_from_its_chain(sim):
+def test_a_case_particle_replays_bit_for_bit_from_its_chain(sim):
     from jaxlc.evaluation import ams as sim_ams
     from jaxlc.learn.networks import make_networks
     from jaxlc.sim.env import EnvParams, action_dim
 
-    res = jax.device_get(sim["prog"][SIM_ROUNDS](jax.random.PRNGKey(3), sim["pol"], sim["cs"], 0.0))
+    prog = sim["prog"][SIM_ROUNDS]
+    res = jax.device_get(prog(jax.random.PRNGKey(3), sim["pol"], sim["cs"], 0.0, SIM_CAP))
     assert int(res.rounds) >= 1  # particles were killed and cloned
-    cloned = np.sum(np.asarray(res.chains.steps) != ams.UNUSED, axis=1) >= 2
+    steps = np.asarray(res.chains.steps)
+    cloned = np.sum(steps != ams.UNUSED, axis=1) >= 2
     assert cloned.any()
     cfg = sim["cfg"]
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
-    run = sim_ams.make_run(base, actor_net.apply, "collision", SIM_STEPS)(sim["pol"], sim["cs"])
-    again = np.asarray(jax.jit(jax.vmap(run))(res.chains))
+    bind = sim_ams.make_run(base, actor_net.apply, "collision", SIM_STEPS)
+    again = np.asarray(jax.jit(jax.vmap(bind(sim["pol"], sim["cs"], SIM_CAP)))(res.chains))
     np.testing.assert_array_equal(again, np.asarray(res.paths))
-    # a path is minus the least clearance so far: it never falls, and it ends at the score
-    assert (np.diff(again, axis=1) >= 0).all() and (again[:, -1] == res.scores).all()
+    assert (again.max(axis=1) == res.scores).all()
+    # the approach scores below -cap: only a lane change's margin reaches above it
+    lane_change = np.asarray(sim["out"]["performed"][0])
+    assert (res.first[~lane_change] <= -SIM_CAP).all()
 
 
 @pytest.mark.slow
 def test_no_rounds_is_the_engines_crude_mc_on_the_same_keys(sim):
-    """max_rounds = 0 keeps the first particles: each one's margin is the one the
-    validation's own rollout (jaxlc.evaluation.engine) folds on the same case keys, so the
-    estimate at every margin is crude MC's share on those lane changes."""
-    from jaxlc.evaluation.results import OUTCOMES
-
+    """max_rounds = 0 keeps the first particles: each case's margin (where below the cap) is
+    the one the validation's own rollout (jaxlc.evaluation.engine) folds on the same case
+    keys, so the estimate at every margin below the cap is crude MC's share per case."""
     out, cs = sim["out"], sim["cs"]
-    performed = out["performed"][0]
-    engine = out["margin_gap"][0][performed][:SIM_N]  # the first SIM_N lane changes
-    assert performed.sum() >= SIM_N and len(out["reason"][0]) == sim["begun"]
-    assert (out["reason"][0][performed] != OUTCOMES.index("collision")).all()
-    res = jax.device_get(sim["prog"][0](jax.random.PRNGKey(0), sim["pol"], cs, 0.0))
-    np.testing.assert_allclose(-np.asarray(res.first), engine, rtol=1e-6)
-    for m in np.quantile(engine, [0.25, 0.5, 0.75]):
-        est = sim["prog"][0](jax.random.PRNGKey(0), sim["pol"], cs, -float(m)).estimate
-        assert float(est) == np.mean(-np.asarray(res.first) <= m) > 0
+    engine = np.where(out["performed"][0], out["margin_gap"][0], np.inf)  # (SIM_N,)
+    assert len(engine) == SIM_N and out["performed"][0].sum() >= SIM_N // 2
+    res = jax.device_get(sim["prog"][0](jax.random.PRNGKey(0), sim["pol"], cs, 0.0, 50.0))
+    below = engine < 50.0
+    np.testing.assert_allclose(-np.asarray(res.first)[below], engine[below], rtol=1e-6)
+    assert (-np.asarray(res.first)[~below] >= 50.0).all()  # the approach: at most -cap
+    for m in np.quantile(engine[below], [0.25, 0.5, 0.75]):
+        est = sim["prog"][0](jax.random.PRNGKey(0), sim["pol"], cs, -float(m), 50.0).estimate
+        assert float(est) == np.float32(np.mean(engine <= m)) > 0  # in float32
 
 
 @pytest.mark.parametrize(

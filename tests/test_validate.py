@@ -572,17 +572,18 @@ def test_ams_writes_its_estimate_and_curve(smoke_run, tmp_path):
     """``--method ams`` end to end on the smoke run (scripted controller, few particles):
     the estimate inside its interval, the curve beside crude MC's, the figure."""
     import csv
-    import json
 
     from jaxlc import validate
+    from jaxlc.evaluation import ams, numbers
 
     run_dir, _ = smoke_run
     args = ["--model", "scripted", "--method", "ams", "--kind", "collision", "--margin", "2"]
     args += ["--particles", "12", "--kill", "0.25", "--repeats", "2", "--max-rounds", "4"]
     assert validate.main([str(run_dir), *args, "--out", str(tmp_path)]) == 0
-    (doc,) = json.loads((tmp_path / "ams.json").read_text())
-    assert len(doc["repeats"]) == 2 and doc["lo"] <= doc["estimate"] <= doc["hi"]
-    assert doc["rl_steps"] > 0 and doc["cases_started"] >= 2 * 12
+    (doc,) = numbers.read(tmp_path / "ams.json", ams.Ams).policies
+    assert len(doc.repeats) == 2 and doc.lo <= doc.estimate <= doc.hi
+    assert doc.trajectories >= doc.cases_started == 2 * 12 and doc.cap > doc.margin
+    assert all(isinstance(c, ams.Point) and c.margin < doc.cap for c in doc.curve)
     rows = list(csv.DictReader((tmp_path / "ams_curve.csv").open()))
     probs = [float(r["ams"]) for r in rows]
     assert probs == sorted(probs) and all(0 <= p <= 1 for p in probs)  # a distribution

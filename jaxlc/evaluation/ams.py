@@ -1,67 +1,137 @@
 """How close a policy comes to failing, by adaptive multilevel splitting on the simulator
 (issue 78, SPEC "How close to failure"): ``python -m jaxlc.validate --method ams``.
 
-Particles are lane changes of the validation's kind (``keys.VALIDATE``'s cases, traffic-only
-warm-up, no noise), each drawn until N reach the RL phase: the estimand is per lane change.
-A particle's score path is minus its margin of ``--kind`` so far (``measures.MARGINS``:
-least clearance to any body, time left, distance to the border), read after each RL step by
-the very functions the held-out evaluation folds; the margin is 0 exactly on the failure,
-so P(margin <= m) is P(max score >= -m) and m = 0 is the failure probability.
+A particle is a case of the validation's stream (``keys.VALIDATE``), cached only after its
+reset (the traffic-only warm-up, a function of its key alone); its path is everything after:
+the ego's wait, its cruise to the command, the gap search, the lane change. So a split can
+act before the command, on the traffic the lane change meets. The estimand is per case
+started: P(the case performs a lane change whose margin of ``--kind`` is <= m); a case with
+no lane change counts as not below (divide by the lane-change share for a rate per lane
+change). ``measures.MARGINS``: least clearance to any body, time left, distance to the border,
+read after each RL step by the held-out evaluation's own functions, 0 exactly on the failure.
 
-The score as importance function: AMS keeps particles in proportion to how far their score
-has come; its variance is least when the score orders states as the probability of going
-on to fail from them (the committor). Minus the least clearance so far is a crude such
-order: a lane change that has come within 0.3 m is nearer a collision than one that has
-stayed 5 m away, but it reads neither speeds nor who brakes next. A poor importance
-function costs variance, never bias (Bréhier et al. 2016): the estimate stays unbiased.
+The score path, at env step t: from the first RL step on, minus the margin so far; before
+it, minus (cap + g + d): g the lengthwise gap (m) between the ego and the nearest body in
+its lane or a lane beside (once commanded, the target's side only), at most 100 m; d the
+distance still to cruise before the command (m). cap = m + ``SPAN``, so the approach never
+scores >= -cap > -m: {max score >= -m'} is {margin <= m'} exactly for every m' < cap (the
+curve is read there only), and the approach only orders the particles below that level. As
+an importance function it ranks cases by how tight the traffic is near the ego as the
+command nears: early rounds kill the loose ones and branch the tight ones in the cruise,
+where the traffic's entries, MOBIL decisions, braking events and the side drawn at the
+command are still to come, so clones separate; later rounds branch in the lane change. A
+poor importance function costs variance, never bias (Bréhier et al. 2016).
 
-Unbiasedness: ``splitting``'s argument needs the future of a clone after its branch step to
-be a fresh draw of the simulator's law given the state there, and that state to be its
-parent's. Both hold: a particle's start (reset, warm-up, approach to the accepted gap) is a
-function of its first key alone and is cached, since no clone branches before the RL phase
-(the score is defined from the first RL step on); RL step t draws from ``fold_in(key of the
-segment in force at t, env time)``: the unbranched particle's keys are the held-out
-engine's ``fold_in(case key, time)`` (crude MC on the same keys is the engine's own rollout),
-a clone's steps up to tau are its parent's, bit for bit, and those after come from a key no
-other particle holds. The traffic's draws are the only randomness after the command (the
-policy is deterministic), and they are thin: with the smoke config's scripted controller the
-least clearance is often set at the command itself (a vehicle alongside in the next lane,
-~1.9 m), in the cached start, where no split reaches. Branched at RL step 1 in 16 ways, 3
-of 8 lane changes drew distinct paths even with braking events at 3,000 per vehicle-hour and
-MOBIL on. With 32-64 particles the runs' clones collapsed onto one ancestor and the
-runs went extinct (``extinct``, ``distinct``); with 200 they did not, and the curve agreed
-with an independent crude MC where it sees >= 300 lane changes below the margin, but at ~3x
-its steps for a wider interval: unbiased, no gain while the splits cannot move the margin.
-The way on (not built): split before the command, the approach in the path, on a score
-that reads the traffic there (the target lane's lead and lag gaps: the clearance the ego
-would get if it went now; not the clearance now, which every vehicle passing alongside sets
-to 1.9 m), capped below the target's level so that the event stays {margin <= m}; the
-estimand then per case, divided by crude MC's share of cases that change lanes.
+Unbiasedness: ``splitting``'s argument needs a clone's future after its branch step to be a
+fresh draw of the simulator's law given its parent's state there, and the score to be a
+function of the path so far. Both hold: env step t (time t after the reset) draws from
+``splitting.step_key(chain, t)`` all along the path, approach included; the path's value at
+t is a function of the state after step t (and the running margin); a clone replays its
+parent's keys up to its branch, bit for bit, and draws from a key no other particle holds
+after. An unbranched particle's keys are the engine's, ``fold_in(case key, time)`` in the
+approach and in the lane change: ``max_rounds=0`` is the validation's crude MC on the same
+cases (tested). The policy is deterministic; the traffic's draws are the only randomness.
+
+Measured (benchmarks/ams_sim_cpu_2026-11-29): no gain over crude MC, each run following its
+initial cases; the last rounds still branch in the lane change, where the margin seldom moves.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
+import flax.struct
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxlc import config
 from jaxlc.evaluation import keys as streams
-from jaxlc.evaluation import measures, splitting, validation
-from jaxlc.evaluation.engine import Cases, Policies, make_start_cases
+from jaxlc.evaluation import measures, numbers, splitting, validation
+from jaxlc.evaluation.engine import Policies
+from jaxlc.evaluation.numbers import Record, many
 from jaxlc.evaluation.results import EvalError
 from jaxlc.evaluation.splitting import Chain
 from jaxlc.learn.networks import make_networks
+from jaxlc.sim import collision
 from jaxlc.sim.controller import baseline_action
-from jaxlc.sim.env import EnvParams, LaneChangeEnv, action_dim
-from jaxlc.sim.reward import step_limit
+from jaxlc.sim.env import CRUISE, RL, WAIT, EnvParams, EnvState, LaneChangeEnv, action_dim
+from jaxlc.sim.road import origin_lane, road_curvature
 
 KINDS = tuple(measures.MARGINS)  # collision, timeout, out_of_bounds
-BATCH = 256  # cases started per program while drawing lane changes
+SPAN = 0.6  # m (s for timeouts): the approach scores below -(m + SPAN); the curve spans it
+FAR = 100.0  # m: the approach's gap when no body is near
+
+
+@flax.struct.dataclass
+class Starts:
+    """The particles' cases after their reset (``(n, ...)`` leaves): all before is cached."""
+
+    state: EnvState  # at env time 0, the traffic warmed up, the ego not yet spawned
+    obs: jax.Array  # (n, OBS_DIM)
+    key: jax.Array  # (n, 2) the case's run key: its steps fold_in(key, time), the engine's
+
+
+@dataclass
+class Point(Record):
+    """The curve at one margin: AMS (mean [Cox 95%] over the runs) and crude MC on the runs'
+    initial particles (share [Clopper-Pearson 95%], ``crude_n`` below), per case."""
+
+    margin: float
+    ams: float
+    ams_lo: float
+    ams_hi: float
+    crude: float
+    crude_lo: float
+    crude_hi: float
+    crude_n: int
+
+
+@dataclass
+class Miss(Record):  # a nearest miss: its run, margin and key chain (first key: the case's)
+    repeat: int
+    margin: float
+    steps: list
+    keys: list
+
+
+@dataclass
+class Estimate(Record):
+    """One policy's AMS result (``ams.json``)."""
+
+    label: str
+    kind: str
+    margin: float  # m: the estimate is of P(lane change with margin <= m) per case
+    cap: float  # the approach's scores stay below -cap; the curve is read below cap
+    estimate: float
+    lo: float
+    hi: float
+    rel_halfwidth: float
+    repeats: list  # each run's estimate
+    particles: int
+    kill: float
+    rounds: list
+    stopped: list
+    distinct: list  # share of distinct final paths per run
+    extinct: list  # runs whose clones all tied below the target (estimate 0 by extinction)
+    cases_started: int  # resets (warm-ups)
+    trajectories: int  # cases simulated from their reset on, clones' re-runs included
+    wall_s: float
+    matmul_peak_gflops: float
+    curve: list = many(Point)
+    nearest: list = many(Miss)
+
+
+@dataclass
+class Ams(Record):
+    """``ams.json``: one estimate per policy."""
+
+    policies: list = many(Estimate)
 
 
 def check(args: Any) -> None:
@@ -82,70 +152,77 @@ def check(args: Any) -> None:
         raise EvalError(f"--max-rounds {rounds}: >= 0 (0: crude Monte Carlo)")
 
 
-def starts(
-    cfg: config.Config, n: int, seed: int, lo: int, max_steps: int, batch: int | None = None
-) -> tuple[Cases, int, int]:
-    """``(Cases (n,), next lo, cases started)``: the first ``n`` cases of ``keys.VALIDATE``'s
-    stream from index ``lo`` on that reach the RL phase, started as the validation starts
-    them (traffic-only warm-up), ``batch`` at a time (default: a power of two >= 2n, at most
-    ``BATCH``)."""
-    start = _start_program(cfg, max_steps)
-    batch = min(BATCH, 1 << (2 * n - 1).bit_length()) if batch is None else batch
-    got: list[Cases] = []
-    have, begun = 0, 0
-    while have < n:
-        cs = start(streams.stream(seed, streams.VALIDATE, range(lo, lo + batch)))
-        keep = np.nonzero(np.asarray(cs.performed))[0][: n - have]
-        got.append(jax.tree.map(lambda a, keep=keep: a[keep], cs))
-        have, begun, lo = have + keep.size, begun + batch, lo + batch
-        if begun > 100 * n:
-            raise EvalError(f"fewer than 1 in 100 cases performs a lane change ({have})")
-    return jax.tree.map(lambda *xs: jnp.concatenate(xs), *got), lo, begun
+def starts(cfg: config.Config, n: int, seed: int, lo: int) -> Starts:
+    """Cases ``lo .. lo + n - 1`` of ``keys.VALIDATE``'s stream, reset as the validation
+    resets them (``engine._start_parts``: the key split into reset and run keys)."""
+    return _reset_program(cfg)(streams.stream(seed, streams.VALIDATE, range(lo, lo + n)))
 
 
 @functools.lru_cache(maxsize=4)
-def _start_program(cfg: config.Config, max_steps: int) -> Any:
-    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    return jax.jit(make_start_cases(base, max_steps, traffic_warmup=True))
+def _reset_program(cfg: config.Config) -> Any:
+    base, env = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma), LaneChangeEnv()
+
+    def one(key: jax.Array) -> Starts:
+        k_reset, k_run = jax.random.split(key)
+        obs, state = env.reset(k_reset, base, traffic_only=True)
+        return Starts(state, obs, k_run)
+
+    return jax.jit(jax.vmap(one))
+
+
+def approach_score(s: EnvState, p: EnvParams, cap: jax.Array) -> jax.Array:
+    """``()`` minus (cap + the lengthwise gap to the nearest body in the ego's lane or a lane
+    beside, the target's side once commanded, + the distance still to cruise): <= -cap."""
+    ego, tr = s.ego, s.traffic
+    c, lane_y, hx, _ = collision._frame(tr, ego, p, road_curvature(s, p))
+    dx = jnp.abs(ego.x * c - hx - (tr.x * c - 0.5 * p.vehicle_length)) - hx
+    dx = dx - 0.5 * p.vehicle_length  # (lanes, slots) bumper to bumper, < 0 alongside
+    dy, side = lane_y - ego.y, ego.target - origin_lane(p)  # side 0 before the command
+    near = tr.active & (jnp.abs(dy) < 1.5 * p.lane_width) & (dy * side > -0.5 * p.lane_width)
+    gap = jnp.min(jnp.where(near, jnp.clip(dx, 0.0, FAR), FAR))
+    to_go = jnp.where(ego.phase == CRUISE, jnp.maximum(p.command_distance - ego.x, 0.0), 0.0)
+    to_go = jnp.where(ego.phase == WAIT, p.command_distance, to_go)
+    return -(cap + gap + to_go)
 
 
 def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> Any:
-    """``(pol, cs) -> run(chain) -> (T,)`` with T the manoeuvre's step cap: minus the margin of
-    ``kind`` after each RL step of the particle whose first key is one of ``cs.key`` (its
-    cached start), held once the manoeuvre ends. ``pol``: one policy (``Policies`` leaves
-    without the policies axis)."""
-    env, limit = LaneChangeEnv(), int(step_limit(base))
+    """``(pol, cs, cap) -> run(chain) -> (max_steps,)``: the score path (docstring) of the case
+    whose run key is the chain's first (``cs``: ``Starts``) after each env step, held once the
+    case ends (``reason``) or reaches ``max_steps``. ``pol``: one policy (no policies axis)."""
+    env, origin = LaneChangeEnv(), origin_lane(base)
     fn = {m.name: m for m in measures.BUILTIN}[measures.MARGINS[kind]]
     time_like = fn.reduce == "last"  # the time left: the current value, not the least
 
-    def bind(pol: Policies, cs: Cases) -> Any:
+    def bind(pol: Policies, cs: Starts, cap: jax.Array) -> Any:
         p = base.replace(k=pol.k)
 
         def run(chain: Chain) -> jax.Array:
-            i = jnp.argmax(jnp.all(cs.key == chain.keys[0], axis=-1))  # the particle's start
+            i = jnp.argmax(jnp.all(cs.key == chain.keys[0], axis=-1))  # the particle's case
             s0, obs0 = jax.tree.map(lambda a: a[i], cs.state), cs.obs[i]
-            side, t0 = cs.side[i].astype(jnp.float32), s0.time
 
             def body(c):
-                t, s, obs, margin, done, path = c
+                s, obs, margin, _, done, path = c
+                rl = s.ego.phase == RL  # an RL step: the margin folds it, as the engine's
                 mu = actor_apply(pol.actor, obs[None])[0]
                 a = jnp.where(pol.scripted, baseline_action(obs[None], p)[0], mu)
-                seg = jnp.sum(chain.steps <= t) - 1  # splitting.step_key at env time t0 + t
-                key = jax.random.fold_in(jax.random.wrap_key_data(chain.keys[seg]), s.time)
-                obs, s, _, _, _, info = env.step(key, s, a, p)
+                a = jnp.where(rl, a, 0.0)  # the approach steps with no action (engine)
+                obs, new, _, _, _, info = env.step(splitting.step_key(chain, s.time), s, a, p)
+                reason = info["reason"]
+                side = (new.ego.target - origin).astype(jnp.float32)
                 step = measures.Step(
-                    s, info["reason"], info["episode_steps"], 0.0, info, side, True,
+                    new, reason, info["episode_steps"], 0.0, info, side, True,
                     0.0, 0.0, None, 0.0, 0.0,
                 )  # fmt: skip
                 v = fn.fn(step, p)
-                margin = v if time_like else jnp.minimum(margin, v)
-                done = (info["reason"] != 0) | (s.time >= max_steps)
-                return t + 1, s, obs, margin, done, path.at[t].set(-margin)
+                margin = jnp.where(rl, v if time_like else jnp.minimum(margin, v), margin)
+                value = jnp.where(jnp.isfinite(margin), -margin, approach_score(new, p, cap))
+                done = (reason != 0) | (new.time >= max_steps)
+                return new, obs, margin, value, done, path.at[s.time].set(value)
 
-            path = jnp.zeros(limit, jnp.float32)
-            c = (jnp.int32(0), s0, obs0, jnp.float32(jnp.inf), t0 >= max_steps, path)
-            t, *_, margin, _, path = jax.lax.while_loop(lambda c: ~c[4] & (c[0] < limit), body, c)
-            return jnp.where(jnp.arange(limit) < t, path, -margin)  # held after the end
+            inf = jnp.float32(jnp.inf)
+            c = (s0, obs0, inf, -inf, s0.time >= max_steps, jnp.zeros(max_steps, jnp.float32))
+            s, *_, value, _, path = jax.lax.while_loop(lambda c: ~c[4], body, c)
+            return jnp.where(jnp.arange(max_steps) < s.time, path, value)  # held after the end
 
         return run
 
@@ -154,27 +231,22 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
 
 @functools.lru_cache(maxsize=4)
 def program(cfg: config.Config, kind: str, particles: int, kill: float, rounds: int, steps: int):
-    """Jitted ``(key, pol, cs (N,), target) -> Splitting``: one AMS run of one policy on the
-    lane changes ``cs``, scores minus ``kind``'s margin, ``target`` minus the margin sought."""
+    """Jitted ``(key, pol, cs (N,), target, cap) -> Splitting``: one AMS run of one policy on
+    the cases ``cs``; ``target`` minus the margin sought, ``cap`` the approach's (docstring)."""
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
     bind = make_run(base, actor_net.apply, kind, steps)
 
-    def one(key: jax.Array, pol: Policies, cs: Cases, target: jax.Array) -> splitting.Splitting:
+    def one(key, pol: Policies, cs: Starts, target, cap) -> splitting.Splitting:
         return splitting.splitting(
-            bind(pol, cs),
-            key,
-            target,
-            particles=particles,
-            kill_fraction=kill,
-            max_rounds=rounds,
-            initial=cs.key,
-        )
+            bind(pol, cs, cap), key, target, particles=particles, kill_fraction=kill,
+            max_rounds=rounds, initial=cs.key,
+        )  # fmt: skip
 
     return jax.jit(one)
 
 
-def command(cfg: config.Config, rows: list[tuple], args: Any, out_dir: Any, peak: float) -> int:
+def command(cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, peak: float) -> int:
     """``python -m jaxlc.validate --method ams``'s work on the chosen policies (``rows``:
     validate's ``model_rows``): each one's estimate printed, the files written."""
     results = []
@@ -182,79 +254,52 @@ def command(cfg: config.Config, rows: list[tuple], args: Any, out_dir: Any, peak
         pol = validation.policies(cfg, actor, k)
         results.append(r := estimate(cfg, meta, args, pol, peak))
         print(
-            f"{r['meta']['label']}: P({args.kind} margin <= {args.margin:g}) {r['estimate']:.3g} "
-            f"[{r['lo']:.3g}, {r['hi']:.3g}] per lane change, {r['wall_s']} s"
+            f"{r.label}: P(lane change with {args.kind} margin <= {args.margin:g}) {r.estimate:.3g}"
+            f" [{r.lo:.3g}, {r.hi:.3g}] per case, {r.trajectories} cases simulated, {r.wall_s} s"
         )
-        if any(r["extinct"]):
+        if any(r.extinct):
             print(
-                f"  {sum(r['extinct'])} of {len(r['extinct'])} runs went extinct: their clones "
-                f"drew no future of their own (distinct final paths {min(r['distinct']):.0%} at "
-                "least); the margin is set before the splits reach it"
+                f"  {sum(r.extinct)} of {len(r.extinct)} runs went extinct: their clones drew no"
+                f" future of their own (distinct final paths {min(r.distinct):.0%} at least)"
             )
     print(f"Wrote {write(out_dir, results)}")
     return 0
 
 
-def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float) -> dict:
+def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float) -> Estimate:
     """``a.repeats`` independent AMS runs of one policy (``a``: validate's arguments): the
-    estimate of P(margin <= a.margin) per lane change with Cox's 95% interval, the curve
-    P(margin <= m) beside crude MC's on the runs' initial particles, the nearest misses."""
-    import time
-
+    estimate of P(lane change with margin <= a.margin) per case with Cox's 95% interval, the
+    curve beside crude MC's on the runs' initial particles below the cap, the nearest misses."""
     run = program(cfg, a.kind, a.particles, a.kill, a.max_rounds, a.max_steps)
-    lo, key, runs, t0 = 0, jax.random.PRNGKey(a.seed), [], time.perf_counter()
+    key, runs, t0, cap = jax.random.PRNGKey(a.seed), [], time.perf_counter(), a.margin + SPAN
     pol = jax.tree.map(lambda x: x[0], pol)  # one policy, no axis
-    started, rl_steps = 0, 0
     for r in range(a.repeats):
-        cs, lo, begun = starts(cfg, a.particles, a.seed, lo, a.max_steps)
-        res = jax.device_get(run(jax.random.fold_in(key, r), pol, cs, -a.margin))
-        started += begun
-        rl_steps += int(res.trajectories) * res.paths.shape[1]
-        runs.append((res, np.asarray(cs.key)))
+        cs = starts(cfg, a.particles, a.seed, r * a.particles)
+        runs.append(jax.device_get(run(jax.random.fold_in(key, r), pol, cs, -a.margin, cap)))
     wall = time.perf_counter() - t0
-    ests = np.asarray([float(res.estimate) for res, _ in runs])
-    mean, ci_lo, ci_hi = splitting.interval(ests, log=True)
-    first = np.concatenate([-np.asarray(res.first) for res, _ in runs])  # crude MC's margins
-    grid = np.unique(np.concatenate([[a.margin], np.quantile(first, np.linspace(0, 0.5, 26))]))
-    per = np.asarray([_curve_of(res, a.particles, grid) for res, _ in runs])  # (R, m)
-    rows = []
+    ests = np.asarray([float(res.estimate) for res in runs])
+    mean, lo, hi = splitting.interval(ests, log=True)
+    first = np.concatenate([-np.asarray(res.first) for res in runs])  # crude MC's draws
+    grid = np.unique(np.concatenate([[a.margin], np.linspace(a.margin, cap, 7)[:-1]]))
+    per = np.asarray([splitting.exceedance_at(res, a.particles, -grid) for res in runs])
+    curve = []
     for j, m in enumerate(grid):
         k = int((first <= m).sum())
-        lo_cp, hi_cp = _cp(k, first.size)
         _, lo_a, hi_a = splitting.interval(per[:, j], log=True)
-        rows.append(dict(margin=float(m), ams=float(per[:, j].mean()), ams_lo=lo_a,
-                         ams_hi=hi_a, crude=k / first.size, crude_lo=lo_cp, crude_hi=hi_cp,
-                         crude_n=k))  # fmt: skip
-    return {
-        "meta": meta,
-        "method": "ams",
-        "kind": a.kind,
-        "margin": a.margin,
-        "estimate": mean,
-        "lo": ci_lo,
-        "hi": ci_hi,
-        "rel_halfwidth": (ci_hi - ci_lo) / 2 / mean if mean > 0 else math.nan,
-        "repeats": ests.tolist(),
-        "particles": a.particles,
-        "kill": a.kill,
-        "rounds": [int(res.rounds) for res, _ in runs],
-        "stopped": [bool(res.stopped) for res, _ in runs],
-        "distinct": [_distinct(res) for res, _ in runs],
-        # every particle tied at a level below the target: the estimate is 0 for want of
-        # clones that drew futures of their own, not for want of failures (docstring)
-        "extinct": [bool(res.stopped) and float(res.reached) == 0.0 for res, _ in runs],
-        "cases_started": started,
-        "rl_steps": rl_steps,
-        "wall_s": round(wall, 1),
-        "matmul_peak_gflops": peak,
-        "curve": rows,
-        "nearest": _nearest(runs),
-    }
-
-
-def _curve_of(res: splitting.Splitting, n: int, grid: np.ndarray) -> np.ndarray:
-    """One run's P(margin <= m) at each margin of ``grid``, each unbiased."""
-    return splitting.exceedance_at(res, n, -grid)
+        curve.append(Point(float(m), float(per[:, j].mean()), lo_a, hi_a, k / first.size,
+                           *_cp(k, first.size), k))  # fmt: skip
+    return Estimate(
+        label=meta["label"], kind=a.kind, margin=a.margin, cap=cap, estimate=mean, lo=lo, hi=hi,
+        rel_halfwidth=(hi - lo) / 2 / mean if mean > 0 else math.nan, repeats=ests.tolist(),
+        particles=a.particles, kill=a.kill, rounds=[int(res.rounds) for res in runs],
+        stopped=[bool(res.stopped) for res in runs], distinct=[_distinct(res) for res in runs],
+        # every particle tied at a level below the target: 0 for want of clones that drew
+        # futures of their own, not for want of failures
+        extinct=[bool(res.stopped) and float(res.reached) == 0.0 for res in runs],
+        cases_started=a.repeats * a.particles,
+        trajectories=sum(int(res.trajectories) for res in runs), wall_s=round(wall, 1),
+        matmul_peak_gflops=peak, curve=curve, nearest=_nearest(runs),
+    )  # fmt: skip
 
 
 def _cp(k: int, n: int) -> tuple[float, float]:
@@ -270,54 +315,42 @@ def _distinct(res: splitting.Splitting) -> float:
     return len({p.tobytes() for p in paths}) / paths.shape[0]
 
 
-def _nearest(runs: list, keep: int = 5) -> list[dict]:
-    """The particles that came closest, over every run: their margin and key chain (the
-    first key is the case's, ``keys.VALIDATE``'s stream)."""
-    rows = []
-    for r, (res, _) in enumerate(runs):
+def _nearest(runs: list, keep: int = 5) -> list[Miss]:
+    """The particles that came closest, over every run, with their key chains."""
+    out = []
+    for r, res in enumerate(runs):
         for i in np.argsort(-np.asarray(res.scores))[:keep]:
-            used = np.asarray(res.chains.steps[i]) != splitting.UNUSED
-            rows.append(dict(repeat=r, margin=float(-res.scores[i]),
-                             steps=np.asarray(res.chains.steps[i])[used].tolist(),
-                             keys=np.asarray(res.chains.keys[i])[used].tolist()))  # fmt: skip
-    return sorted(rows, key=lambda d: d["margin"])[:keep]
+            steps = np.asarray(res.chains.steps[i])
+            used = steps != splitting.UNUSED
+            keys = np.asarray(res.chains.keys[i])[used].tolist()
+            out.append(Miss(r, float(-res.scores[i]), steps[used].tolist(), keys))
+    return sorted(out, key=lambda m: m.margin)[:keep]
 
 
-def write(out_dir: Any, results: list[dict]) -> Any:
+def write(out_dir: Path, results: list[Estimate]) -> Path:
     """``ams.json``, ``ams_curve.csv`` (per policy and margin: AMS and crude MC with their
     95% intervals) and ``ams_curve.png`` in ``out_dir``; the json's path."""
-    import csv
-    import json
-
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "ams.json").write_text(json.dumps(results, indent=1, default=float) + "\n")
-    fields = ["label", "kind", *results[0]["curve"][0]]
-    with open(out_dir / "ams_curve.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fields)
-        w.writeheader()
-        for res in results:
-            for c in res["curve"]:
-                w.writerow({"label": res["meta"]["label"], "kind": res["kind"], **c})
+    numbers.write(out_dir / "ams.json", Ams(results))
+    rows = [dict(label=r.label, kind=r.kind, **c.as_dict()) for r in results for c in r.curve]
+    numbers.write_csv(out_dir / "ams_curve.csv", rows)
     fig, ax = plt.subplots(figsize=(6, 4))
-    for res in results:
-        c = {k: np.asarray([row[k] for row in res["curve"]]) for k in res["curve"][0]}
-        line = ax.step(c["margin"], c["ams"], where="post", label=f"{res['meta']['label']} AMS")
-        ax.fill_between(c["margin"], c["ams_lo"], c["ams_hi"], step="post", alpha=0.2,
-                        color=line[0].get_color())  # fmt: skip
-        seen = c["crude_n"] > 0
-        ax.errorbar(c["margin"][seen], c["crude"][seen], fmt=".", color="k",
-                    yerr=[c["crude"][seen] - c["crude_lo"][seen],
-                          c["crude_hi"][seen] - c["crude"][seen]],
-                    label="crude MC" if res is results[0] else None)  # fmt: skip
+    for r in results:
+        cols = ("margin", "ams", "ams_lo", "ams_hi", "crude", "crude_lo", "crude_hi")
+        got = (np.asarray([getattr(x, f) for x in r.curve]) for f in cols)
+        m, p, p_lo, p_hi, c, c_lo, c_hi = got
+        line = ax.step(m, p, where="post", label=f"{r.label} AMS")
+        ax.fill_between(m, p_lo, p_hi, step="post", alpha=0.2, color=line[0].get_color())
+        ax.errorbar(m, c, yerr=[c - c_lo, c_hi - c], fmt=".", color="k",
+                    label="crude MC" if r is results[0] else None)  # fmt: skip
     ax.set_yscale("log")
-    unit = "s" if results[0]["kind"] == "timeout" else "m"
-    ax.set_xlabel(f"margin to {results[0]['kind'].replace('_', ' ')}, {unit}")
-    ax.set_ylabel("P(margin ≤ m) per lane change")
+    unit = "s" if results[0].kind == "timeout" else "m"
+    ax.set_xlabel(f"margin to {results[0].kind.replace('_', ' ')}, {unit}")
+    ax.set_ylabel("P(lane change with margin ≤ m) per case")
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out_dir / "ams_curve.png", dpi=120)

@@ -75,6 +75,21 @@ class Splitting:
     first: Array  # (N,) the initial particles' scores: crude MC's draws
 
 
+@flax.struct.dataclass
+class _Loop:
+    """``splitting``'s loop state between rounds (``Splitting``'s fields as they grow)."""
+
+    rounds: Array
+    stopped: Array
+    chains: Chain
+    paths: Array
+    levels: Array
+    lowest: Array
+    kills: Array
+    log_weight: Array  # () log prod_j (1 - K_j / N)
+    trajectories: Array
+
+
 def step_key(chain: Chain, t: Array) -> Array:
     """Step t's key of one particle: fold_in(segment in force at t, t)."""
     segment = jnp.sum(chain.steps <= t) - 1  # steps increase; steps[0] = 0 so >= 0
@@ -111,14 +126,12 @@ def clone(chains: Chain, paths: Array, parent: Array, level: Array, fresh: Array
     return Chain(steps, keys.astype(par.keys.dtype))
 
 
-def _round(
-    run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Array, s: dict
-) -> dict:
-    """One round on the loop state ``s`` (``splitting``'s dict): the level, the kills,
+def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Array, s: _Loop):
+    """One round on the loop state ``s``: the level, the kills,
     the clones and their re-runs; a no-op that sets ``stopped`` when the level is at the
     target or all N tie (extinction)."""
-    n = s["paths"].shape[0]
-    j, chains, paths = s["rounds"], s["chains"], s["paths"]
+    n = s.paths.shape[0]
+    j, chains, paths = s.rounds, s.chains, s.paths
     scores = paths.max(axis=1)  # (N,)
     level = jnp.sort(scores)[k - 1]  # Z_j: the k-th smallest
     killed = scores <= level  # all ties go: the generalised AMS
@@ -147,16 +160,16 @@ def _round(
         return paths.at[jnp.where(slot < n_killed, idx, n)].set(new, mode="drop")
 
     paths = jax.lax.fori_loop(0, chunks, rerun, paths)
-    return dict(
+    return _Loop(
         rounds=j + apply,
         stopped=~apply,
         chains=chains,
         paths=paths,
-        levels=s["levels"].at[j].set(jnp.where(apply, level, s["levels"][j])),
-        lowest=s["lowest"].at[j].set(jnp.where(apply, jnp.sort(scores)[:k], s["lowest"][j])),
-        kills=s["kills"].at[j].set(jnp.where(apply, n_killed, 0)),
-        log_weight=s["log_weight"] + jnp.where(apply, jnp.log1p(-n_killed / n), 0.0),
-        trajectories=s["trajectories"] + chunks * k,
+        levels=s.levels.at[j].set(jnp.where(apply, level, s.levels[j])),
+        lowest=s.lowest.at[j].set(jnp.where(apply, jnp.sort(scores)[:k], s.lowest[j])),
+        kills=s.kills.at[j].set(jnp.where(apply, n_killed, 0)),
+        log_weight=s.log_weight + jnp.where(apply, jnp.log1p(-n_killed / n), 0.0),
+        trajectories=s.trajectories + chunks * k,
     )
 
 
@@ -191,9 +204,9 @@ def splitting(
     target = jnp.asarray(target, jnp.float32)
 
     def cond(s):
-        return ~s["stopped"] & (s["rounds"] < max_rounds)
+        return ~s.stopped & (s.rounds < max_rounds)
 
-    s = dict(
+    s = _Loop(
         rounds=jnp.int32(0),
         stopped=jnp.bool_(False),
         chains=chains,
@@ -205,19 +218,19 @@ def splitting(
         trajectories=jnp.int32(n),
     )
     s = jax.lax.while_loop(cond, functools.partial(_round, run, k, target, rounds_key), s)
-    scores = s["paths"].max(axis=1)
+    scores = s.paths.max(axis=1)
     reached = jnp.mean(scores >= target)
     return Splitting(
-        estimate=jnp.exp(s["log_weight"]) * reached,
-        rounds=s["rounds"],
-        levels=s["levels"][:max_rounds],
-        lowest=s["lowest"][:max_rounds],
-        kills=s["kills"][:max_rounds],
+        estimate=jnp.exp(s.log_weight) * reached,
+        rounds=s.rounds,
+        levels=s.levels[:max_rounds],
+        lowest=s.lowest[:max_rounds],
+        kills=s.kills[:max_rounds],
         reached=reached,
-        stopped=s["stopped"],
-        trajectories=s["trajectories"],
-        chains=s["chains"],
-        paths=s["paths"],
+        stopped=s.stopped,
+        trajectories=s.trajectories,
+        chains=s.chains,
+        paths=s.paths,
         scores=scores,
         first=paths.max(axis=1),
     )
