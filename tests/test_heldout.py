@@ -377,6 +377,7 @@ def margins(smoke_cfg: config.Config) -> dict[str, np.ndarray]:
     return {k: v[:, info["performed"]] for k, v in both.items()}
 
 
+@pytest.mark.slow  # a long rollout (the quick tier keeps its hand-worked cases)
 def test_each_margin_is_zero_exactly_on_its_failure(margins: dict[str, np.ndarray]) -> None:
     reason = margins["reason"]
     assert {int(r) for r in reason.ravel()} >= {1, 2, 4}  # success, out of bounds, timeout

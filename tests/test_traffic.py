@@ -293,6 +293,7 @@ RANGES = (
 )
 
 
+@pytest.mark.slow  # a long rollout (the quick tier keeps its hand-worked cases)
 def test_ranged_keys_are_drawn_per_env_and_episode_within_their_ranges():
     cfg = config.load(overrides=(*HAZARDS, *RANGES, "env.lane_width=[3.0, 4.5]", "env.border=4.5"))
     env, p = jaxlc.make(cfg)
@@ -318,6 +319,7 @@ def test_ranged_keys_are_drawn_per_env_and_episode_within_their_ranges():
     assert sum(starts) > 20
 
 
+@pytest.mark.slow  # a long rollout (the quick tier keeps its hand-worked cases)
 def test_the_traffic_stays_physical_over_the_ranges():
     from benchmarks import traffic_properties as bench
 
