@@ -54,6 +54,7 @@ from jaxlc import config
 from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation import measures, numbers, splitting, validation
 from jaxlc.evaluation.engine import Policies
+from jaxlc.evaluation.heldout import clopper_pearson
 from jaxlc.evaluation.numbers import Record, many
 from jaxlc.evaluation.results import EvalError
 from jaxlc.evaluation.splitting import Chain
@@ -210,8 +211,9 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
                 reason = info["reason"]
                 side = (new.ego.target - origin).astype(jnp.float32)
                 step = measures.Step(
-                    new, reason, info["episode_steps"], 0.0, info, side, True,
-                    0.0, 0.0, None, 0.0, 0.0,
+                    state=new, reason=reason, steps=info["episode_steps"], reward=0.0,
+                    info=info, side=side, performed=True, lat_jerk=0.0, long_jerk=0.0,
+                    counted=None,
                 )  # fmt: skip
                 v = fn.fn(step, p)
                 margin = jnp.where(rl, v if time_like else jnp.minimum(margin, v), margin)
@@ -287,7 +289,7 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
         k = int((first <= m).sum())
         _, lo_a, hi_a = splitting.interval(per[:, j], log=True)
         curve.append(Point(float(m), float(per[:, j].mean()), lo_a, hi_a, k / first.size,
-                           *_cp(k, first.size), k))  # fmt: skip
+                           *clopper_pearson(k, first.size), k))  # fmt: skip
     return Estimate(
         label=meta["label"], kind=a.kind, margin=a.margin, cap=cap, estimate=mean, lo=lo, hi=hi,
         rel_halfwidth=(hi - lo) / 2 / mean if mean > 0 else math.nan, repeats=ests.tolist(),
@@ -300,12 +302,6 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
         trajectories=sum(int(res.trajectories) for res in runs), wall_s=round(wall, 1),
         matmul_peak_gflops=peak, curve=curve, nearest=_nearest(runs),
     )  # fmt: skip
-
-
-def _cp(k: int, n: int) -> tuple[float, float]:
-    from jaxlc.evaluation.heldout import clopper_pearson
-
-    return clopper_pearson(k, n)
 
 
 def _distinct(res: splitting.Splitting) -> float:

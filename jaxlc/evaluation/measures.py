@@ -66,7 +66,6 @@ class Step:
     lat_jerk: Array  # windowed lateral jerk, m/s^3 (safety.observe)
     long_jerk: Array  # windowed longitudinal jerk, m/s^3
     counted: Array  # (..., 3) bool: whose headway and TTC count (safety.VEHICLES)
-    log_w: Array | float = 0.0  # unread: ams.py builds a Step by position; goes when it doesn't
     tilt: Array | float = 0.0  # a proposal's records of the step, (..., stats)
 
 
