@@ -167,7 +167,18 @@ def test_each_reducer_folds_the_live_steps_alone() -> None:
     def step(v: list[float]) -> measures.Step:
         r = jnp.asarray([v], jnp.float32)  # (policies 1, cases 2)
         zero = jnp.zeros_like(r)
-        return measures.Step(None, zero, zero, r, {}, zero, zero, zero, zero, zero, 0.0, 0.0)
+        return measures.Step(
+            state=None,
+            reason=zero,
+            steps=zero,
+            reward=r,
+            info={},
+            side=zero,
+            performed=zero,
+            lat_jerk=zero,
+            long_jerk=zero,
+            counted=zero,
+        )
 
     out = measures.start(ms, step([5.0, 7.0]), None)
     for i, v in enumerate(([3.0, 4.0], [1.0, 9.0], [2.0, 8.0])):
