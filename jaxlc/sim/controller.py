@@ -33,6 +33,7 @@ from typing import Any
 import jax.numpy as jnp
 from jax import Array
 
+from jaxlc.sim.ego import held_action, held_long_action
 from jaxlc.sim.observation import INDEX, observation, scale
 from jaxlc.sim.road import origin_lane
 from jaxlc.sim.state import RL, EnvParams, EnvState, action_dim
@@ -146,3 +147,21 @@ def baseline_action(obs: Array, params: EnvParams) -> Array:
     if params.assist != "none":
         return jnp.zeros(obs.shape[:-1] + (action_dim(params),), obs.dtype)
     return scripted_action(obs, params)
+
+
+def executed_action(state: EnvState, action: Array, p: EnvParams) -> tuple:
+    """``(held, held_long, lat, lon)``: the policy's held actions (``held_long`` None unless
+    longitudinal = "policy") and the executed ones, with the assist's (env.assist) added."""
+    held = held_action(state.ego, action, p)
+    held_long = held_long_action(state.ego, action, p)
+    lat, lon = held, held_long
+    if p.assist != "none":  # static: the default's program has no assist in it
+        extra, holding = assist_action(state, p)  # (action_dim,), ()
+        w = p.assist_authority  # the residual's share of each bound
+        lat = jnp.clip(w * held + extra[0], -1.0, 1.0)
+        if p.assist == "fitting_hold":
+            # The hold sits on the out-of-bounds border (the origin lane's centre, a lane
+            # width from the target's): any outward residual would end the manoeuvre there.
+            lat = jnp.where(holding, extra[0], lat)
+        lon = None if held_long is None else jnp.clip(w * held_long + extra[1], -1.0, 1.0)
+    return held, held_long, lat, lon

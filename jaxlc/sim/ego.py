@@ -166,3 +166,13 @@ def parked_ego(p: EnvParams) -> Ego:
         held_long=f0 if action_dim(p) > 1 else None,
     )
     return ego
+
+
+def commanded(ego: Ego) -> Array:
+    """``()`` bool: the ego got its command on this step (it entered GAP, ``ego_phase``)."""
+    return (ego.phase == GAP) & (ego.gap_time == 0.0)
+
+
+def outside(v: Array, speeds: tuple[float, float]) -> Array:
+    """``()`` bool: ``v`` (m/s) is outside ``speeds``, the operating range ``(min, max)``."""
+    return (v < speeds[0]) | (v > speeds[1])

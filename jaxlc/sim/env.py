@@ -44,15 +44,8 @@ from jaxlc.config import Config, EnvConfig
 from jaxlc.sim import braking, mobil, reward
 from jaxlc.sim import traffic as traffic_mod
 from jaxlc.sim.collision import collided
-from jaxlc.sim.controller import assist_action
-from jaxlc.sim.ego import (
-    ego_accel,
-    ego_phase,
-    gap_decision,
-    held_action,
-    held_long_action,
-    parked_ego,
-)
+from jaxlc.sim.controller import executed_action
+from jaxlc.sim.ego import commanded, ego_accel, ego_phase, gap_decision, outside, parked_ego
 from jaxlc.sim.observation import (  # noqa: F401 (OBS_DIM, MIRROR_SIGNS, GAP_CLIP re-exported)
     GAP_CLIP,
     MIRROR_SIGNS,
@@ -105,41 +98,6 @@ class Box:
         return jnp.all((x >= self.low) & (x <= self.high))
 
 
-def commanded(ego: Ego) -> Array:
-    """``()`` bool: the ego got its command on this step (it entered GAP, ``ego_phase``)."""
-    return (ego.phase == GAP) & (ego.gap_time == 0.0)
-
-
-def outside(v: Array, speeds: tuple[float, float]) -> Array:
-    """``()`` bool: ``v`` (m/s) is outside ``speeds``, the operating range ``(min, max)``."""
-    return (v < speeds[0]) | (v > speeds[1])
-
-
-def episode_end_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
-    """``()`` int32 reason code of ``jaxlc.sim.reward.REASONS``: the RL manoeuvre's own, else a
-    collision or no gap before it, else NONE."""
-    before_rl = jnp.where(crashed, reward.COLLISION, jnp.where(no_gap, reward.NO_GAP, reward.NONE))
-    return jnp.where(in_rl, rl_reason, before_rl).astype(jnp.int32)
-
-
-def _executed(state: EnvState, action: Array, p: EnvParams) -> tuple:
-    """``(held, held_long, lat, lon)``: the policy's held actions (``held_long`` None unless
-    longitudinal = "policy") and the executed ones, with the assist's (env.assist) added."""
-    held = held_action(state.ego, action, p)
-    held_long = held_long_action(state.ego, action, p)
-    lat, lon = held, held_long
-    if p.assist != "none":  # static: the default's program has no assist in it
-        extra, holding = assist_action(state, p)  # (action_dim,), ()
-        w = p.assist_authority  # the residual's share of each bound
-        lat = jnp.clip(w * held + extra[0], -1.0, 1.0)
-        if p.assist == "fitting_hold":
-            # The hold sits on the out-of-bounds border (the origin lane's centre, a lane
-            # width from the target's): any outward residual would end the manoeuvre there.
-            lat = jnp.where(holding, extra[0], lat)
-        lon = None if held_long is None else jnp.clip(w * held_long + extra[1], -1.0, 1.0)
-    return held, held_long, lat, lon
-
-
 def _advance(
     key: Array, state: EnvState, action: Array, p: EnvParams, spawn: bool
 ) -> tuple[EnvState, Array, dict[str, Array]]:
@@ -151,7 +109,7 @@ def _advance(
     u, ut = traffic_mod.step_draws(key, p, state)
     kappa = road_curvature(state, p)
     in_rl = eg.phase == RL
-    held, held_long, lat, lon = _executed(state, action, p)
+    held, held_long, lat, lon = executed_action(state, action, p)
     a_lat = p.max_yaw_acc * lat
     a_ego = ego_accel(state, p, lon)
     t = traffic_mod.step(state, u, ut, a_ego, a_lat, (eg.phase == WAIT) & spawn, p, kappa)
@@ -175,7 +133,7 @@ def _advance(
     r = reward.total(terms)
     rl_reason = reward.end_reason(offset, ego.psi, yaw_rate, ego.steps, crashed, p, ego.v)
     accept, no_gap = gap_decision(ego, nb, p, kappa)
-    reason = episode_end_reason(in_rl, rl_reason, crashed, no_gap)
+    reason = reward.episode_reason(in_rl, rl_reason, crashed, no_gap)
     if p.operating_speed:  # static: a command outside the operating range is declined
         declined = commanded(ego) & ~crashed & outside(ego.v, p.operating_speed)
         accept = accept & ~declined

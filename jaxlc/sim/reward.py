@@ -218,7 +218,7 @@ def end_reason(
     """``()`` int32 reason code of the manoeuvre after an RL step: the first that holds of
     collision, out of bounds, success, timeout (NONE while it goes on; ``v``, the ego's speed,
     sets the limit where ``manoeuvre_distance`` is on); the episode's own, any phase, is
-    ``env.episode_end_reason``'s."""
+    ``episode_reason``'s."""
     out = jnp.abs(offset) > p.border
     success = (
         (jnp.abs(offset) <= p.success_offset)
@@ -231,3 +231,10 @@ def end_reason(
         [COLLISION, OUT_OF_BOUNDS, SUCCESS, TIMEOUT],
         NONE,
     ).astype(jnp.int32)
+
+
+def episode_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
+    """``()`` int32 reason code of ``REASONS``: the RL manoeuvre's own, else a
+    collision or no gap before it, else NONE."""
+    before_rl = jnp.where(crashed, COLLISION, jnp.where(no_gap, NO_GAP, NONE))
+    return jnp.where(in_rl, rl_reason, before_rl).astype(jnp.int32)
