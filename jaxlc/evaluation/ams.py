@@ -227,7 +227,7 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
                 margin = jnp.where(rl, v if time_like else jnp.minimum(margin, v), margin)
                 value = jnp.where(jnp.isfinite(margin), -margin, approach_score(new, p, cap))
                 done = (reason != 0) | (new.time >= max_steps)
-                if record:  # the state after each step, for pictures (``trace``)
+                if record:  # the state after each step, for pictures (``replay``)
                     seen = jax.tree.map(lambda b, x: b.at[s.time].set(x), seen, new)
                 return new, obs, margin, value, done, path.at[s.time].set(value), seen
 

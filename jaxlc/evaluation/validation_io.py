@@ -242,7 +242,10 @@ def _misses(out: Path) -> list[tuple[ams.Estimate, ams.Miss]]:
     """``ams.json``'s nearest misses, policy after policy, nearest first."""
     if not (out / "ams.json").is_file():
         raise EvalError(f"{out / 'ams.json'} is missing; run python -m jaxlc.validate --method ams")
-    return [(e, m) for e in numbers.read(out / "ams.json", ams.Ams).policies for m in e.nearest]
+    doc = numbers.read(out / "ams.json", ams.Ams)
+    if any(e.max_steps == 0 for e in doc.policies):  # written before the replay's fields
+        raise EvalError(f"{out / 'ams.json'} cannot be replayed; run --method ams again")
+    return [(e, m) for e in doc.policies for m in e.nearest]
 
 
 def _replay_miss(run_dir: Path, est: ams.Estimate, miss: ams.Miss, exact: bool) -> tuple:
