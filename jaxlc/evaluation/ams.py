@@ -33,7 +33,8 @@ approach and in the lane change: ``max_rounds=0`` is the validation's crude MC o
 cases (tested). The policy is deterministic; the traffic's draws are the only randomness.
 
 Measured (benchmarks/ams_sim_cpu_2026-11-29): no gain over crude MC, each run following its
-initial cases; the last rounds still branch in the lane change, where the margin seldom moves.
+initial cases; the last rounds branch ~0.7 s into the lane change, ~1 s before its closest
+moment (docs/decisions.md, "where AMS's branches fall"), too little randomness left.
 """
 
 from __future__ import annotations
