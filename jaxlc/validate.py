@@ -4,6 +4,7 @@
     python -m jaxlc.validate runs/s3 --model scripted --method mc --rel-halfwidth 0.2 \\
         --traffic env.braking=true
     python -m jaxlc.validate runs/s3 --replay 0        # validate/cases.json's first, a GIF
+    python -m jaxlc.validate runs/s3 --method ams --replay 0   # ams.json's nearest miss
 
 Drives each chosen policy (``--model``: an index, a label, a paper tag such as ④, ``all`` or
 ``scripted``; each seed's checkpoint of a tag) through up to ``--lane-changes`` held-out-style
@@ -16,7 +17,9 @@ its likelihood ratio; ``--family mixture``: a mixture of one-role braking tilts,
 change, its 95% interval, relative half-width, effective sample size, lane changes, wall time,
 the matmul peak) and ``cases.json`` (every failure up to a cap, highest weight first, with the
 key and proposal that replay it); ``report.md`` gains its section. Ctrl-C keeps what was
-estimated so far. A bad argument is one line and exit 2.
+estimated so far. ``--method ams`` (``jaxlc.evaluation.ams``): P(margin <= m) by adaptive
+multilevel splitting, ``ams.json``, its curve and the nearest misses' scenes. A bad argument
+is one line and exit 2.
 """
 
 from __future__ import annotations
@@ -31,9 +34,9 @@ from typing import Any
 
 from jaxlc import config
 from jaxlc.evaluation import ams, heldout, mixture, proposal, validation
+from jaxlc.evaluation import validation_io as io
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.evaluation.results import SCRIPTED, EvalError
-from jaxlc.evaluation.validation_io import replay_case, validate_dir, write_outputs
 from jaxlc.paper.grid import tag_of
 from jaxlc.sim.params import value_range
 from jaxlc.study import machine
@@ -89,7 +92,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-steps", type=int, default=config.EvalConfig().max_steps)
     ap.add_argument("--out", type=Path, default=None, help="default: RUN_DIR/validate")
-    ap.add_argument("--replay", type=int, default=None, metavar="CASE", help="cases.json index")
+    ap.add_argument("--replay", type=int, default=None, metavar="CASE", help="cases.json index"
+                    " (--method ams: ams.json's nearest miss)")  # fmt: skip
     # --method ams (jaxlc.evaluation.ams): P(margin <= --margin) by adaptive multilevel splitting
     ap.add_argument("--particles", type=int, default=1000, help="ams: cases per run")
     ap.add_argument("--kill", type=float, default=0.1, help="ams: share killed per round")
@@ -130,11 +134,20 @@ def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[tuple[Any
     return cfg, [(a, int(m.k or 1), m.as_dict()) for a, m in zip(actors, metas[1:], strict=True)]
 
 
+def _report(args: argparse.Namespace) -> None:
+    """The run's report gains the section (where the run has one and --out is its own)."""
+    if args.out is None and RunDir(args.run_dir).eval_json.is_file():
+        from jaxlc.report import report
+
+        report.write_report(args.run_dir)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         if args.replay is not None:
-            path, same = replay_case(args.run_dir, args.replay, args.out)
+            replay = io.replay_miss if args.method == "ams" else io.replay_case
+            path, same = replay(args.run_dir, args.replay, args.out)
             print(f"Wrote {path}; the replay {'matches' if same else 'DIFFERS from'} the case")
             return 0 if same else 1
         if args.method == "ams":
@@ -142,8 +155,11 @@ def main(argv: list[str] | None = None) -> int:
         cfg, rows = model_rows(args.run_dir, args.model)
         cfg = heldout.in_traffic(cfg, args.traffic)
         if args.method == "ams":  # all of it in jaxlc.evaluation.ams
-            out = validate_dir(args.run_dir, args.out)
-            return ams.command(cfg, rows, args, out, machine.matmul_peak_gflops())
+            out = io.validate_dir(args.run_dir, args.out)
+            ams.command(cfg, rows, args, out, machine.matmul_peak_gflops())
+            print(f"Wrote {io.misses_figure(args.run_dir, out)}")
+            _report(args)
+            return 0
         if (
             args.method == "is"
             and args.family == "mixture"
@@ -161,11 +177,8 @@ def main(argv: list[str] | None = None) -> int:
             results.append(METHODS[args.method](cfg, *row, settings, model=i))
             if results[-1].interrupted:
                 break
-        out = write_outputs(args, cfg, results, peak)
-        if args.out is None and RunDir(args.run_dir).eval_json.is_file():
-            from jaxlc.report import report  # the run's report gains the section
-
-            report.write_report(args.run_dir)
+        out = io.write_outputs(args, cfg, results, peak)
+        _report(args)
         for r in results:
             e = r.estimates.get(args.kind)
             print(

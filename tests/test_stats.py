@@ -181,6 +181,31 @@ def test_one_seed_per_cell_runs_and_says_intervals_need_two(tmp_path: Path) -> N
     assert "intervals need >= 2 seeds" in text and "| (d)" in text
 
 
+def test_the_report_shows_the_ams_curve_where_the_run_has_one(tmp_path: Path) -> None:
+    """``validate/ams.json`` present: the section, its figure and one table row per margin,
+    each AMS value inside its interval as written; absent: no section."""
+    from jaxlc.evaluation import ams, numbers
+
+    run = _run_dir(tmp_path / "run", _rows(_grid(best=0.2, seeds=1)))
+    evaluate.write_seed_stats(run / "eval", _eval_rows(run))
+    assert "How close to failure" not in report.build_report(run)
+    ms, ps = np.linspace(0.0, 0.5, 6), np.geomspace(1e-6, 1e-2, 6)
+    curve = [ams.Point(m, p, p / 2, p * 2, p, 0.0, p * 3, 7) for m, p in zip(ms, ps, strict=True)]
+    est = dict(label="④ seed 0", kind="collision", margin=0.0, cap=0.6, estimate=1e-6, lo=5e-7,
+               hi=2e-6, rel_halfwidth=0.75, repeats=[1e-6, 1e-6], particles=100, kill=0.1,
+               rounds=[9, 9], stopped=[True, True], distinct=[1.0, 1.0], extinct=[False, False],
+               cases_started=200, trajectories=400, wall_s=1.0, matmul_peak_gflops=30)  # fmt: skip
+    numbers.write(run / "validate" / "ams.json", ams.Ams([ams.Estimate(**est, curve=curve)]))
+    lines = report.build_report(run).splitlines()
+    at = lines.index("## How close to failure (`python -m jaxlc.validate --method ams`)")
+    end = lines.index("![The exceedance curve](validate/ams_curve.png)", at)
+    table = [x.split(" | ") for x in lines[at:end] if x.startswith("| ") and x[2].isdigit()]
+    assert len(table) == len(curve)
+    for (m, p, lohi, *_), point in zip(table, curve, strict=True):
+        lo, hi = (float(v) for v in lohi.strip("[]").split(", "))
+        assert float(m[2:]) == pytest.approx(point.margin, abs=1e-3) and lo <= float(p) <= hi
+
+
 def test_report_and_tables_give_the_verdicts(tmp_path: Path) -> None:
     run = _run_dir(tmp_path / "run", _rows(_grid(best=0.2)))
     rows = _eval_rows(run)

@@ -567,24 +567,62 @@ def test_the_reports_section_lists_each_failing_kind_of_a_committed_validation(t
     assert rows == shown and doc["kind"] in rows and len(rows) < len(model["estimates"])
 
 
-@pytest.mark.slow
-def test_ams_writes_its_estimate_and_curve(smoke_run, tmp_path):
-    """``--method ams`` end to end on the smoke run (scripted controller, few particles):
-    the estimate inside its interval, the curve beside crude MC's, the figure."""
-    import csv
-
+@pytest.fixture(scope="module")
+def ams_validated(smoke_run, tmp_path_factory):
+    """``--method ams`` on the smoke run (scripted controller, few particles): its folder."""
     from jaxlc import validate
-    from jaxlc.evaluation import ams, numbers
 
     run_dir, _ = smoke_run
+    out = tmp_path_factory.mktemp("ams")
     args = ["--model", "scripted", "--method", "ams", "--kind", "collision", "--margin", "2"]
     args += ["--particles", "12", "--kill", "0.25", "--repeats", "2", "--max-rounds", "4"]
-    assert validate.main([str(run_dir), *args, "--out", str(tmp_path)]) == 0
-    (doc,) = numbers.read(tmp_path / "ams.json", ams.Ams).policies
+    assert validate.main([str(run_dir), *args, "--out", str(out)]) == 0
+    return run_dir, out
+
+
+def test_ams_writes_its_estimate_and_curve(ams_validated):
+    """The estimate inside its interval, the curve beside crude MC's, the figures."""
+    import csv
+
+    from jaxlc.evaluation import ams, numbers
+
+    _, out = ams_validated
+    (doc,) = numbers.read(out / "ams.json", ams.Ams).policies
     assert len(doc.repeats) == 2 and doc.lo <= doc.estimate <= doc.hi
     assert doc.trajectories >= doc.cases_started == 2 * 12 and doc.cap > doc.margin
     assert all(isinstance(c, ams.Point) and c.margin < doc.cap for c in doc.curve)
-    rows = list(csv.DictReader((tmp_path / "ams_curve.csv").open()))
+    rows = list(csv.DictReader((out / "ams_curve.csv").open()))
     probs = [float(r["ams"]) for r in rows]
     assert probs == sorted(probs) and all(0 <= p <= 1 for p in probs)  # a distribution
-    assert (tmp_path / "ams_curve.png").stat().st_size > 0
+    assert (out / "ams_curve.png").stat().st_size > 0
+    assert (out / "ams_misses.png").stat().st_size > 0
+
+
+def test_every_nearest_miss_replays_its_margin_bit_for_bit(ams_validated, capsys):
+    """Each saved miss, clones among them, re-run from its key chain gives its saved margin
+    exactly; ``--replay K`` draws it as a GIF; a bad index is one line and exit 2."""
+    from jaxlc import validate
+    from jaxlc.evaluation import ams, heldout, validation, validation_io
+    from jaxlc.study.rundir import RunDir
+
+    run_dir, out = ams_validated
+    misses = validation_io._misses(out)
+    assert 2 <= len(misses) <= 5 and any(len(m.steps) >= 2 for _, m in misses)  # clones
+    margins = [(m.margin, m.repeat) for _, m in misses]
+    assert [m for m, _ in margins] == sorted(m for m, _ in margins)  # nearest first
+    assert len(set(margins)) == len(margins)  # a clone sharing its parent's miss counts once
+    est = misses[0][0]
+    cfg = heldout.in_traffic(RunDir(run_dir).load_config(), est.traffic)
+    pol = jax.tree.map(lambda x: x[0], validation.policies(cfg, None, 1))
+    for _, miss in misses:
+        margin, path, states = ams.replay(cfg, est, miss, pol, exact=True)
+        assert margin == miss.margin
+        assert -path.max() == pytest.approx(miss.margin, abs=1e-5)  # the pictures' trace
+        assert int(states.time[-1]) == len(path) and (np.diff(states.time) == 1).all()
+    k = next(i for i, (_, m) in enumerate(misses) if len(m.steps) >= 2)
+    replay = [str(run_dir), "--method", "ams", "--out", str(out), "--replay"]
+    assert validate.main([*replay, str(k)]) == 0
+    assert (out / f"ams_miss_{k}.gif").stat().st_size > 0 and "matches" in capsys.readouterr().out
+    assert validate.main([*replay, str(len(misses))]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"error: --replay {len(misses)}"), err

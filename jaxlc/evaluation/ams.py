@@ -33,11 +33,13 @@ approach and in the lane change: ``max_rounds=0`` is the validation's crude MC o
 cases (tested). The policy is deterministic; the traffic's draws are the only randomness.
 
 Measured (benchmarks/ams_sim_cpu_2026-11-29): no gain over crude MC, each run following its
-initial cases; the last rounds still branch in the lane change, where the margin seldom moves.
+initial cases; the last rounds branch ~0.7 s into the lane change, ~1 s before its closest
+moment (docs/decisions.md, "where AMS's branches fall"), too little randomness left.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import time
@@ -124,6 +126,12 @@ class Estimate(Record):
     trajectories: int  # cases simulated from their reset on, clones' re-runs included
     wall_s: float
     matmul_peak_gflops: float
+    # what replays a miss (``replay``): the cases' stream seed, step cap, traffic, the policy
+    seed: int = 0
+    max_steps: int = 0
+    traffic: list = dataclasses.field(default_factory=list)
+    checkpoint: str | None = None  # relative to the run directory; None: scripted
+    k: int = 1
     curve: list = many(Point)
     nearest: list = many(Miss)
 
@@ -189,7 +197,8 @@ def approach_score(s: EnvState, p: EnvParams, cap: jax.Array) -> jax.Array:
 def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> Any:
     """``(pol, cs, cap) -> run(chain) -> (max_steps,)``: the score path (docstring) of the case
     whose run key is the chain's first (``cs``: ``Starts``) after each env step, held once the
-    case ends (``reason``) or reaches ``max_steps``. ``pol``: one policy (no policies axis)."""
+    case ends (``reason``) or reaches ``max_steps``. ``pol``: one policy (no policies axis).
+    ``run(chain, record=True)``: the path and the state after each step ((max_steps, ...))."""
     env, origin = LaneChangeEnv(), origin_lane(base)
     fn = {m.name: m for m in measures.BUILTIN}[measures.MARGINS[kind]]
     time_like = fn.reduce == "last"  # the time left: the current value, not the least
@@ -197,12 +206,12 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
     def bind(pol: Policies, cs: Starts, cap: jax.Array) -> Any:
         p = base.replace(k=pol.k)
 
-        def run(chain: Chain) -> jax.Array:
+        def run(chain: Chain, record: bool = False) -> Any:
             i = jnp.argmax(jnp.all(cs.key == chain.keys[0], axis=-1))  # the particle's case
             s0, obs0 = jax.tree.map(lambda a: a[i], cs.state), cs.obs[i]
 
             def body(c):
-                s, obs, margin, _, done, path = c
+                s, obs, margin, _, done, path, seen = c
                 rl = s.ego.phase == RL  # an RL step: the margin folds it, as the engine's
                 mu = actor_apply(pol.actor, obs[None])[0]
                 a = jnp.where(pol.scripted, baseline_action(obs[None], p)[0], mu)
@@ -219,12 +228,19 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
                 margin = jnp.where(rl, v if time_like else jnp.minimum(margin, v), margin)
                 value = jnp.where(jnp.isfinite(margin), -margin, approach_score(new, p, cap))
                 done = (reason != 0) | (new.time >= max_steps)
-                return new, obs, margin, value, done, path.at[s.time].set(value)
+                if record:  # the state after each step, for pictures (``replay``)
+                    seen = jax.tree.map(lambda b, x: b.at[s.time].set(x), seen, new)
+                return new, obs, margin, value, done, path.at[s.time].set(value), seen
 
             inf = jnp.float32(jnp.inf)
+            seen = ()
+            if record:
+                seen = jax.tree.map(lambda x: jnp.zeros((max_steps, *x.shape), x.dtype), s0)
             c = (s0, obs0, inf, -inf, s0.time >= max_steps, jnp.zeros(max_steps, jnp.float32))
-            s, *_, value, _, path = jax.lax.while_loop(lambda c: ~c[4], body, c)
-            return jnp.where(jnp.arange(max_steps) < s.time, path, value)  # held after the end
+            c = (*c, seen)
+            s, *_, value, _, path, seen = jax.lax.while_loop(lambda c: ~c[4], body, c)
+            path = jnp.where(jnp.arange(max_steps) < s.time, path, value)  # held after the end
+            return (path, seen) if record else path
 
         return run
 
@@ -300,7 +316,9 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
         extinct=[bool(res.stopped) and float(res.reached) == 0.0 for res in runs],
         cases_started=a.repeats * a.particles,
         trajectories=sum(int(res.trajectories) for res in runs), wall_s=round(wall, 1),
-        matmul_peak_gflops=peak, curve=curve, nearest=_nearest(runs),
+        matmul_peak_gflops=peak, seed=a.seed, max_steps=a.max_steps, traffic=list(a.traffic),
+        checkpoint=meta.get("checkpoint"), k=int(meta.get("k") or 1), curve=curve,
+        nearest=_nearest(runs),
     )  # fmt: skip
 
 
@@ -312,15 +330,43 @@ def _distinct(res: splitting.Splitting) -> float:
 
 
 def _nearest(runs: list, keep: int = 5) -> list[Miss]:
-    """The particles that came closest, over every run, with their key chains."""
+    """The particles that came closest, over every run, with their key chains; one per margin
+    in a run (clones that shared their parent's closest moment are one miss)."""
     out = []
     for r, res in enumerate(runs):
-        for i in np.argsort(-np.asarray(res.scores))[:keep]:
+        for i in np.unique(-np.asarray(res.scores), return_index=True)[1][:keep]:
             steps = np.asarray(res.chains.steps[i])
             used = steps != splitting.UNUSED
             keys = np.asarray(res.chains.keys[i])[used].tolist()
             out.append(Miss(r, float(-res.scores[i]), steps[used].tolist(), keys))
     return sorted(out, key=lambda m: m.margin)[:keep]
+
+
+@functools.lru_cache(maxsize=4)
+def _case_program(cfg: config.Config, kind: str, steps: int, record: bool) -> Any:
+    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+    bind = make_run(base, make_networks(cfg.ddpg, action_dim(cfg.env))[0].apply, kind, steps)
+    return jax.jit(lambda pol, cs, cap, ch: jax.vmap(lambda c: bind(pol, cs, cap)(c, record))(ch))
+
+
+def replay(cfg: config.Config, est: Estimate, miss: Miss, pol: Policies, exact: bool) -> tuple:
+    """A nearest miss run again from its key chain (``pol``: one policy, no axis): ``(margin,
+    path (T,), states)``, T its steps, ``states`` after each step (host). ``exact``: the margin
+    by AMS's own program on a batch the size the run computed the path in (its N for an
+    unbranched particle, a re-run's k for a clone), so the saved one bit for bit; else NaN."""
+    cs = starts(cfg, est.particles, est.seed, miss.repeat * est.particles)
+    chain = Chain(jnp.asarray(miss.steps, jnp.int32), jnp.asarray(miss.keys, jnp.uint32))
+    batch = est.particles if len(miss.steps) == 1 else max(1, math.ceil(est.kill * est.particles))
+    margin = math.nan
+    if exact:
+        tiled = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), chain)
+        paths = _case_program(cfg, est.kind, est.max_steps, False)(pol, cs, est.cap, tiled)
+        margin = float(-np.asarray(paths[0]).max())
+    one = jax.tree.map(lambda x: x[None], chain)
+    path, states = jax.device_get(_case_program(cfg, est.kind, est.max_steps, True)(
+        pol, cs, est.cap, one))  # fmt: skip
+    end = int(states.time[0].max())  # the steps the case took
+    return margin, path[0, :end], jax.tree.map(lambda x: x[0, :end], states)
 
 
 def write(out_dir: Path, results: list[Estimate]) -> Path:

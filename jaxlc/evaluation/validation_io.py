@@ -1,6 +1,7 @@
 """What ``python -m jaxlc.validate`` writes: ``RUN_DIR/validate/`` (``write_outputs``), the
-report's section (``report_section``), each failure kind's scene (``scenes_figure``), and a
-saved case replayed as a GIF (``replay_case``)."""
+report's section (``report_section``), each failure kind's scene (``scenes_figure``), a
+saved case replayed as a GIF (``replay_case``); AMS's nearest misses at their closest moment
+(``misses_figure``) and one replayed as a GIF (``replay_miss``)."""
 
 from __future__ import annotations
 
@@ -17,13 +18,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxlc import config
-from jaxlc.evaluation import heldout, rare, validation
+from jaxlc.evaluation import ams, heldout, numbers, rare, validation
 from jaxlc.evaluation.cases import columns
 from jaxlc.evaluation.mixture import Mixture
 from jaxlc.evaluation.numbers import csv_text
 from jaxlc.evaluation.proposal import Record
 from jaxlc.evaluation.results import OUTCOMES, EvalError
-from jaxlc.sim.env import EnvParams
+from jaxlc.sim.env import CRUISE, GAP, RL, WAIT, EnvParams
+from jaxlc.sim.render import render_frame
 from jaxlc.study import checkpoint
 from jaxlc.study.rundir import RunDir
 
@@ -231,3 +233,81 @@ def _gif(path: Path, tr: dict, cfg: config.Config, case: validation.Case) -> Pat
             writer.grab_frame()
     plt.close(fig)
     return path
+
+
+PHASES = {WAIT: "waiting", CRUISE: "cruise", GAP: "gap search", RL: "lane change"}
+
+
+def _misses(out: Path) -> list[tuple[ams.Estimate, ams.Miss]]:
+    """``ams.json``'s nearest misses, policy after policy, nearest first."""
+    if not (out / "ams.json").is_file():
+        raise EvalError(f"{out / 'ams.json'} is missing; run python -m jaxlc.validate --method ams")
+    doc = numbers.read(out / "ams.json", ams.Ams)
+    if any(e.max_steps == 0 for e in doc.policies):  # written before the replay's fields
+        raise EvalError(f"{out / 'ams.json'} cannot be replayed; run --method ams again")
+    return [(e, m) for e in doc.policies for m in e.nearest]
+
+
+def _replay_miss(run_dir: Path, est: ams.Estimate, miss: ams.Miss, exact: bool) -> tuple:
+    """``ams.replay`` of a miss in the run's config and the estimate's traffic and policy, and
+    the params it drew with."""
+    cfg = heldout.in_traffic(RunDir(run_dir).load_config(), est.traffic)
+    actor = checkpoint.load(Path(run_dir) / est.checkpoint)[0] if est.checkpoint else None
+    pol = jax.tree.map(lambda x: x[0], validation.policies(cfg, actor, est.k))
+    return *ams.replay(cfg, est, miss, pol, exact), EnvParams.from_config(cfg.env)
+
+
+def _miss_title(est: ams.Estimate, miss: ams.Miss, f: int, p: EnvParams, phase: int) -> str:
+    unit = "s" if est.kind == "timeout" else "m"
+    return (f"{est.label}, run {miss.repeat}: {est.kind} margin {miss.margin:.3f} {unit}; "
+            f"t = {(f + 1) * p.dt:.1f} s, {PHASES[int(phase)]}")  # fmt: skip
+
+
+def misses_figure(run_dir: Path, out: Path | None = None) -> Path | None:
+    """``ams_misses.png``: each of ``ams.json``'s nearest misses replayed, its scene at its
+    closest moment (the first step its score path reached its top: the ego red)."""
+    out = validate_dir(run_dir, out)
+    misses = _misses(out)
+    if not misses:
+        return None
+    from jaxlc.report.plots import _save, plt
+
+    fig, axes = plt.subplots(len(misses), 1, figsize=(8, 1.2 * len(misses) + 0.2), squeeze=False)
+    for ax, (est, miss) in zip(axes[:, 0], misses, strict=True):
+        _, path, states, p = _replay_miss(run_dir, est, miss, exact=False)
+        f = int(np.argmax(path))
+        ax.imshow(render_frame(jax.tree.map(lambda x, f=f: x[f], states), p))
+        ax.set_axis_off()
+        ax.set_title(_miss_title(est, miss, f, p, states.ego.phase[f]), fontsize=8, loc="left")
+    return _save(fig, out / "ams_misses.png")
+
+
+def replay_miss(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
+    """``ams.json``'s nearest miss ``index`` (``_misses``' order) run again from its key chain
+    and drawn as ``validate/ams_miss_INDEX.gif`` from 3 s before its gap search on (at most
+    300 frames, in real time); returns the path and whether its margin is the saved one bit
+    for bit."""
+    out = validate_dir(run_dir, out)
+    misses = _misses(out)
+    if not 0 <= index < len(misses):
+        raise EvalError(f"--replay {index}: ams.json holds {len(misses)} nearest misses")
+    est, miss = misses[index]
+    margin, path, states, p = _replay_miss(run_dir, est, miss, exact=True)
+    from jaxlc.report.plots import PillowWriter, plt
+
+    phase = np.asarray(states.ego.phase)
+    start = max(int(np.argmax(phase >= GAP)) - int(round(3.0 / p.dt)), 0)
+    stride = max(1, -(-(len(phase) - start) // 300))
+    fig, ax = plt.subplots(figsize=(8, 1.3))
+    writer, gif = PillowWriter(fps=1.0 / (p.dt * stride)), out / f"ams_miss_{index}.gif"
+    with writer.saving(fig, gif, dpi=90):
+        for f in range(start, len(phase), stride):
+            ax.clear()
+            ax.imshow(render_frame(jax.tree.map(lambda x, f=f: x[f], states), p))
+            ax.set_axis_off()
+            so_far = f"so far {-path[f]:.2f}" if path[f] > -est.cap else "not yet"
+            title = _miss_title(est, miss, f, p, phase[f]) + f"; margin {so_far}"
+            ax.set_title(title, fontsize=7, loc="left")
+            writer.grab_frame()
+    plt.close(fig)
+    return gif, margin == miss.margin

@@ -301,6 +301,7 @@ def build_report(run_dir: Path) -> str:
             for line in report_heldout.section(read(path, Heldout), path.parent.name[8:])
         ],
         *_validation_section(run_dir),
+        *report_heldout.ams_section(run_dir),
         *report_seeds.section(rows),
         "## The paper's other figures beside this run",
         "",

@@ -1,15 +1,18 @@
 """``report.md``'s held-out sections: per cell and per model against the norms (a measure
 registered with a held-out summary adds its column), and every collision tallied by the
-vehicle hit (``eval/heldout.json``, ``jaxlc.evaluation.heldout``)."""
+vehicle hit (``eval/heldout.json``, ``jaxlc.evaluation.heldout``); how close to failure, by
+AMS (``validate/ams.json``, ``ams_section``)."""
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from jaxlc.evaluation.numbers import defined, fixed, percent
+from jaxlc.evaluation import ams
+from jaxlc.evaluation.numbers import defined, fixed, percent, read
 from jaxlc.evaluation.results import Collision, Heldout, HeldoutRow
 from jaxlc.report import report_text as text
 from jaxlc.report.report_text import EVERY_STEP
@@ -144,3 +147,42 @@ def section(doc: Heldout | None, tag: str = "") -> list[str]:
         "",
         *collision_tally(doc),
     ]
+
+
+def _g(v: Any) -> str:
+    return fixed(v, ".3g")
+
+
+def ams_section(run_dir: Path) -> list[str]:
+    """How close to failure (``python -m jaxlc.validate --method ams``): per policy the
+    exceedance curve's figure and its table, P(margin <= m) per case by AMS beside crude MC on
+    the runs' initial cases, each with its 95% interval; nothing without ``validate/ams.json``."""
+    path = Path(run_dir) / "validate" / "ams.json"
+    if not path.is_file():
+        return []
+    doc = read(path, ams.Ams)
+    lines = ["## How close to failure (`python -m jaxlc.validate --method ams`)", ""]
+    for e in doc.policies:
+        unit = "s" if e.kind == "timeout" else "m"
+        lines += [
+            f"{e.label}: P(a lane change with {e.kind} margin <= m) per case started, by "
+            f"adaptive multilevel splitting: {len(e.repeats)} runs of {e.particles} cases, "
+            f"{e.kill:g} killed per round, Cox's 95% interval over the runs; crude Monte Carlo "
+            f"on the runs' initial cases beside it (Clopper-Pearson). At m = {e.margin:g} "
+            f"{unit}: {_g(e.estimate)} [{_g(e.lo)}, {_g(e.hi)}]; {e.trajectories} cases "
+            f"simulated, {e.wall_s} s, matmul peak {e.matmul_peak_gflops:.0f} GFLOP/s.",
+            "",
+            f"| margin m, {unit} | AMS | 95% interval | crude MC | 95% interval | cases <= m |",
+            "|---|---|---|---|---|---|",
+        ]
+        for c in e.curve:
+            lines.append(
+                f"| {c.margin:.3g} | {_g(c.ams)} | [{_g(c.ams_lo)}, {_g(c.ams_hi)}] | "
+                f"{_g(c.crude)} | [{_g(c.crude_lo)}, {_g(c.crude_hi)}] | {c.crude_n} |"
+            )
+        lines.append("")
+    lines.append("![The exceedance curve](validate/ams_curve.png)")
+    if (path.parent / "ams_misses.png").is_file():
+        lines += ["", "The nearest misses at their closest moment (`--replay K` draws one):", ""]
+        lines.append("![The nearest misses](validate/ams_misses.png)")
+    return lines + [""]
