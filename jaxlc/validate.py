@@ -33,8 +33,9 @@ from jaxlc import config
 from jaxlc.evaluation import ams, heldout, mixture, proposal, validation
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.evaluation.results import SCRIPTED, EvalError
-from jaxlc.evaluation.validation_io import replay_case, validate_dir, write_outputs
+from jaxlc.evaluation.validation_io import validate_dir, write_outputs
 from jaxlc.paper.grid import tag_of
+from jaxlc.report import plots_scenes, report_heldout
 from jaxlc.sim.params import value_range
 from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
@@ -134,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         if args.replay is not None:
-            path, same = replay_case(args.run_dir, args.replay, args.out)
+            path, same = plots_scenes.replay_case(args.run_dir, args.replay, args.out)
             print(f"Wrote {path}; the replay {'matches' if same else 'DIFFERS from'} the case")
             return 0 if same else 1
         if args.method == "ams":
@@ -162,6 +163,9 @@ def main(argv: list[str] | None = None) -> int:
             if results[-1].interrupted:
                 break
         out = write_outputs(args, cfg, results, peak)
+        section = report_heldout.validation_section(args.run_dir, out)
+        (out / "validate.md").write_text("\n".join(section) + "\n")
+        plots_scenes.validation_scenes(args.run_dir, out, cfg)
         if args.out is None and RunDir(args.run_dir).eval_json.is_file():
             from jaxlc.report import report  # the run's report gains the section
 

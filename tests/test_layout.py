@@ -41,9 +41,6 @@ TOP_LEVEL = {
 EXCEPTIONS = {
     ("jaxlc.study.checkpoint", "jaxlc"): "reads jaxlc.__version__ (deferred) for the metadata",
     ("jaxlc.config", "jaxlc.sim.params"): "[env] is EnvParams' declaration: one per setting",
-    # (deferred) a validated failure replayed is drawn as the figures draw a scene
-    ("jaxlc.evaluation.validation_io", "jaxlc.report.plots"): "the replay's figure and GIF",
-    ("jaxlc.evaluation.validation_io", "jaxlc.report.plots_scenes"): "the replay's scene",
 }
 
 

@@ -1,13 +1,11 @@
-"""What ``python -m jaxlc.validate`` writes: ``RUN_DIR/validate/`` (``write_outputs``), the
-report's section (``report_section``), each failure kind's scene (``scenes_figure``), and a
-saved case replayed as a GIF (``replay_case``)."""
+"""What ``python -m jaxlc.validate`` writes to ``RUN_DIR/validate/`` (``write_outputs``), and a
+saved case run again (``replay``); its report section and figures are ``jaxlc.report``'s."""
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,7 +21,6 @@ from jaxlc.evaluation.mixture import Mixture
 from jaxlc.evaluation.numbers import csv_text
 from jaxlc.evaluation.proposal import Record
 from jaxlc.evaluation.results import OUTCOMES, EvalError
-from jaxlc.sim.env import EnvParams
 from jaxlc.study import checkpoint
 from jaxlc.study.rundir import RunDir
 
@@ -78,8 +75,8 @@ class Validation:
 def write_outputs(
     args: Any, cfg: config.Config, results: list[validation.Result], peak: float
 ) -> Path:
-    """``validate/validate.json``, ``validate.csv``, ``cases.json``, ``validate.md`` and the
-    figure."""
+    """``validate/validate.json``, ``validate.csv`` and ``cases.json`` (``validate.md`` and
+    ``scenes.png``: ``jaxlc.report``)."""
     out = validate_dir(args.run_dir, args.out)
     out.mkdir(parents=True, exist_ok=True)
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
@@ -101,8 +98,6 @@ def write_outputs(
     (out / "cases.json").write_text(
         json.dumps([dataclasses.asdict(c) for c in cases], indent=1) + "\n"
     )
-    (out / "validate.md").write_text("\n".join(report_section(args.run_dir, out)) + "\n")
-    scenes_figure(args.run_dir, out, cfg, doc, cases)
     return out
 
 
@@ -111,77 +106,7 @@ def read_cases(out: Path) -> list[validation.Case]:
     return [validation.Case(**c) for c in json.loads((out / "cases.json").read_text())]
 
 
-_FAMILY = {"mixture": " (a mixture of one-role braking tilts)"}
-
-
-def _sci(v: Any) -> str:
-    return "-" if v is None or not math.isfinite(v) else f"{v:.3g}"
-
-
-def report_section(run_dir: Path, out: Path | None = None) -> list[str]:
-    """``report.md``'s section: per model and kind, the probability per lane change and its
-    95% interval; nothing when the run has not been validated."""
-    path = validate_dir(run_dir, out) / "validate.json"
-    if not path.is_file():
-        return []
-    doc = Validation.read(path)
-    lines = [
-        "## How rarely it fails (`python -m jaxlc.validate`)",
-        "",
-        f"{doc.method.upper()}{_FAMILY.get(doc.family, '')} in {doc.traffic}; {doc.date}, "
-        f"matmul peak {doc.matmul_peak_gflops} GFLOP/s. Probability per lane change, 95% "
-        "interval, relative half-width, effective sample size; `validate/validate.json`.",
-        "",
-        "| policy | kind | estimate | 95% interval | rel. half-width | ESS | lane changes | s |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for m in doc.models:
-        for kind, e in m.estimates.items():
-            if e.failures == 0 and kind != doc.kind:
-                continue
-            lines.append(
-                f"| {m.meta['label']} | {kind} | {_sci(e.estimate)} | [{_sci(e.lo)}, "
-                f"{_sci(e.hi)}] | {_sci(e.rel_halfwidth)} | {_sci(e.ess)} | "
-                f"{e.lane_changes} | {m.wall_s} |"
-            )
-    return lines + [""]
-
-
-def scenes_figure(
-    run_dir: Path, out: Path, cfg: config.Config, doc: Validation, cases: list[validation.Case]
-) -> Path | None:
-    """``scenes.png``: per failure kind, its highest-weight saved case replayed, the scene at
-    its last step (the ego red, the gap's lead and lag green)."""
-    kinds = [k for k in validation.KINDS if any(k in c.kinds for c in cases)]
-    if not kinds:
-        return None
-    from jaxlc.report.plots import _save, plt
-
-    p = EnvParams.from_config(cfg.env)
-    fig, axes = plt.subplots(len(kinds), 1, figsize=(8, 1.3 * len(kinds) + 0.3), squeeze=False)
-    for ax, kind in zip(axes[:, 0], kinds, strict=True):
-        case = next(c for c in cases if kind in c.kinds)  # highest weight first
-        tr, _ = _rerun(run_dir, cfg, doc, case)
-        n = sum(kind in c.kinds for c in cases)
-        title = f"{kind} ({n} saved): {case.label}, case {case.index}, {case.reason}, "
-        _draw(ax, tr, max(int(tr["frames"][0, 0]) - 1, 0), p, title + _log10_w(case))
-    return _save(fig, out / "scenes.png")
-
-
-def _log10_w(case: validation.Case) -> str:
-    return f"log10 w = {case.log_w / math.log(10):.2f}"
-
-
-def _draw(ax: Any, tr: dict, frame: int, p: EnvParams, title: str) -> None:
-    """A saved case's scene at ``frame`` (the ego red, the gap's lead and lag green)."""
-    from jaxlc.report.plots_scenes import draw_scene
-
-    draw_scene(ax, tr, 0, 0, frame, p)
-    ax.set_axis_off()
-    ax.set_title(title, fontsize=8, loc="left")
-
-
-def _rerun(run_dir: Path, cfg: config.Config, doc: Validation, case: validation.Case) -> tuple:
+def rerun(run_dir: Path, cfg: config.Config, doc: Validation, case: validation.Case) -> tuple:
     """A saved case run again (the same program, its key in every row of a chunk): the trace
     of its row, and whether its outcome and weight are the saved ones."""
     actor = None
@@ -201,10 +126,9 @@ def _rerun(run_dir: Path, cfg: config.Config, doc: Validation, case: validation.
     return tr, OUTCOMES[int(o["reason"][0][0])] == case.reason and log_w == case.log_w
 
 
-def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
-    """Run ``validate/cases.json``'s case ``index`` again and draw it as
-    ``validate/case_INDEX.gif``; returns the path and whether the outcome and weight are the
-    saved ones bit for bit."""
+def replay(run_dir: Path, index: int, out: Path | None = None) -> tuple:
+    """``validate/cases.json``'s case ``index`` run again: ``(cfg, case, trace, same)``,
+    ``same`` whether its outcome and weight are the saved ones bit for bit."""
     out = validate_dir(run_dir, out)
     if not (out / "cases.json").is_file():
         raise EvalError(f"{out / 'cases.json'} is missing; run python -m jaxlc.validate first")
@@ -213,21 +137,5 @@ def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Pat
         raise EvalError(f"--replay {index}: cases.json holds {len(cases)} cases")
     doc, case = Validation.read(out / "validate.json"), cases[index]
     cfg = heldout.in_traffic(RunDir(run_dir).load_config(), doc.traffic_overrides)
-    tr, same = _rerun(run_dir, cfg, doc, case)
-    return _gif(out / f"case_{index}.gif", tr, cfg, case), same
-
-
-def _gif(path: Path, tr: dict, cfg: config.Config, case: validation.Case) -> Path:
-    from jaxlc.report.plots import PillowWriter, plt
-
-    p = EnvParams.from_config(cfg.env)
-    fig, ax = plt.subplots(figsize=(8, 1.5))
-    writer = PillowWriter(fps=10)
-    with writer.saving(fig, path, dpi=90):
-        for f in range(max(int(tr["frames"][0, 0]), 1)):
-            ax.clear()
-            title = f"{case.label}  t = {f * p.dt:4.1f} s  {case.reason}  "
-            _draw(ax, tr, f, p, title + _log10_w(case))
-            writer.grab_frame()
-    plt.close(fig)
-    return path
+    tr, same = rerun(run_dir, cfg, doc, case)
+    return cfg, case, tr, same

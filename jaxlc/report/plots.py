@@ -33,9 +33,9 @@ from jaxlc.evaluation.numbers import number, read
 from jaxlc.evaluation.results import EvalResult, Heldout
 from jaxlc.paper import grid as paper_grid
 from jaxlc.report import plots_scenes as scenes
-from jaxlc.report.plots_scenes import PillowWriter, plt  # noqa: F401  (validation_io's; on Agg)
 from jaxlc.report.plots_scenes import eval_files as _eval
 from jaxlc.report.plots_scenes import npz as _npz
+from jaxlc.report.plots_scenes import plt
 from jaxlc.report.plots_scenes import save as _save
 from jaxlc.study.rundir import RunDir
 

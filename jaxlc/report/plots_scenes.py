@@ -1,13 +1,15 @@
 """The figures of single lane changes from a run's evaluation (``eval/traces.npz``): Fig. 5
 scenes at chosen checkpoints, Fig. 7 trajectories, the speeds and gaps of the drawn cases,
-``learning.gif`` (lane changes across checkpoints) and ``draw_scene`` (one frame, also the
-validation's replay); drawn on the road's bend where the case had one. Also what every figure
+``learning.gif`` (lane changes across checkpoints), ``draw_scene`` (one frame), and a validated
+failure replayed (``validation_scenes``, ``replay_case``); drawn on the road's bend where the
+case had one. Also what every figure
 module shares: matplotlib on its file backend (Agg: files only, no display on training
 machines), a run's evaluation files, a figure saved. The rest of the figures:
 ``jaxlc.report.plots``."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -20,8 +22,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.animation import PillowWriter  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
+from jaxlc import config  # noqa: E402
+from jaxlc.evaluation import validation, validation_io  # noqa: E402
 from jaxlc.evaluation.numbers import read  # noqa: E402
 from jaxlc.evaluation.results import OUTCOMES, EvalResult, rank_models  # noqa: E402
+from jaxlc.sim.env import EnvParams  # noqa: E402
 from jaxlc.sim.render import road_to_world  # noqa: E402
 from jaxlc.sim.road import origin_lane, reference_y  # noqa: E402
 from jaxlc.study.rundir import RunDir  # noqa: E402
@@ -335,3 +340,55 @@ def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | 
             writer.grab_frame()
     plt.close(fig)
     return path
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def validation_scenes(run_dir: Path, out: Path, cfg: config.Config) -> Path | None:
+    """``scenes.png`` of ``jaxlc.validate``'s ``out``: per failure kind, its highest-weight
+    saved case replayed, the scene at its last step (the ego red, the gap's lead and lag
+    green)."""
+    cases = validation_io.read_cases(out)
+    kinds = [k for k in validation.KINDS if any(k in c.kinds for c in cases)]
+    if not kinds:
+        return None
+    doc, p = validation_io.Validation.read(out / "validate.json"), EnvParams.from_config(cfg.env)
+    fig, axes = plt.subplots(len(kinds), 1, figsize=(8, 1.3 * len(kinds) + 0.3), squeeze=False)
+    for ax, kind in zip(axes[:, 0], kinds, strict=True):
+        case = next(c for c in cases if kind in c.kinds)  # highest weight first
+        tr, _ = validation_io.rerun(run_dir, cfg, doc, case)
+        n = sum(kind in c.kinds for c in cases)
+        title = f"{kind} ({n} saved): {case.label}, case {case.index}, {case.reason}, "
+        _draw_case(ax, tr, max(int(tr["frames"][0, 0]) - 1, 0), p, title + _log10_w(case))
+    return save(fig, out / "scenes.png")
+
+
+def _log10_w(case: validation.Case) -> str:
+    return f"log10 w = {case.log_w / math.log(10):.2f}"
+
+
+def _draw_case(ax: Any, tr: dict, frame: int, p: EnvParams, title: str) -> None:
+    """A saved case's scene at ``frame`` (the ego red, the gap's lead and lag green)."""
+    draw_scene(ax, tr, 0, 0, frame, p)
+    ax.set_axis_off()
+    ax.set_title(title, fontsize=8, loc="left")
+
+
+def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
+    """Run ``validate/cases.json``'s case ``index`` again and draw it as
+    ``validate/case_INDEX.gif``; returns the path and whether the outcome and weight are the
+    saved ones bit for bit (``validation_io.replay``)."""
+    cfg, case, tr, same = validation_io.replay(run_dir, index, out)
+    path = validation_io.validate_dir(run_dir, out) / f"case_{index}.gif"
+    p = EnvParams.from_config(cfg.env)
+    fig, ax = plt.subplots(figsize=(8, 1.5))
+    writer = PillowWriter(fps=10)
+    with writer.saving(fig, path, dpi=90):
+        for f in range(max(int(tr["frames"][0, 0]), 1)):
+            ax.clear()
+            title = f"{case.label}  t = {f * p.dt:4.1f} s  {case.reason}  "
+            _draw_case(ax, tr, f, p, title + _log10_w(case))
+            writer.grab_frame()
+    plt.close(fig)
+    return path, same

@@ -266,13 +266,6 @@ def _claims_section(run_dir: Path, held: Heldout | None) -> list[str]:
     return lines + ["", text.CONVERGENCE_FOOTNOTE, ""]
 
 
-def _validation_section(run_dir: Path) -> list[str]:
-    """``python -m jaxlc.validate``'s section, where the run was validated."""
-    from jaxlc.evaluation.validation_io import report_section
-
-    return report_section(run_dir)
-
-
 def build_report(run_dir: Path) -> str:
     """The report's Markdown for ``run_dir`` (needs ``eval/eval.json``)."""
     path = RunDir(run_dir).eval_json
@@ -300,7 +293,7 @@ def build_report(run_dir: Path) -> str:
             for path in sorted(RunDir(run_dir).eval.glob("heldout_*/heldout.json"))
             for line in report_heldout.section(read(path, Heldout), path.parent.name[8:])
         ],
-        *_validation_section(run_dir),
+        *report_heldout.validation_section(run_dir),
         *report_seeds.section(rows),
         "## The paper's other figures beside this run",
         "",

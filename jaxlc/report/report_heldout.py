@@ -1,16 +1,19 @@
 """``report.md``'s held-out sections: per cell and per model against the norms (a measure
 registered with a held-out summary adds its column), and every collision tallied by the
-vehicle hit (``eval/heldout.json``, ``jaxlc.evaluation.heldout``)."""
+vehicle hit (``eval/heldout.json``, ``jaxlc.evaluation.heldout``); ``python -m
+jaxlc.validate``'s section (``validate/validate.json``, also its ``validate.md``)."""
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from jaxlc.evaluation.numbers import defined, fixed, percent
 from jaxlc.evaluation.results import Collision, Heldout, HeldoutRow
+from jaxlc.evaluation.validation_io import Validation, validate_dir
 from jaxlc.report import report_text as text
 from jaxlc.report.report_text import EVERY_STEP
 
@@ -144,3 +147,39 @@ def section(doc: Heldout | None, tag: str = "") -> list[str]:
         "",
         *collision_tally(doc),
     ]
+
+
+_FAMILY = {"mixture": " (a mixture of one-role braking tilts)"}
+
+
+def _sci(v: Any) -> str:
+    return "-" if v is None or not math.isfinite(v) else f"{v:.3g}"
+
+
+def validation_section(run_dir: Path, out: Path | None = None) -> list[str]:
+    """``report.md``'s section: per model and kind, the probability per lane change and its
+    95% interval; nothing when the run has not been validated."""
+    path = validate_dir(run_dir, out) / "validate.json"
+    if not path.is_file():
+        return []
+    doc = Validation.read(path)
+    lines = [
+        "## How rarely it fails (`python -m jaxlc.validate`)",
+        "",
+        f"{doc.method.upper()}{_FAMILY.get(doc.family, '')} in {doc.traffic}; {doc.date}, "
+        f"matmul peak {doc.matmul_peak_gflops} GFLOP/s. Probability per lane change, 95% "
+        "interval, relative half-width, effective sample size; `validate/validate.json`.",
+        "",
+        "| policy | kind | estimate | 95% interval | rel. half-width | ESS | lane changes | s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for m in doc.models:
+        for kind, e in m.estimates.items():
+            if e.failures == 0 and kind != doc.kind:
+                continue
+            lines.append(
+                f"| {m.meta['label']} | {kind} | {_sci(e.estimate)} | [{_sci(e.lo)}, "
+                f"{_sci(e.hi)}] | {_sci(e.rel_halfwidth)} | {_sci(e.ess)} | "
+                f"{e.lane_changes} | {m.wall_s} |"
+            )
+    return lines + [""]
