@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import fields as dataclass_fields
-from typing import Any
 
 import numpy as np
 import scipy.stats
@@ -35,7 +34,6 @@ import scipy.stats
 from jaxlc import config
 from jaxlc.evaluation import measures
 from jaxlc.evaluation.cases import CaseInfo
-from jaxlc.evaluation.numbers import TERMINAL_DASH, percent
 from jaxlc.evaluation.results import (
     OUTCOMES,
     SCRIPTED,
@@ -339,23 +337,3 @@ def claim_d(cells: list[HeldoutCell]) -> Claim:
         f"Clopper-Pearson: {fails} failures in {n} over {s} seed{'s' * (s != 1)})"
     )
     return Claim(CLAIM_D, "100%", figures=figures, verdict=v)
-
-
-def _pct(v: Any, digits: int = 1) -> str:
-    """A share for the terminal's table: a percentage without its sign, ``-`` undefined."""
-    return percent(v, digits, unit="", missing=TERMINAL_DASH)
-
-
-def format_rows(rows: list[HeldoutRow]) -> str:
-    """Plain-text table of held-out rows for the terminal."""
-    lines = [
-        "held-out policy            seed  lane ch.  succ% [95% CP]        coll  fail<%  all norms%"
-    ]
-    for r in rows:
-        ci = f"[{_pct(r.success_lo)}, {_pct(r.success_hi)}]"
-        lines.append(
-            f"{str(r.label)[:26]:26} {'-' if r.seed is None else r.seed:>4} "
-            f"{r.lane_changes:9d}  {_pct(r.success_rate, 2):>6} {ci:14} "
-            f"{r.collision:5d}  {_pct(r.failure_bound, 2):>6}  {_pct(r.norm_all):>9}"
-        )
-    return "\n".join(lines)
