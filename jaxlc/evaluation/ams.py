@@ -1,39 +1,16 @@
 """How close a policy comes to failing, by adaptive multilevel splitting on the simulator
-(issue 78, SPEC "How close to failure"): ``python -m jaxlc.validate --method ams``.
+(``python -m jaxlc.validate --method ams``; the design, why and evidence: docs/decisions.md,
+"AMS on the simulator").
 
-A particle is a case of the validation's stream (``keys.VALIDATE``), cached only after its
-reset (the traffic-only warm-up, a function of its key alone); its path is everything after:
-the ego's wait, its cruise to the command, the gap search, the lane change. So a split can
-act before the command, on the traffic the lane change meets. The estimand is per case
-started: P(the case performs a lane change whose margin of ``--kind`` is <= m); a case with
-no lane change counts as not below (divide by the lane-change share for a rate per lane
-change). ``measures.MARGINS``: least clearance to any body, time left, distance to the border,
-read after each RL step by the held-out evaluation's own functions, 0 exactly on the failure.
-
-The score path, at env step t: from the first RL step on, minus the margin so far; before
-it, minus (cap + g + d): g the lengthwise gap (m) between the ego and the nearest body in
-its lane or a lane beside (once commanded, the target's side only), at most 100 m; d the
-distance still to cruise before the command (m). cap = m + ``SPAN``, so the approach never
-scores >= -cap > -m: {max score >= -m'} is {margin <= m'} exactly for every m' < cap (the
-curve is read there only), and the approach only orders the particles below that level. As
-an importance function it ranks cases by how tight the traffic is near the ego as the
-command nears: early rounds kill the loose ones and branch the tight ones in the cruise,
-where the traffic's entries, MOBIL decisions, braking events and the side drawn at the
-command are still to come, so clones separate; later rounds branch in the lane change. A
-poor importance function costs variance, never bias (Bréhier et al. 2016).
-
-Unbiasedness: ``splitting``'s argument needs a clone's future after its branch step to be a
-fresh draw of the simulator's law given its parent's state there, and the score to be a
-function of the path so far. Both hold: env step t (time t after the reset) draws from
-``splitting.step_key(chain, t)`` all along the path, approach included; the path's value at
-t is a function of the state after step t (and the running margin); a clone replays its
-parent's keys up to its branch, bit for bit, and draws from a key no other particle holds
-after. An unbranched particle's keys are the engine's, ``fold_in(case key, time)`` in the
-approach and in the lane change: ``max_rounds=0`` is the validation's crude MC on the same
-cases (tested). The policy is deterministic; the traffic's draws are the only randomness.
-
-Measured (benchmarks/ams_sim_cpu_2026-11-29): no gain over crude MC, each run following its
-initial cases; the last rounds still branch in the lane change, where the margin seldom moves.
+A particle is a case of the validation's stream (``keys.VALIDATE``), cached after its reset;
+its path is the ego's wait, cruise, gap search and lane change, env step t keyed
+``splitting.step_key(chain, t)`` (unbranched: the engine's ``fold_in(case key, t)``, so
+``max_rounds=0`` is the validation's crude MC on the same cases). The estimand is per case
+started: P(a lane change whose margin of ``--kind`` (``measures.MARGINS``) is <= m). The score
+is minus the margin from the first RL step on, and before it ``approach_score``, below
+-(m + ``SPAN``), so {max score >= -m'} is {margin <= m'} for every m' < m + ``SPAN``. The
+score is a function of the path so far and a clone replays its parent's keys to its branch,
+which is what ``splitting``'s unbiasedness needs.
 """
 
 from __future__ import annotations

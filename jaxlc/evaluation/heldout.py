@@ -1,25 +1,12 @@
-"""What the held-out evaluation concludes: per-model failure rates with binomial intervals,
-the safety and comfort norms per lane change, every collision attributed, cells over seeds
-and cases, and claim (d) as a bound.
+"""What the held-out evaluation concludes (docs/usage.md, "Held-out lane changes, safety and
+comfort"): per model its rates with 95% Clopper-Pearson intervals and the one-sided bound on
+its failures, the norms per lane change, every collision attributed, cells over seeds and
+lane changes, and claim (d) as a bound. Pure numpy/scipy.
 
-Seventy protocol lane changes cannot see a failure rate below ~4% (0 of 70 is consistent with
-4.2% at 95%), so ``python -m jaxlc.evaluate`` also drives each final checkpoint through
-``--lane-changes`` (1,000 by default) held-out lane changes
-(``jaxlc.evaluation.keys.stream(seed, HELDOUT, ...)``, a key stream apart from the protocol's
-and the sweep's). Pure numpy/scipy, like
-``jaxlc.evaluation.stats``.
-
-Intervals:
-- a model's success, failure and collision rates: two-sided 95% Clopper-Pearson intervals;
-  ``failure_bound`` is the one-sided 95% upper bound on its failure rate;
-- a cell (its seeds): with >= ``MIN_BOOT_SEEDS`` seeds, a two-level bootstrap of the mean
-  success rate (seeds resampled, then each resampled seed's lane changes), at Hesterberg's
-  expanded level (``stats.expanded_level``); with fewer seeds no bootstrap covers, so the
-  interval is the seeds' range: the lowest and highest end of their Clopper-Pearson
-  intervals (``interval`` says which);
-- the cell's pooled failure bound: one-sided Clopper-Pearson on all its lane changes; for
-  the mean failure rate of those models it is conservative (a sum of binomials with unequal
-  rates is less spread than one binomial with their mean: Hoeffding 1956).
+A cell's mean success: with >= ``MIN_BOOT_SEEDS`` seeds a two-level bootstrap (seeds, then
+each seed's lane changes) at ``stats.expanded_level``; with fewer, the range of its seeds'
+Clopper-Pearson intervals (``interval`` says which). Its pooled one-sided failure bound is
+conservative for the mean of its models' rates (Hoeffding 1956).
 """
 
 from __future__ import annotations
