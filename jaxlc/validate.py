@@ -35,7 +35,7 @@ from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.evaluation.results import SCRIPTED, EvalError
 from jaxlc.evaluation.validation_io import validate_dir, write_outputs
 from jaxlc.paper.grid import tag_of
-from jaxlc.report import plots_scenes, report_heldout
+from jaxlc.report import plots, plots_scenes, report_heldout
 from jaxlc.sim.params import value_range
 from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
@@ -144,7 +144,9 @@ def main(argv: list[str] | None = None) -> int:
         cfg = heldout.in_traffic(cfg, args.traffic)
         if args.method == "ams":  # all of it in jaxlc.evaluation.ams
             out = validate_dir(args.run_dir, args.out)
-            return ams.command(cfg, rows, args, out, machine.matmul_peak_gflops())
+            results = ams.command(cfg, rows, args, out, machine.matmul_peak_gflops())
+            plots.ams_curve(results, out / "ams_curve.png")
+            return 0
         if (
             args.method == "is"
             and args.family == "mixture"

@@ -225,9 +225,11 @@ def program(cfg: config.Config, kind: str, particles: int, kill: float, rounds: 
     return jax.jit(one)
 
 
-def command(cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, peak: float) -> int:
+def command(
+    cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, peak: float
+) -> list[Estimate]:
     """``python -m jaxlc.validate --method ams``'s work on the chosen policies (``rows``:
-    validate's ``model_rows``): each one's estimate printed, the files written."""
+    validate's ``model_rows``): each one's estimate printed, the files written (``write``)."""
     results = []
     for actor, k, meta in rows:
         pol = validation.policies(cfg, actor, k)
@@ -242,7 +244,7 @@ def command(cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, pea
                 f" future of their own (distinct final paths {min(r.distinct):.0%} at least)"
             )
     print(f"Wrote {write(out_dir, results)}")
-    return 0
+    return results
 
 
 def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float) -> Estimate:
@@ -301,31 +303,10 @@ def _nearest(runs: list, keep: int = 5) -> list[Miss]:
 
 
 def write(out_dir: Path, results: list[Estimate]) -> Path:
-    """``ams.json``, ``ams_curve.csv`` (per policy and margin: AMS and crude MC with their
-    95% intervals) and ``ams_curve.png`` in ``out_dir``; the json's path."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """``ams.json`` and ``ams_curve.csv`` (per policy and margin: AMS and crude MC with their
+    95% intervals) in ``out_dir`` (``ams_curve.png``: ``jaxlc.report.plots.ams_curve``); the
+    json's path."""
     numbers.write(out_dir / "ams.json", Ams(results))
     rows = [dict(label=r.label, kind=r.kind, **c.as_dict()) for r in results for c in r.curve]
     numbers.write_csv(out_dir / "ams_curve.csv", rows)
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for r in results:
-        cols = ("margin", "ams", "ams_lo", "ams_hi", "crude", "crude_lo", "crude_hi")
-        got = (np.asarray([getattr(x, f) for x in r.curve]) for f in cols)
-        m, p, p_lo, p_hi, c, c_lo, c_hi = got
-        line = ax.step(m, p, where="post", label=f"{r.label} AMS")
-        ax.fill_between(m, p_lo, p_hi, step="post", alpha=0.2, color=line[0].get_color())
-        ax.errorbar(m, c, yerr=[c - c_lo, c_hi - c], fmt=".", color="k",
-                    label="crude MC" if r is results[0] else None)  # fmt: skip
-    ax.set_yscale("log")
-    unit = "s" if results[0].kind == "timeout" else "m"
-    ax.set_xlabel(f"margin to {results[0].kind.replace('_', ' ')}, {unit}")
-    ax.set_ylabel("P(lane change with margin ≤ m) per case")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out_dir / "ams_curve.png", dpi=120)
-    plt.close(fig)
     return out_dir / "ams.json"
