@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxlc.evaluation.convergence import Convergence
-from jaxlc.evaluation.numbers import defined, fixed, percent, read
+from jaxlc.evaluation.numbers import defined, fixed, read
 from jaxlc.evaluation.results import (
     OUTCOMES,
     Claim,
@@ -33,7 +33,7 @@ from jaxlc.paper.claims import CLAIM_D, COMPARISONS
 from jaxlc.paper.grid import BEST, BEST_TAG, is_best
 from jaxlc.report import report_heldout, report_seeds
 from jaxlc.report import report_text as text
-from jaxlc.report.report_text import EVERY_STEP  # noqa: F401  (benchmarks/publish.py reads it here)
+from jaxlc.report.report_text import EVERY_STEP, percent  # noqa: F401  (benchmarks/tables reads EVERY_STEP)
 from jaxlc.study.checkpoint import write_text_atomic
 from jaxlc.study.rundir import RunDir
 

@@ -11,11 +11,11 @@ from typing import Any
 
 import numpy as np
 
-from jaxlc.evaluation.numbers import defined, fixed, percent
+from jaxlc.evaluation.numbers import defined, fixed
 from jaxlc.evaluation.results import Collision, Heldout, HeldoutRow
 from jaxlc.evaluation.validation_io import Validation, validate_dir
 from jaxlc.report import report_text as text
-from jaxlc.report.report_text import EVERY_STEP
+from jaxlc.report.report_text import EVERY_STEP, percent
 
 # How close to each failure (heldout.MARGIN_KEYS), where the rows have them (older: none).
 MARGINS = {

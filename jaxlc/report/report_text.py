@@ -7,8 +7,26 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from jaxlc.evaluation.numbers import TERMINAL_DASH, defined, percent
+from jaxlc.evaluation.numbers import DASH, defined
 from jaxlc.evaluation.results import OUTCOMES, HeldoutRow, Row
+
+TERMINAL_DASH = "-"  # an undefined number in a plain-text table for the terminal (ASCII)
+
+
+def percent(v: Any, digits: int = 1, unit: str = "%", missing: str = DASH) -> str:
+    """A share ``v`` in [0, 1] as a percentage with ``digits`` decimals and ``unit``."""
+    return f"{100 * v:.{digits}f}{unit}" if defined(v) else missing
+
+
+def interval(est: Any, lo: Any, hi: Any, fmt: str, scale: float = 1.0) -> str:
+    """``"est [lo, hi]"`` each times ``scale`` by ``fmt``; the estimate alone without bounds."""
+    if not defined(est):
+        return DASH
+    text = format(scale * est, fmt)
+    if defined(lo):
+        text += f" [{format(scale * lo, fmt)}, {format(scale * hi, fmt)}]"
+    return text
+
 
 # Figure file -> its caption in the report's list of figures (those a run has).
 FIGURES = (
