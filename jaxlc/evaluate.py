@@ -35,7 +35,6 @@ from pathlib import Path
 import jax
 
 from jaxlc import config
-from jaxlc.evaluation import heldout
 from jaxlc.evaluation.protocol import (  # the names the command's users and tests know it by
     default_episodes,
     evaluate_checkpoint,
@@ -47,9 +46,10 @@ from jaxlc.evaluation.protocol import (  # the names the command's users and tes
     write_convergence,
     write_seed_stats,
 )
-from jaxlc.evaluation.results import EvalError, format_table
+from jaxlc.evaluation.results import EvalError
 from jaxlc.evaluation.stats import StatsError
 from jaxlc.report.report_seeds import compare_runs
+from jaxlc.report.report_text import format_heldout, format_table
 from jaxlc.sim.env import action_dim
 from jaxlc.sim.observation import OBS_DIM
 from jaxlc.study import machine
@@ -156,7 +156,7 @@ def _evaluate_run_dir(args: argparse.Namespace, ev: config.EvalConfig, devices: 
         return 0
     if args.heldout_only:
         result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)
-        print(heldout.format_rows(result.rows))
+        print(format_heldout(result.rows))
         return 0
     result = evaluate_run(
         args.run_dir, args.episodes, cases=ev.cases, model=args.model, seed=ev.seed, **kw
@@ -165,7 +165,7 @@ def _evaluate_run_dir(args: argparse.Namespace, ev: config.EvalConfig, devices: 
     write_convergence(args.run_dir)
     if ev.lane_changes > 0:
         result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)
-        print(heldout.format_rows(result.rows))
+        print(format_heldout(result.rows))
     from jaxlc.report import plots, report
 
     made = [] if args.no_figures else plots.make_all(args.run_dir)

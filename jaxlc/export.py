@@ -29,19 +29,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import jax
-import jax.numpy as jnp
-
-from jaxlc.policy import load_policy
-from jaxlc.sim import observation
-from jaxlc.sim.env import ACTION_MIRROR, OBS_DIM, EnvParams, action_dim
-from jaxlc.sim.observation import LAYOUT
+from jaxlc.policy import load_policy, onnx_model, sidecar, stablehlo_bytes
 from jaxlc.study import checkpoint
 from jaxlc.study.checkpoint import write_bytes_atomic, write_text_atomic
 from jaxlc.study.rundir import RunDir
 
 FORMATS = ("onnx", "stablehlo")
-OPSET = 17  # onnxruntime 1.17 and later run it
 
 
 class ExportError(Exception):
@@ -84,118 +77,6 @@ def pick_checkpoint(
             f"model {mine[0][1]['model']} has no checkpoint at episode {episode}; saved: {saved}"
         )
     return at[0]
-
-
-def sidecar(path: Path, meta: dict[str, Any], run_dir: Path, fmt: str) -> dict[str, Any]:
-    """The JSON written beside the exported graph (module docstring)."""
-    params = EnvParams.from_config(RunDir(run_dir).load_config().env)
-    return {
-        "format": fmt,
-        "input": {
-            "name": "obs",
-            "shape": ["batch", OBS_DIM],
-            "dtype": "float32",
-            "layout": [
-                {
-                    "index": i,
-                    "name": e.name,
-                    "meaning": e.meaning,
-                    "scale": float(observation.scale(e.name, params)),
-                    "mirror_sign": e.mirror,
-                }
-                for i, e in enumerate(LAYOUT)
-            ],
-            "note": "entry i is the raw quantity divided by its scale, as the env returns it",
-        },
-        "output": {
-            "name": "action",
-            "shape": ["batch", action_dim(params)],
-            "dtype": "float32",
-            "meaning": "yaw acceleration command of the ego, held for k steps of dt",
-            "bound": [-1.0, 1.0],
-            "scale": float(params.max_yaw_acc),
-            "unit": "rad/s^2 (physical yaw acceleration = action * scale)",
-            "k": meta["k"],
-            "dt_s": float(params.dt),
-            **_longitudinal(params),
-            **_assist(params),
-        },
-        "symmetric_actor": bool(meta.get("symmetric_actor", False)),
-        "checkpoint": str(path.relative_to(run_dir)),
-        "model": meta["model"],
-        "label": meta["label"],
-        "seed": meta.get("seed"),
-        "episode": meta["episode"],
-        "config_hash": meta["config_hash"],
-        "jaxlc_version": meta["jaxlc_version"],
-    }
-
-
-def _longitudinal(params: EnvParams) -> dict[str, Any]:
-    """The second action entry's meaning, where the run's ego has one (``env.longitudinal =
-    "policy"``)."""
-    if action_dim(params) == 1:
-        return {}
-    return {
-        "entries": [
-            {
-                "index": 0,
-                "meaning": "yaw acceleration",
-                "scale": float(params.max_yaw_acc),
-                "unit": "rad/s^2",
-                "mirror_sign": ACTION_MIRROR[0],
-            },
-            {
-                "index": 1,
-                "meaning": "longitudinal acceleration added to the IDM's "
-                "(within [-idm_b_max, idm_a_max], never past the desired speed)",
-                "scale": float(params.long_acc_bound),
-                "unit": "m/s^2",
-                "mirror_sign": ACTION_MIRROR[1],
-            },
-        ],
-    }
-
-
-def _assist(params: EnvParams) -> dict[str, Any]:
-    """What the run's env adds to the graph's action (``env.assist``), where it adds any: the
-    graph alone is then a residual, not the driving policy."""
-    if params.assist == "none":
-        return {}
-    return {
-        "assist": params.assist,
-        "assist_authority": float(params.assist_authority),
-        "assist_note": "the executed action is clip(assist_authority * action + jaxlc.sim."
-        "controller.fitting_action(obs, params, time=manoeuvre time), -1, 1): this graph is "
-        "the residual"
-        + (
-            "; while the assist holds the origin lane, the lateral entry is the assist's alone"
-            if params.assist == "fitting_hold"
-            else ""
-        ),
-    }
-
-
-def onnx_model(act: Any) -> Any:
-    """``act`` (``(batch, OBS_DIM) -> (batch, action_dim)``) as an ONNX ``ModelProto`` with a
-    dynamic batch dimension, input ``obs`` and output ``action``."""
-    from jax2onnx import to_onnx  # the export extra; imported only here
-
-    return to_onnx(
-        act,
-        [("batch", OBS_DIM)],
-        model_name="jaxlc_actor",
-        opset=OPSET,
-        input_names=["obs"],
-        output_names=["action"],
-    )
-
-
-def stablehlo_bytes(act: Any) -> bytes:
-    """``act`` serialised by ``jax.export`` with a symbolic batch dimension."""
-    (batch,) = jax.export.symbolic_shape("batch")
-    spec = jax.ShapeDtypeStruct((batch, OBS_DIM), jnp.float32)
-    return bytes(jax.export.export(jax.jit(act))(spec).serialize())
 
 
 def export(

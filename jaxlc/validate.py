@@ -38,6 +38,7 @@ from jaxlc.evaluation import validation_io as io
 from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.evaluation.results import SCRIPTED, EvalError
 from jaxlc.paper.grid import tag_of
+from jaxlc.report import plots, plots_scenes, report, report_heldout
 from jaxlc.sim.params import value_range
 from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
@@ -137,8 +138,6 @@ def model_rows(run_dir: Path, which: str) -> tuple[config.Config, list[tuple[Any
 def _report(args: argparse.Namespace) -> None:
     """The run's report gains the section (where the run has one and --out is its own)."""
     if args.out is None and RunDir(args.run_dir).eval_json.is_file():
-        from jaxlc.report import report
-
         report.write_report(args.run_dir)
 
 
@@ -146,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         if args.replay is not None:
-            replay = io.replay_miss if args.method == "ams" else io.replay_case
+            replay = plots_scenes.replay_miss if args.method == "ams" else plots_scenes.replay_case
             path, same = replay(args.run_dir, args.replay, args.out)
             print(f"Wrote {path}; the replay {'matches' if same else 'DIFFERS from'} the case")
             return 0 if same else 1
@@ -156,8 +155,9 @@ def main(argv: list[str] | None = None) -> int:
         cfg = heldout.in_traffic(cfg, args.traffic)
         if args.method == "ams":  # all of it in jaxlc.evaluation.ams
             out = io.validate_dir(args.run_dir, args.out)
-            ams.command(cfg, rows, args, out, machine.matmul_peak_gflops())
-            print(f"Wrote {io.misses_figure(args.run_dir, out)}")
+            results = ams.command(cfg, rows, args, out, machine.matmul_peak_gflops())
+            plots.ams_curve(results, out / "ams_curve.png")
+            print(f"Wrote {plots_scenes.ams_misses(args.run_dir, out)}")
             _report(args)
             return 0
         if (
@@ -178,6 +178,9 @@ def main(argv: list[str] | None = None) -> int:
             if results[-1].interrupted:
                 break
         out = io.write_outputs(args, cfg, results, peak)
+        section = report_heldout.validation_section(args.run_dir, out)
+        (out / "validate.md").write_text("\n".join(section) + "\n")
+        plots_scenes.validation_scenes(args.run_dir, out, cfg)
         _report(args)
         for r in results:
             e = r.estimates.get(args.kind)

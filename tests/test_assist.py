@@ -131,7 +131,7 @@ def test_the_assist_drives_as_the_controller_does_under_a_zero_policy() -> None:
 
 
 def test_an_export_of_an_assisted_run_says_its_graph_is_a_residual() -> None:
-    from jaxlc.export import _assist
+    from jaxlc.policy import _assist
 
     assert _assist(P) == {}
     said = _assist(_params(assist="fitting"))

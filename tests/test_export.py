@@ -11,7 +11,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxlc import export
+from jaxlc import export, policy
 from jaxlc.policy import actor_fn, load_policy
 from jaxlc.sim.env import OBS_DIM, make
 from jaxlc.sim.observation import INDEX, MIRROR_SIGNS, bounds
@@ -96,7 +96,7 @@ def test_a_plain_actor_and_stablehlo_export_alike(exported, tmp_path) -> None:
     params, meta = checkpoint.load(run_dir / side["checkpoint"])
     obs = _edges(np.random.default_rng(1))
     plain = actor_fn(params, meta["hidden"], symmetric=False)
-    model = export.onnx_model(plain)
+    model = policy.onnx_model(plain)
     (tmp_path / "plain.onnx").write_bytes(model.SerializeToString())
     got = _run(_session(tmp_path / "plain.onnx"), obs)
     np.testing.assert_allclose(got, np.asarray(plain(obs)), rtol=0, atol=TOL)

@@ -172,7 +172,7 @@ def test_validate_writes_its_outputs(validated):
 def test_replay_reproduces_a_case_bit_for_bit(validated):
     import json
 
-    from jaxlc.evaluation.validation_io import replay_case
+    from jaxlc.report.plots_scenes import replay_case
 
     run_dir, out = validated
     cases = json.loads((out / "cases.json").read_text())
@@ -385,7 +385,7 @@ def validated_mixture(validated, tmp_path_factory):
 def test_the_mixture_estimate_is_written_and_its_cases_replay(validated_mixture):
     import json
 
-    from jaxlc.evaluation.validation_io import replay_case
+    from jaxlc.report.plots_scenes import replay_case
     from jaxlc.sim.braking import start_probability
 
     run_dir, out = validated_mixture
@@ -544,22 +544,22 @@ def test_the_ce_holds_its_proposal_for_a_round_that_as_many_failures_again_compl
 
 
 def test_the_reports_section_lists_each_failing_kind_of_a_committed_validation(tmp_path):
-    """``validation_io.report_section`` on the crude-MC run the README's claim (d) cites (a
+    """``report_heldout.validation_section`` on the crude-MC run the README's claim (d) cites (a
     committed ``validate.json``): nothing without one; with it, a row for the validated kind
     and for every kind that failed, the other kinds left out."""
     import json
     import shutil
 
-    from jaxlc.evaluation import validation_io
+    from jaxlc.report import report_heldout
 
-    assert validation_io.report_section(tmp_path) == []
+    assert report_heldout.validation_section(tmp_path) == []
     from .conftest import ROOT
 
     src = ROOT / "benchmarks" / "validate_cpu_2026-11-27" / "mc_3M_m3" / "validate.json"
     (tmp_path / "validate").mkdir()
     shutil.copy(src, tmp_path / "validate" / "validate.json")
     doc = json.loads(src.read_text())
-    lines = validation_io.report_section(tmp_path)
+    lines = report_heldout.validation_section(tmp_path)
     assert lines[0].startswith("## How rarely it fails") and lines[-1] == ""
     rows = [line.split(" | ")[1] for line in lines if line.startswith("| ④")]
     (model,) = doc["models"]
@@ -606,7 +606,7 @@ def test_every_nearest_miss_replays_its_margin_bit_for_bit(ams_validated, capsys
     from jaxlc.study.rundir import RunDir
 
     run_dir, out = ams_validated
-    misses = validation_io._misses(out)
+    misses = validation_io.misses(out)
     assert 2 <= len(misses) <= 5 and any(len(m.steps) >= 2 for _, m in misses)  # clones
     margins = [(m.margin, m.repeat) for _, m in misses]
     assert [m for m, _ in margins] == sorted(m for m, _ in margins)  # nearest first

@@ -11,6 +11,6 @@ over seeds (``stats``), the safety and comfort measures of a lane change (``safe
 held-out evaluation's bounds (``heldout``), learning speed from the training curves
 (``convergence``). ``report.md`` and the figures draw these records: ``jaxlc.report``.
 
-Imports: ``jaxlc.config``, ``jaxlc.sim``, ``jaxlc.learn`` and ``jaxlc.study``; never the
-top-level commands (``tests/test_layout.py`` checks it).
+Imports: ``jaxlc.config``, ``jaxlc.sim``, ``jaxlc.learn`` and ``jaxlc.study``; never
+``jaxlc.report`` or the top-level commands (``tests/test_layout.py`` checks it).
 """

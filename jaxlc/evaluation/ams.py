@@ -1,40 +1,17 @@
 """How close a policy comes to failing, by adaptive multilevel splitting on the simulator
-(issue 78, SPEC "How close to failure"): ``python -m jaxlc.validate --method ams``.
+(``python -m jaxlc.validate --method ams``; the design, why and evidence: docs/decisions.md,
+"AMS on the simulator").
 
-A particle is a case of the validation's stream (``keys.VALIDATE``), cached only after its
-reset (the traffic-only warm-up, a function of its key alone); its path is everything after:
-the ego's wait, its cruise to the command, the gap search, the lane change. So a split can
-act before the command, on the traffic the lane change meets. The estimand is per case
-started: P(the case performs a lane change whose margin of ``--kind`` is <= m); a case with
-no lane change counts as not below (divide by the lane-change share for a rate per lane
-change). ``measures.MARGINS``: least clearance to any body, time left, distance to the border,
-read after each RL step by the held-out evaluation's own functions, 0 exactly on the failure.
-
-The score path, at env step t: from the first RL step on, minus the margin so far; before
-it, minus (cap + g + d): g the lengthwise gap (m) between the ego and the nearest body in
-its lane or a lane beside (once commanded, the target's side only), at most 100 m; d the
-distance still to cruise before the command (m). cap = m + ``SPAN``, so the approach never
-scores >= -cap > -m: {max score >= -m'} is {margin <= m'} exactly for every m' < cap (the
-curve is read there only), and the approach only orders the particles below that level. As
-an importance function it ranks cases by how tight the traffic is near the ego as the
-command nears: early rounds kill the loose ones and branch the tight ones in the cruise,
-where the traffic's entries, MOBIL decisions, braking events and the side drawn at the
-command are still to come, so clones separate; later rounds branch in the lane change. A
-poor importance function costs variance, never bias (Bréhier et al. 2016).
-
-Unbiasedness: ``splitting``'s argument needs a clone's future after its branch step to be a
-fresh draw of the simulator's law given its parent's state there, and the score to be a
-function of the path so far. Both hold: env step t (time t after the reset) draws from
-``splitting.step_key(chain, t)`` all along the path, approach included; the path's value at
-t is a function of the state after step t (and the running margin); a clone replays its
-parent's keys up to its branch, bit for bit, and draws from a key no other particle holds
-after. An unbranched particle's keys are the engine's, ``fold_in(case key, time)`` in the
-approach and in the lane change: ``max_rounds=0`` is the validation's crude MC on the same
-cases (tested). The policy is deterministic; the traffic's draws are the only randomness.
-
-Measured (benchmarks/ams_sim_cpu_2026-11-29): no gain over crude MC, each run following its
-initial cases; the last rounds branch ~0.7 s into the lane change, ~1 s before its closest
-moment (docs/decisions.md, "where AMS's branches fall"), too little randomness left.
+A particle is a case of the validation's stream (``keys.VALIDATE``), cached after its reset;
+its path is the ego's wait, cruise, gap search and lane change, env step t keyed
+``splitting.step_key(chain, t)`` (unbranched: the engine's ``fold_in(case key, t)``, so
+``max_rounds=0`` is the validation's crude MC on the same cases). The estimand is per case
+started: P(a lane change whose margin of ``--kind`` (``measures.MARGINS``) is <= m). The score
+is minus the margin from the first RL step on, and before it ``approach_score``, below
+-(m + ``SPAN``), so {max score >= -m'} is {margin <= m'} for every m' < m + ``SPAN``. The
+score is a function of the path so far and a clone replays its parent's keys to its branch,
+which is what ``splitting``'s unbiasedness needs. Measured: no gain over crude MC; the last
+rounds branch ~0.7 s into the lane change, ~1 s before its closest moment (decisions.md).
 """
 
 from __future__ import annotations
@@ -264,9 +241,11 @@ def program(cfg: config.Config, kind: str, particles: int, kill: float, rounds: 
     return jax.jit(one)
 
 
-def command(cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, peak: float) -> int:
+def command(
+    cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, peak: float
+) -> list[Estimate]:
     """``python -m jaxlc.validate --method ams``'s work on the chosen policies (``rows``:
-    validate's ``model_rows``): each one's estimate printed, the files written."""
+    validate's ``model_rows``): each one's estimate printed, the files written (``write``)."""
     results = []
     for actor, k, meta in rows:
         pol = validation.policies(cfg, actor, k)
@@ -281,7 +260,7 @@ def command(cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, pea
                 f" future of their own (distinct final paths {min(r.distinct):.0%} at least)"
             )
     print(f"Wrote {write(out_dir, results)}")
-    return 0
+    return results
 
 
 def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float) -> Estimate:
@@ -370,31 +349,10 @@ def replay(cfg: config.Config, est: Estimate, miss: Miss, pol: Policies, exact: 
 
 
 def write(out_dir: Path, results: list[Estimate]) -> Path:
-    """``ams.json``, ``ams_curve.csv`` (per policy and margin: AMS and crude MC with their
-    95% intervals) and ``ams_curve.png`` in ``out_dir``; the json's path."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """``ams.json`` and ``ams_curve.csv`` (per policy and margin: AMS and crude MC with their
+    95% intervals) in ``out_dir`` (``ams_curve.png``: ``jaxlc.report.plots.ams_curve``); the
+    json's path."""
     numbers.write(out_dir / "ams.json", Ams(results))
     rows = [dict(label=r.label, kind=r.kind, **c.as_dict()) for r in results for c in r.curve]
     numbers.write_csv(out_dir / "ams_curve.csv", rows)
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for r in results:
-        cols = ("margin", "ams", "ams_lo", "ams_hi", "crude", "crude_lo", "crude_hi")
-        got = (np.asarray([getattr(x, f) for x in r.curve]) for f in cols)
-        m, p, p_lo, p_hi, c, c_lo, c_hi = got
-        line = ax.step(m, p, where="post", label=f"{r.label} AMS")
-        ax.fill_between(m, p_lo, p_hi, step="post", alpha=0.2, color=line[0].get_color())
-        ax.errorbar(m, c, yerr=[c - c_lo, c_hi - c], fmt=".", color="k",
-                    label="crude MC" if r is results[0] else None)  # fmt: skip
-    ax.set_yscale("log")
-    unit = "s" if results[0].kind == "timeout" else "m"
-    ax.set_xlabel(f"margin to {results[0].kind.replace('_', ' ')}, {unit}")
-    ax.set_ylabel("P(lane change with margin ≤ m) per case")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out_dir / "ams_curve.png", dpi=120)
-    plt.close(fig)
     return out_dir / "ams.json"

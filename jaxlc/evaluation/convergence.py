@@ -1,39 +1,20 @@
-"""Learning speed from the training curves: the measures the paper's claims (a)-(c) rest on.
+"""Learning speed from the training curves (``metrics/episodes.npz``, noise on): the measures the
+paper's claims (a)-(c) rest on (docs/usage.md, "Learning speed, the paper's way"; the paper
+argues them from Fig. 3 and Fig. 4a, not from final success, which a good run's cells share).
 
-The paper argues its claims from Fig. 3 (total reward per training episode: "① and ② show
-better converging trend than ③", "among ①④⑤, ④ converges fast and has the best
-performance", "among ②⑥⑦, ⑦ shows the best performance", "④ converges faster and is
-slightly better than ⑦") and Fig. 4a (④'s manoeuvring steps rise earlier than ⑦'s), not from
-final success, which every cell of a good run shares. Per model, from
-``metrics/episodes.npz`` (noise on, as in the paper's figures):
+Per model (``model_measures``): ``converged``, the first episode from which the return's
+moving average (``WINDOW``) stays within ``BAND`` of its rise to the plateau (the mean of the
+last ``PLATEAU`` episodes); ``success95``, the first episode with 95% success over the last
+``WINDOW`` (episodes + 1 if never); ``auc``, the area under the return's moving average,
+normalised over the run; ``steps_rise``, the first episode the manoeuvre steps' moving average
+reaches half its rise; ``plateau``.
 
-- ``converged``: the first episode from which the return's moving average (``WINDOW``
-  episodes) stays within ``BAND`` of the rise from its start to its plateau (the mean return
-  of the last ``PLATEAU`` episodes);
-- ``success95``: the first episode at which the success share of the last ``WINDOW``
-  episodes reaches 95% (the episode count + 1 when it never does);
-- ``auc``: the area under the return's moving average, normalised over the run (0 at the
-  run's lowest moving average, 1 at its highest), per episode;
-- ``steps_rise``: the first episode at which the moving average of manoeuvre steps reaches
-  half of its rise from the start to its peak (Fig. 4a: early episodes end out of bounds in
-  a few steps);
-- ``plateau``: the plateau return itself (performance, where "best" is about the end).
-
-Each comparison of the paper ("X better than Y" on a measure) is decided on the difference of
-the two cells' means over seeds, signed so that a positive difference is the paper's side
-(fewer episodes for the three episode counts, more ``auc`` or ``plateau``), with its 95%
-bootstrap interval (``jaxlc.evaluation.stats.difference``), against a margin (``MARGIN``):
-
-- *no practical difference*: the whole interval lies inside (-margin, +margin);
-- *holds*: the interval lies above zero (the paper's side);
-- *fails*: the interval lies below zero;
-- *undecided*, with the interval's width, otherwise; and always below ``stats.RANGE_BELOW``
-  (5) seeds per cell, where a bootstrap over so few seeds is no evidence.
-
-The margin is 2% of the axis the measure lives on (docs/decisions.md, "margins of the
-learning-speed comparisons").
-
-The probability of improvement P(X > Y) (rliable's) is given beside each difference.
+Each comparison "X better than Y" on a measure is decided (``decide``) on the paper-side
+difference of the cells' means over seeds (fewer episodes, more ``auc`` or ``plateau``) and
+its 95% bootstrap interval (``stats.difference``), against ``MARGIN`` of the measure's axis
+(docs/decisions.md, "margins of the learning-speed comparisons"): *no practical difference*
+inside (-margin, +margin), *holds* above 0, *fails* below, else *undecided*, and always below
+``stats.RANGE_BELOW`` seeds per cell. P(X > Y) is given beside it.
 """
 
 from __future__ import annotations

@@ -1,25 +1,12 @@
-"""What the held-out evaluation concludes: per-model failure rates with binomial intervals,
-the safety and comfort norms per lane change, every collision attributed, cells over seeds
-and cases, and claim (d) as a bound.
+"""What the held-out evaluation concludes (docs/usage.md, "Held-out lane changes, safety and
+comfort"): per model its rates with 95% Clopper-Pearson intervals and the one-sided bound on
+its failures, the norms per lane change, every collision attributed, cells over seeds and
+lane changes, and claim (d) as a bound. Pure numpy/scipy.
 
-Seventy protocol lane changes cannot see a failure rate below ~4% (0 of 70 is consistent with
-4.2% at 95%), so ``python -m jaxlc.evaluate`` also drives each final checkpoint through
-``--lane-changes`` (1,000 by default) held-out lane changes
-(``jaxlc.evaluation.keys.stream(seed, HELDOUT, ...)``, a key stream apart from the protocol's
-and the sweep's). Pure numpy/scipy, like
-``jaxlc.evaluation.stats``.
-
-Intervals:
-- a model's success, failure and collision rates: two-sided 95% Clopper-Pearson intervals;
-  ``failure_bound`` is the one-sided 95% upper bound on its failure rate;
-- a cell (its seeds): with >= ``MIN_BOOT_SEEDS`` seeds, a two-level bootstrap of the mean
-  success rate (seeds resampled, then each resampled seed's lane changes), at Hesterberg's
-  expanded level (``stats.expanded_level``); with fewer seeds no bootstrap covers, so the
-  interval is the seeds' range: the lowest and highest end of their Clopper-Pearson
-  intervals (``interval`` says which);
-- the cell's pooled failure bound: one-sided Clopper-Pearson on all its lane changes; for
-  the mean failure rate of those models it is conservative (a sum of binomials with unequal
-  rates is less spread than one binomial with their mean: Hoeffding 1956).
+A cell's mean success: with >= ``MIN_BOOT_SEEDS`` seeds a two-level bootstrap (seeds, then
+each seed's lane changes) at ``stats.expanded_level``; with fewer, the range of its seeds'
+Clopper-Pearson intervals (``interval`` says which). Its pooled one-sided failure bound is
+conservative for the mean of its models' rates (Hoeffding 1956).
 """
 
 from __future__ import annotations
@@ -27,7 +14,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import fields as dataclass_fields
-from typing import Any
 
 import numpy as np
 import scipy.stats
@@ -35,7 +21,6 @@ import scipy.stats
 from jaxlc import config
 from jaxlc.evaluation import measures
 from jaxlc.evaluation.cases import CaseInfo
-from jaxlc.evaluation.numbers import TERMINAL_DASH, percent
 from jaxlc.evaluation.results import (
     OUTCOMES,
     SCRIPTED,
@@ -339,23 +324,3 @@ def claim_d(cells: list[HeldoutCell]) -> Claim:
         f"Clopper-Pearson: {fails} failures in {n} over {s} seed{'s' * (s != 1)})"
     )
     return Claim(CLAIM_D, "100%", figures=figures, verdict=v)
-
-
-def _pct(v: Any, digits: int = 1) -> str:
-    """A share for the terminal's table: a percentage without its sign, ``-`` undefined."""
-    return percent(v, digits, unit="", missing=TERMINAL_DASH)
-
-
-def format_rows(rows: list[HeldoutRow]) -> str:
-    """Plain-text table of held-out rows for the terminal."""
-    lines = [
-        "held-out policy            seed  lane ch.  succ% [95% CP]        coll  fail<%  all norms%"
-    ]
-    for r in rows:
-        ci = f"[{_pct(r.success_lo)}, {_pct(r.success_hi)}]"
-        lines.append(
-            f"{str(r.label)[:26]:26} {'-' if r.seed is None else r.seed:>4} "
-            f"{r.lane_changes:9d}  {_pct(r.success_rate, 2):>6} {ci:14} "
-            f"{r.collision:5d}  {_pct(r.failure_bound, 2):>6}  {_pct(r.norm_all):>9}"
-        )
-    return "\n".join(lines)

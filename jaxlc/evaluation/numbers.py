@@ -1,7 +1,7 @@
 """The evaluation's numbers as they are written, read and printed: ``Record``, what every
 result (``jaxlc.evaluation.results``) is, its JSON and CSV files (``write``, ``read``,
-``csv_text``, ``read_csv``), which numbers are defined, and how an estimate, a share or an
-interval is written in the report's tables and the terminal's.
+``csv_text``, ``read_csv``), which numbers are defined, and a number in a verdict's words
+(``fixed``; the report's other formats: ``jaxlc.report.report_text``).
 
 A record's fields are its columns in the files' order; an ``own`` field holds the columns a
 run adds (its reward terms, measures registered with a held-out summary) where it stands.
@@ -23,7 +23,6 @@ from jaxlc.study.checkpoint import write_text_atomic
 
 R = TypeVar("R", bound="Record")
 DASH = "–"  # an undefined number in a markdown table (report.md, convergence verdicts)
-TERMINAL_DASH = "-"  # the same in a plain-text table for the terminal (ASCII)
 
 
 def defined(v: Any) -> bool:
@@ -174,18 +173,3 @@ def number(v: Any) -> float:
 def fixed(v: Any, fmt: str = ".2f", missing: str = DASH) -> str:
     """``v`` formatted by ``fmt``; ``missing`` where it is undefined."""
     return format(v, fmt) if defined(v) else missing
-
-
-def percent(v: Any, digits: int = 1, unit: str = "%", missing: str = DASH) -> str:
-    """A share ``v`` in [0, 1] as a percentage with ``digits`` decimals and ``unit``."""
-    return f"{100 * v:.{digits}f}{unit}" if defined(v) else missing
-
-
-def interval(est: Any, lo: Any, hi: Any, fmt: str, scale: float = 1.0) -> str:
-    """``"est [lo, hi]"`` each times ``scale`` by ``fmt``; the estimate alone without bounds."""
-    if not defined(est):
-        return DASH
-    text = format(scale * est, fmt)
-    if defined(lo):
-        text += f" [{format(scale * lo, fmt)}, {format(scale * hi, fmt)}]"
-    return text

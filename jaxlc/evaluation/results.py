@@ -354,21 +354,3 @@ def heldout_fields(measures: Sequence[str] = ()) -> tuple[str, ...]:
     own_ = [n for n in own_ if n not in longitudinal]
     at = own_.index("min_thw_s") + 1
     return CSV_ID + tuple(own_[:at] + longitudinal + own_[at:]) + tuple(measures)
-
-
-def format_table(rows: Sequence[Row]) -> str:
-    """Plain-text table of the evaluation rows for the terminal."""
-    ends = OUTCOMES[1:] + OUTCOMES[:1]
-    head = "policy                    seed    ep  perf  succ%   return  " + " ".join(
-        f"{o[:4]:>4}" for o in ends
-    )
-    lines = [head]
-    for r in rows:
-        sr = "   -" if not defined(r.success_rate) else f"{100 * r.success_rate:5.1f}"
-        ret = "      -" if not defined(r.avg_return) else f"{r.avg_return:8.1f}"
-        counts = " ".join(f"{getattr(r, o):4d}" for o in ends)
-        lines.append(
-            f"{r.label[:26]:26} {'-' if r.seed is None else r.seed:>4} "
-            f"{r.episode or '-':>5} {r.performed:5d} {sr:>6} {ret:>8}  {counts}"
-        )
-    return "\n".join(lines)

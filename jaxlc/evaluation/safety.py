@@ -1,36 +1,16 @@
-"""Safety and comfort of one lane change, by the norms an automated-driving engineer applies.
+"""Safety and comfort of one lane change, by the norms an automated-driving engineer applies
+(their table and sources: docs/usage.md, "Held-out lane changes, safety and comfort"; the
+choices: docs/decisions.md, "headway and TTC in the norms", "the 5 s norm's time").
 
-Measured on every step of the RL phase (the manoeuvre), the start state included:
-
-- lateral acceleration a_y = v * omega (m/s^2), its peak against ISO 11270's 3 m/s^2;
-- lateral jerk as ISO 11270 reads it, a 0.5 s moving average: the mean of da_y/dt over the
-  last 0.5 s is ``(a_y(t) - a_y(t - 0.5 s)) / 0.5 s`` (before the manoeuvre the ego drives
-  straight, a_y = 0); its peak against 5 m/s^3;
-- time-to-collision to the target lane's lead and lag and to the own lane's leader:
-  ``net gap / closing speed`` while the follower is faster, infinite when it is not (or the
-  vehicle is missing), 0 once the boxes overlap along the road; critical below ~1.5 s;
-- time headway, ``net gap / follower's speed`` (the ego behind a leader, the lag behind the
-  ego): critical below ~0.9 s;
-- the lane change manoeuvre's duration against UN R79's 5 s (ACSF category C, 5.6.4.6.5: the
-  manoeuvre "shall be completed in less than 5 seconds" for M1/N1 vehicles). R79's manoeuvre
-  is the part of the lane change procedure from the front wheel touching the lane marking to
-  the rear wheels wholly across it; here, from the step the ego's body first overlaps the
-  target lane to the step it first leaves the origin lane (``crossed``: the body's corners
-  stand in for the wheels, which makes it a little longer). The whole RL phase, from the
-  command to the success test holding in the target lane, is reported beside it
-  (``duration_s``) with no norm of its own, and so is the manoeuvre's start after the command
-  (``lcm_start_s``: R79 5.6.4.6.4 has the manoeuvre begin within 5 s of the procedure's start).
-
-Headway and time-to-collision count where the vehicles share a lane (``counted``): to the
-target lane's lead and lag from the step the ego's body first overlaps the target lane (from
-then on: a lag closing in once the ego has moved over is still its follower), and to the own
-lane's leader while the body overlaps the own lane and its centre is still there (after the
-centre crosses, the vehicle ahead is the target lane's lead). A target-lane vehicle beside an
-ego still wholly in its own lane follows nobody, so it is no headway of the lane change.
-``eval/heldout.json`` records the rule (``COUNTED``).
-
-A collision is attributed to the vehicle hit (``PARTNERS``): by the lane it drives in (the
-target lane or not) and whether its centre is ahead of the ego's.
+Measured on every step of the RL phase, the start state included: lateral acceleration
+a_y = v * omega; lateral jerk as ISO 11270 reads it, ``(a_y(t) - a_y(t - 0.5 s)) / 0.5 s``;
+time-to-collision ``net gap / closing speed`` (inf when not closing or missing, 0 once the
+boxes overlap along the road) and time headway ``net gap / follower's speed`` to the target
+lane's lead and lag and the own lane's leader, where they share a lane with the ego
+(``counted``, recorded as ``COUNTED``); UN R79's manoeuvre, from the step the body first
+overlaps the target lane to the step it first leaves the origin lane (``crossed``). A
+collision is attributed to the vehicle hit (``PARTNERS``): the lane it drives in and whether
+its centre is ahead of the ego's.
 """
 
 from __future__ import annotations

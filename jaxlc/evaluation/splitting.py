@@ -1,36 +1,20 @@
-"""Adaptive multilevel splitting (AMS): the probability that a score reaches a target, for
-probabilities far below what crude Monte Carlo sees (issue 78, SPEC "How close to failure").
+"""Adaptive multilevel splitting (AMS): the probability that a score reaches a target, far below
+what crude Monte Carlo sees (the estimator, its ties and its interval: docs/decisions.md,
+"adaptive multilevel splitting's estimator and interval").
 
-The estimator is the generalised, unbiased AMS of Bréhier, Gazeau, Goudenège, Lelièvre &
-Rousset (2016, Ann. Appl. Probab. 26(6)), with ties handled as they prescribe. N particles
-are trajectories; a particle's score is the max of its score path. Each round the level Z_j
-is the k-th smallest score (k = ceil(kill_fraction N)); EVERY particle with score <= Z_j is
-killed (K_j >= k of them when scores tie) and replaced by a clone of a survivor drawn
-uniformly, copied up to the step where that survivor first went above Z_j, its future drawn
-from a fresh key. The rounds stop when Z_j >= target (nothing below the target is left to
-kill), or after ``max_rounds``. The estimate is
+Bréhier, Gazeau, Goudenège, Lelièvre & Rousset (2016): N particles, a particle's score the max
+of its score path; each round the level Z_j is the k-th smallest score (k = ceil(kill_fraction
+N)), EVERY particle at or below it is killed (K_j >= k when scores tie) and replaced by a clone
+of a survivor drawn uniformly, copied up to the step where it first went above Z_j. The rounds
+stop at Z_j >= target or after ``max_rounds`` (``stopped`` says which; both unbiased). The
+estimate is ``prod_j (1 - K_j / N) * (share of the final particles at the target)``, 0 on
+extinction. A margin is a score negated: ``run`` returns -margin, the target is -m.
 
-    p = prod_j (1 - K_j / N) * (share of the final particles whose score >= target),
-
-0 on extinction (all N tie at a level below the target: the share is then 0). Killing all
-ties, not exactly k, is what keeps it unbiased when scores tie (integer scores, a margin
-stuck at 0). Its proof is a martingale over rounds, so stopping at ``max_rounds`` keeps it
-unbiased too (noisier; ``stopped`` says which stop was reached).
-
-No simulator state is stored: a particle is a *chain* of (branch step, key) segments, and
-its trajectory is always re-run from t = 0 by the user's ``run(chain) -> score path (T,)``,
-which draws step t's randomness from ``step_key(chain, t)`` = fold_in(key of the last
-segment whose branch step <= t, t). A clone keeps its parent's segments up to the step tau
-where the parent first exceeded the level and appends (tau + 1, fresh key), so it replays
-the parent's path to tau bit for bit and differs after. The final chains come back, so the
-nearest misses can be replayed. A margin (smaller = closer to failure) is a score negated:
-run returns -margin and the target is -m.
-
-The 95% interval (``interval``) comes from R independent AMS runs (each unbiased): no
-variance formula of AMS with ties and a non-ideal score is needed. Student's t over them
-covered 92 and 90 of 100 on the toy (benchmarks/ams_toy.py, R = 10 and 20), missing low
-three times in four (right skew); ``log=True``, Cox's lognormal interval, covered 96, 93
-and 94 of 100 on three fresh seeds (benchmarks/ams_toy_cpu_2026-11-29).
+No simulator state is stored: a particle is a chain of (branch step, key) segments, re-run
+from t = 0 by ``run(chain) -> score path (T,)``, step t's key ``step_key(chain, t)`` =
+fold_in(key of the last segment whose branch step <= t, t); a clone keeps its parent's
+segments to the branch and appends (tau + 1, fresh key). The 95% interval (``interval``) is
+over R independent runs, Cox's lognormal (``log=True``) or Student's t.
 """
 
 from __future__ import annotations

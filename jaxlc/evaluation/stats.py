@@ -1,26 +1,13 @@
-"""Statistics over seeds: intervals, probability of improvement, performance profiles.
+"""Statistics over seeds (docs/usage.md, "Statistics over seeds"): intervals, probability of
+improvement, performance profiles, from the rows of ``eval/eval.json``; pure numpy/scipy.
 
-A run trained with ``python -m jaxlc.sweep --seeds N`` holds N models per grid cell (same
-hyperparameters, different seeds); a *cell* is one ``(k, memory, actor_lr, critic_lr,
-noise_sigma)``. Everything here reads the rows of ``eval/eval.json`` (one per evaluated
-checkpoint) and is pure numpy/scipy, so reports and tests need no JAX.
-
-Intervals are 95% percentile bootstrap intervals from ``scipy.stats.bootstrap`` (2000
-resamples, a fixed generator so a report is reproducible). Resampling is stratified: the
-seeds of a cell are resampled within that cell, and two cells (or two runs) are resampled
-independently. With a handful of seeds the plain percentile interval is too narrow (about
-85-89% coverage of a mean at 8 seeds), so the level is widened as in Hesterberg's
-*expanded percentile interval* (2015): the percentile interval at the level whose normal
-quantile is ``sqrt(n / (n - 1)) * t_{n-1}`` (``expanded_level``; n = the fewest seeds of
-a sample), which covers about 95% from 8 seeds on; below ~5 seeds no bootstrap interval
-covers well, so read those as rough. With one seed per cell there is no interval (NaN)
-and the outputs say that intervals need >= 2 seeds.
-
-Measures: the mean and the interquartile mean (IQM, the mean of the middle 50% of seeds,
-Agarwal et al. 2021) of the evaluated success rate and average return; the probability of
-improvement ``P(X > Y) = P(x > y) + 0.5 P(x = y)`` over all pairs of a seed of X and a seed
-of Y; the performance profile, the share of models whose success rate is above each
-level tau in [0, 1]. (The claims: ``convergence`` (a)-(c), ``heldout.claim_d`` (d).)
+A *cell* is one ``(k, memory, actor_lr, critic_lr, noise_sigma)``, its models one per seed.
+Intervals are 95% percentile bootstraps (``scipy.stats.bootstrap``, ``RESAMPLES``, a fixed
+generator), stratified: each cell's seeds resampled within it, two cells or runs on their
+own, at Hesterberg's expanded level (``expanded_level``; n the fewest seeds of a sample).
+Below ``RANGE_BELOW`` seeds a cell's interval of a mean is its seeds' range; with one seed
+there is none (NaN). P(X > Y) counts ties half; the claims: ``convergence`` (a)-(c),
+``heldout.claim_d`` (d).
 """
 
 from __future__ import annotations

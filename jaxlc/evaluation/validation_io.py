@@ -1,14 +1,12 @@
-"""What ``python -m jaxlc.validate`` writes: ``RUN_DIR/validate/`` (``write_outputs``), the
-report's section (``report_section``), each failure kind's scene (``scenes_figure``), a
-saved case replayed as a GIF (``replay_case``); AMS's nearest misses at their closest moment
-(``misses_figure``) and one replayed as a GIF (``replay_miss``)."""
+"""What ``python -m jaxlc.validate`` writes to ``RUN_DIR/validate/`` (``write_outputs``), and a
+saved case run again (``replay``), AMS's nearest misses read and run again (``misses``,
+``rerun_miss``); its report section and figures are ``jaxlc.report``'s."""
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,8 +22,7 @@ from jaxlc.evaluation.mixture import Mixture
 from jaxlc.evaluation.numbers import csv_text
 from jaxlc.evaluation.proposal import Record
 from jaxlc.evaluation.results import OUTCOMES, EvalError
-from jaxlc.sim.env import CRUISE, GAP, RL, WAIT, EnvParams
-from jaxlc.sim.render import render_frame
+from jaxlc.sim.env import EnvParams
 from jaxlc.study import checkpoint
 from jaxlc.study.rundir import RunDir
 
@@ -80,8 +77,8 @@ class Validation:
 def write_outputs(
     args: Any, cfg: config.Config, results: list[validation.Result], peak: float
 ) -> Path:
-    """``validate/validate.json``, ``validate.csv``, ``cases.json``, ``validate.md`` and the
-    figure."""
+    """``validate/validate.json``, ``validate.csv`` and ``cases.json`` (``validate.md`` and
+    ``scenes.png``: ``jaxlc.report``)."""
     out = validate_dir(args.run_dir, args.out)
     out.mkdir(parents=True, exist_ok=True)
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
@@ -103,8 +100,6 @@ def write_outputs(
     (out / "cases.json").write_text(
         json.dumps([dataclasses.asdict(c) for c in cases], indent=1) + "\n"
     )
-    (out / "validate.md").write_text("\n".join(report_section(args.run_dir, out)) + "\n")
-    scenes_figure(args.run_dir, out, cfg, doc, cases)
     return out
 
 
@@ -113,77 +108,7 @@ def read_cases(out: Path) -> list[validation.Case]:
     return [validation.Case(**c) for c in json.loads((out / "cases.json").read_text())]
 
 
-_FAMILY = {"mixture": " (a mixture of one-role braking tilts)"}
-
-
-def _sci(v: Any) -> str:
-    return "-" if v is None or not math.isfinite(v) else f"{v:.3g}"
-
-
-def report_section(run_dir: Path, out: Path | None = None) -> list[str]:
-    """``report.md``'s section: per model and kind, the probability per lane change and its
-    95% interval; nothing when the run has not been validated."""
-    path = validate_dir(run_dir, out) / "validate.json"
-    if not path.is_file():
-        return []
-    doc = Validation.read(path)
-    lines = [
-        "## How rarely it fails (`python -m jaxlc.validate`)",
-        "",
-        f"{doc.method.upper()}{_FAMILY.get(doc.family, '')} in {doc.traffic}; {doc.date}, "
-        f"matmul peak {doc.matmul_peak_gflops} GFLOP/s. Probability per lane change, 95% "
-        "interval, relative half-width, effective sample size; `validate/validate.json`.",
-        "",
-        "| policy | kind | estimate | 95% interval | rel. half-width | ESS | lane changes | s |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for m in doc.models:
-        for kind, e in m.estimates.items():
-            if e.failures == 0 and kind != doc.kind:
-                continue
-            lines.append(
-                f"| {m.meta['label']} | {kind} | {_sci(e.estimate)} | [{_sci(e.lo)}, "
-                f"{_sci(e.hi)}] | {_sci(e.rel_halfwidth)} | {_sci(e.ess)} | "
-                f"{e.lane_changes} | {m.wall_s} |"
-            )
-    return lines + [""]
-
-
-def scenes_figure(
-    run_dir: Path, out: Path, cfg: config.Config, doc: Validation, cases: list[validation.Case]
-) -> Path | None:
-    """``scenes.png``: per failure kind, its highest-weight saved case replayed, the scene at
-    its last step (the ego red, the gap's lead and lag green)."""
-    kinds = [k for k in validation.KINDS if any(k in c.kinds for c in cases)]
-    if not kinds:
-        return None
-    from jaxlc.report.plots import _save, plt
-
-    p = EnvParams.from_config(cfg.env)
-    fig, axes = plt.subplots(len(kinds), 1, figsize=(8, 1.3 * len(kinds) + 0.3), squeeze=False)
-    for ax, kind in zip(axes[:, 0], kinds, strict=True):
-        case = next(c for c in cases if kind in c.kinds)  # highest weight first
-        tr, _ = _rerun(run_dir, cfg, doc, case)
-        n = sum(kind in c.kinds for c in cases)
-        title = f"{kind} ({n} saved): {case.label}, case {case.index}, {case.reason}, "
-        _draw(ax, tr, max(int(tr["frames"][0, 0]) - 1, 0), p, title + _log10_w(case))
-    return _save(fig, out / "scenes.png")
-
-
-def _log10_w(case: validation.Case) -> str:
-    return f"log10 w = {case.log_w / math.log(10):.2f}"
-
-
-def _draw(ax: Any, tr: dict, frame: int, p: EnvParams, title: str) -> None:
-    """A saved case's scene at ``frame`` (the ego red, the gap's lead and lag green)."""
-    from jaxlc.report.plots_scenes import draw_scene
-
-    draw_scene(ax, tr, 0, 0, frame, p)
-    ax.set_axis_off()
-    ax.set_title(title, fontsize=8, loc="left")
-
-
-def _rerun(run_dir: Path, cfg: config.Config, doc: Validation, case: validation.Case) -> tuple:
+def rerun(run_dir: Path, cfg: config.Config, doc: Validation, case: validation.Case) -> tuple:
     """A saved case run again (the same program, its key in every row of a chunk): the trace
     of its row, and whether its outcome and weight are the saved ones."""
     actor = None
@@ -203,10 +128,9 @@ def _rerun(run_dir: Path, cfg: config.Config, doc: Validation, case: validation.
     return tr, OUTCOMES[int(o["reason"][0][0])] == case.reason and log_w == case.log_w
 
 
-def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
-    """Run ``validate/cases.json``'s case ``index`` again and draw it as
-    ``validate/case_INDEX.gif``; returns the path and whether the outcome and weight are the
-    saved ones bit for bit."""
+def replay(run_dir: Path, index: int, out: Path | None = None) -> tuple:
+    """``validate/cases.json``'s case ``index`` run again: ``(cfg, case, trace, same)``,
+    ``same`` whether its outcome and weight are the saved ones bit for bit."""
     out = validate_dir(run_dir, out)
     if not (out / "cases.json").is_file():
         raise EvalError(f"{out / 'cases.json'} is missing; run python -m jaxlc.validate first")
@@ -215,30 +139,11 @@ def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Pat
         raise EvalError(f"--replay {index}: cases.json holds {len(cases)} cases")
     doc, case = Validation.read(out / "validate.json"), cases[index]
     cfg = heldout.in_traffic(RunDir(run_dir).load_config(), doc.traffic_overrides)
-    tr, same = _rerun(run_dir, cfg, doc, case)
-    return _gif(out / f"case_{index}.gif", tr, cfg, case), same
+    tr, same = rerun(run_dir, cfg, doc, case)
+    return cfg, case, tr, same
 
 
-def _gif(path: Path, tr: dict, cfg: config.Config, case: validation.Case) -> Path:
-    from jaxlc.report.plots import PillowWriter, plt
-
-    p = EnvParams.from_config(cfg.env)
-    fig, ax = plt.subplots(figsize=(8, 1.5))
-    writer = PillowWriter(fps=10)
-    with writer.saving(fig, path, dpi=90):
-        for f in range(max(int(tr["frames"][0, 0]), 1)):
-            ax.clear()
-            title = f"{case.label}  t = {f * p.dt:4.1f} s  {case.reason}  "
-            _draw(ax, tr, f, p, title + _log10_w(case))
-            writer.grab_frame()
-    plt.close(fig)
-    return path
-
-
-PHASES = {WAIT: "waiting", CRUISE: "cruise", GAP: "gap search", RL: "lane change"}
-
-
-def _misses(out: Path) -> list[tuple[ams.Estimate, ams.Miss]]:
+def misses(out: Path) -> list[tuple[ams.Estimate, ams.Miss]]:
     """``ams.json``'s nearest misses, policy after policy, nearest first."""
     if not (out / "ams.json").is_file():
         raise EvalError(f"{out / 'ams.json'} is missing; run python -m jaxlc.validate --method ams")
@@ -248,66 +153,10 @@ def _misses(out: Path) -> list[tuple[ams.Estimate, ams.Miss]]:
     return [(e, m) for e in doc.policies for m in e.nearest]
 
 
-def _replay_miss(run_dir: Path, est: ams.Estimate, miss: ams.Miss, exact: bool) -> tuple:
+def rerun_miss(run_dir: Path, est: ams.Estimate, miss: ams.Miss, exact: bool) -> tuple:
     """``ams.replay`` of a miss in the run's config and the estimate's traffic and policy, and
     the params it drew with."""
     cfg = heldout.in_traffic(RunDir(run_dir).load_config(), est.traffic)
     actor = checkpoint.load(Path(run_dir) / est.checkpoint)[0] if est.checkpoint else None
     pol = jax.tree.map(lambda x: x[0], validation.policies(cfg, actor, est.k))
     return *ams.replay(cfg, est, miss, pol, exact), EnvParams.from_config(cfg.env)
-
-
-def _miss_title(est: ams.Estimate, miss: ams.Miss, f: int, p: EnvParams, phase: int) -> str:
-    unit = "s" if est.kind == "timeout" else "m"
-    return (f"{est.label}, run {miss.repeat}: {est.kind} margin {miss.margin:.3f} {unit}; "
-            f"t = {(f + 1) * p.dt:.1f} s, {PHASES[int(phase)]}")  # fmt: skip
-
-
-def misses_figure(run_dir: Path, out: Path | None = None) -> Path | None:
-    """``ams_misses.png``: each of ``ams.json``'s nearest misses replayed, its scene at its
-    closest moment (the first step its score path reached its top: the ego red)."""
-    out = validate_dir(run_dir, out)
-    misses = _misses(out)
-    if not misses:
-        return None
-    from jaxlc.report.plots import _save, plt
-
-    fig, axes = plt.subplots(len(misses), 1, figsize=(8, 1.2 * len(misses) + 0.2), squeeze=False)
-    for ax, (est, miss) in zip(axes[:, 0], misses, strict=True):
-        _, path, states, p = _replay_miss(run_dir, est, miss, exact=False)
-        f = int(np.argmax(path))
-        ax.imshow(render_frame(jax.tree.map(lambda x, f=f: x[f], states), p))
-        ax.set_axis_off()
-        ax.set_title(_miss_title(est, miss, f, p, states.ego.phase[f]), fontsize=8, loc="left")
-    return _save(fig, out / "ams_misses.png")
-
-
-def replay_miss(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
-    """``ams.json``'s nearest miss ``index`` (``_misses``' order) run again from its key chain
-    and drawn as ``validate/ams_miss_INDEX.gif`` from 3 s before its gap search on (at most
-    300 frames, in real time); returns the path and whether its margin is the saved one bit
-    for bit."""
-    out = validate_dir(run_dir, out)
-    misses = _misses(out)
-    if not 0 <= index < len(misses):
-        raise EvalError(f"--replay {index}: ams.json holds {len(misses)} nearest misses")
-    est, miss = misses[index]
-    margin, path, states, p = _replay_miss(run_dir, est, miss, exact=True)
-    from jaxlc.report.plots import PillowWriter, plt
-
-    phase = np.asarray(states.ego.phase)
-    start = max(int(np.argmax(phase >= GAP)) - int(round(3.0 / p.dt)), 0)
-    stride = max(1, -(-(len(phase) - start) // 300))
-    fig, ax = plt.subplots(figsize=(8, 1.3))
-    writer, gif = PillowWriter(fps=1.0 / (p.dt * stride)), out / f"ams_miss_{index}.gif"
-    with writer.saving(fig, gif, dpi=90):
-        for f in range(start, len(phase), stride):
-            ax.clear()
-            ax.imshow(render_frame(jax.tree.map(lambda x, f=f: x[f], states), p))
-            ax.set_axis_off()
-            so_far = f"so far {-path[f]:.2f}" if path[f] > -est.cap else "not yet"
-            title = _miss_title(est, miss, f, p, phase[f]) + f"; margin {so_far}"
-            ax.set_title(title, fontsize=7, loc="left")
-            writer.grab_frame()
-    plt.close(fig)
-    return gif, margin == miss.margin

@@ -27,15 +27,15 @@ from typing import Any
 import numpy as np
 from matplotlib.ticker import FuncFormatter, SymmetricalLogLocator
 
-from jaxlc.evaluation import heldout, stats
+from jaxlc.evaluation import ams, heldout, stats
 from jaxlc.evaluation.convergence import moving
 from jaxlc.evaluation.numbers import number, read
 from jaxlc.evaluation.results import EvalResult, Heldout
 from jaxlc.paper import grid as paper_grid
 from jaxlc.report import plots_scenes as scenes
-from jaxlc.report.plots_scenes import PillowWriter, plt  # noqa: F401  (validation_io's; on Agg)
 from jaxlc.report.plots_scenes import eval_files as _eval
 from jaxlc.report.plots_scenes import npz as _npz
+from jaxlc.report.plots_scenes import plt
 from jaxlc.report.plots_scenes import save as _save
 from jaxlc.study.rundir import RunDir
 
@@ -356,3 +356,26 @@ def suite_figure(runs: Mapping[str, Sequence[dict]], path: Path) -> Path:
     ax.set_ylabel("held-out success (%)")
     ax.legend(fontsize="small")
     return _save(fig, path)
+
+
+def ams_curve(results: Sequence[ams.Estimate], path: Path) -> Path:
+    """``ams_curve.png`` of ``python -m jaxlc.validate --method ams``: per policy, P(margin <=
+    m) by AMS with its band, crude MC's on the initial particles as points with their bars."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for r in results:
+        cols = ("margin", "ams", "ams_lo", "ams_hi", "crude", "crude_lo", "crude_hi")
+        got = (np.asarray([getattr(x, f) for x in r.curve]) for f in cols)
+        m, p, p_lo, p_hi, c, c_lo, c_hi = got
+        line = ax.step(m, p, where="post", label=f"{r.label} AMS")
+        ax.fill_between(m, p_lo, p_hi, step="post", alpha=0.2, color=line[0].get_color())
+        ax.errorbar(m, c, yerr=[c - c_lo, c_hi - c], fmt=".", color="k",
+                    label="crude MC" if r is results[0] else None)  # fmt: skip
+    ax.set_yscale("log")
+    unit = "s" if results[0].kind == "timeout" else "m"
+    ax.set_xlabel(f"margin to {results[0].kind.replace('_', ' ')}, {unit}")
+    ax.set_ylabel("P(lane change with margin ≤ m) per case")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

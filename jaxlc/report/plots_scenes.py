@@ -1,16 +1,19 @@
 """The figures of single lane changes from a run's evaluation (``eval/traces.npz``): Fig. 5
 scenes at chosen checkpoints, Fig. 7 trajectories, the speeds and gaps of the drawn cases,
-``learning.gif`` (lane changes across checkpoints) and ``draw_scene`` (one frame, also the
-validation's replay); drawn on the road's bend where the case had one. Also what every figure
+``learning.gif`` (lane changes across checkpoints), ``draw_scene`` (one frame), and a validated
+failure replayed (``validation_scenes``, ``replay_case``), AMS's nearest misses (``ams_misses``,
+``replay_miss``); drawn on the road's bend where the case had one. Also what every figure
 module shares: matplotlib on its file backend (Agg: files only, no display on training
 machines), a run's evaluation files, a figure saved. The rest of the figures:
 ``jaxlc.report.plots``."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
+import jax
 import matplotlib
 import numpy as np
 
@@ -20,9 +23,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.animation import PillowWriter  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
+from jaxlc import config  # noqa: E402
+from jaxlc.evaluation import ams, validation, validation_io  # noqa: E402
 from jaxlc.evaluation.numbers import read  # noqa: E402
-from jaxlc.evaluation.results import OUTCOMES, EvalResult, rank_models  # noqa: E402
-from jaxlc.sim.render import road_to_world  # noqa: E402
+from jaxlc.evaluation.results import OUTCOMES, EvalError, EvalResult, rank_models  # noqa: E402
+from jaxlc.sim.env import CRUISE, GAP, RL, WAIT, EnvParams  # noqa: E402
+from jaxlc.sim.render import render_frame, road_to_world  # noqa: E402
 from jaxlc.sim.road import origin_lane, reference_y  # noqa: E402
 from jaxlc.study.rundir import RunDir  # noqa: E402
 
@@ -335,3 +341,112 @@ def learning_gif(run_dir: Path, checkpoints: int = 6, every: int = 3) -> Path | 
             writer.grab_frame()
     plt.close(fig)
     return path
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def validation_scenes(run_dir: Path, out: Path, cfg: config.Config) -> Path | None:
+    """``scenes.png`` of ``jaxlc.validate``'s ``out``: per failure kind, its highest-weight
+    saved case replayed, the scene at its last step (the ego red, the gap's lead and lag
+    green)."""
+    cases = validation_io.read_cases(out)
+    kinds = [k for k in validation.KINDS if any(k in c.kinds for c in cases)]
+    if not kinds:
+        return None
+    doc, p = validation_io.Validation.read(out / "validate.json"), EnvParams.from_config(cfg.env)
+    fig, axes = plt.subplots(len(kinds), 1, figsize=(8, 1.3 * len(kinds) + 0.3), squeeze=False)
+    for ax, kind in zip(axes[:, 0], kinds, strict=True):
+        case = next(c for c in cases if kind in c.kinds)  # highest weight first
+        tr, _ = validation_io.rerun(run_dir, cfg, doc, case)
+        n = sum(kind in c.kinds for c in cases)
+        title = f"{kind} ({n} saved): {case.label}, case {case.index}, {case.reason}, "
+        _draw_case(ax, tr, max(int(tr["frames"][0, 0]) - 1, 0), p, title + _log10_w(case))
+    return save(fig, out / "scenes.png")
+
+
+def _log10_w(case: validation.Case) -> str:
+    return f"log10 w = {case.log_w / math.log(10):.2f}"
+
+
+def _draw_case(ax: Any, tr: dict, frame: int, p: EnvParams, title: str) -> None:
+    """A saved case's scene at ``frame`` (the ego red, the gap's lead and lag green)."""
+    draw_scene(ax, tr, 0, 0, frame, p)
+    ax.set_axis_off()
+    ax.set_title(title, fontsize=8, loc="left")
+
+
+def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
+    """Run ``validate/cases.json``'s case ``index`` again and draw it as
+    ``validate/case_INDEX.gif``; returns the path and whether the outcome and weight are the
+    saved ones bit for bit (``validation_io.replay``)."""
+    cfg, case, tr, same = validation_io.replay(run_dir, index, out)
+    path = validation_io.validate_dir(run_dir, out) / f"case_{index}.gif"
+    p = EnvParams.from_config(cfg.env)
+    fig, ax = plt.subplots(figsize=(8, 1.5))
+    writer = PillowWriter(fps=10)
+    with writer.saving(fig, path, dpi=90):
+        for f in range(max(int(tr["frames"][0, 0]), 1)):
+            ax.clear()
+            title = f"{case.label}  t = {f * p.dt:4.1f} s  {case.reason}  "
+            _draw_case(ax, tr, f, p, title + _log10_w(case))
+            writer.grab_frame()
+    plt.close(fig)
+    return path, same
+
+
+# --------------------------------------------------------------------------- AMS
+
+PHASES = {WAIT: "waiting", CRUISE: "cruise", GAP: "gap search", RL: "lane change"}
+
+
+def _miss_title(est: ams.Estimate, miss: ams.Miss, f: int, p: EnvParams, phase: int) -> str:
+    unit = "s" if est.kind == "timeout" else "m"
+    return (f"{est.label}, run {miss.repeat}: {est.kind} margin {miss.margin:.3f} {unit}; "
+            f"t = {(f + 1) * p.dt:.1f} s, {PHASES[int(phase)]}")  # fmt: skip
+
+
+def ams_misses(run_dir: Path, out: Path | None = None) -> Path | None:
+    """``ams_misses.png``: each of ``ams.json``'s nearest misses replayed, its scene at its
+    closest moment (the first step its score path reached its top: the ego red)."""
+    out = validation_io.validate_dir(run_dir, out)
+    misses = validation_io.misses(out)
+    if not misses:
+        return None
+    fig, axes = plt.subplots(len(misses), 1, figsize=(8, 1.2 * len(misses) + 0.2), squeeze=False)
+    for ax, (est, miss) in zip(axes[:, 0], misses, strict=True):
+        _, path, states, p = validation_io.rerun_miss(run_dir, est, miss, exact=False)
+        f = int(np.argmax(path))
+        ax.imshow(render_frame(jax.tree.map(lambda x, f=f: x[f], states), p))
+        ax.set_axis_off()
+        ax.set_title(_miss_title(est, miss, f, p, states.ego.phase[f]), fontsize=8, loc="left")
+    return save(fig, out / "ams_misses.png")
+
+
+def replay_miss(run_dir: Path, index: int, out: Path | None = None) -> tuple[Path, bool]:
+    """``ams.json``'s nearest miss ``index`` (``validation_io.misses``' order) run again from
+    its key chain and drawn as ``validate/ams_miss_INDEX.gif`` from 3 s before its gap search
+    on (at most 300 frames, in real time); returns the path and whether its margin is the
+    saved one bit for bit."""
+    out = validation_io.validate_dir(run_dir, out)
+    misses = validation_io.misses(out)
+    if not 0 <= index < len(misses):
+        raise EvalError(f"--replay {index}: ams.json holds {len(misses)} nearest misses")
+    est, miss = misses[index]
+    margin, path, states, p = validation_io.rerun_miss(run_dir, est, miss, exact=True)
+    phase = np.asarray(states.ego.phase)
+    start = max(int(np.argmax(phase >= GAP)) - int(round(3.0 / p.dt)), 0)
+    stride = max(1, -(-(len(phase) - start) // 300))
+    fig, ax = plt.subplots(figsize=(8, 1.3))
+    writer, gif = PillowWriter(fps=1.0 / (p.dt * stride)), out / f"ams_miss_{index}.gif"
+    with writer.saving(fig, gif, dpi=90):
+        for f in range(start, len(phase), stride):
+            ax.clear()
+            ax.imshow(render_frame(jax.tree.map(lambda x, f=f: x[f], states), p))
+            ax.set_axis_off()
+            so_far = f"so far {-path[f]:.2f}" if path[f] > -est.cap else "not yet"
+            title = _miss_title(est, miss, f, p, phase[f]) + f"; margin {so_far}"
+            ax.set_title(title, fontsize=7, loc="left")
+            writer.grab_frame()
+    plt.close(fig)
+    return gif, margin == miss.margin

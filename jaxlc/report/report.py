@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxlc.evaluation.convergence import Convergence
-from jaxlc.evaluation.numbers import defined, fixed, percent, read
+from jaxlc.evaluation.numbers import defined, fixed, read
 from jaxlc.evaluation.results import (
     OUTCOMES,
     Claim,
@@ -33,7 +33,7 @@ from jaxlc.paper.claims import CLAIM_D, COMPARISONS
 from jaxlc.paper.grid import BEST, BEST_TAG, is_best
 from jaxlc.report import report_heldout, report_seeds
 from jaxlc.report import report_text as text
-from jaxlc.report.report_text import EVERY_STEP  # noqa: F401  (benchmarks/publish.py reads it here)
+from jaxlc.report.report_text import EVERY_STEP, percent  # noqa: F401  (benchmarks/tables reads EVERY_STEP)
 from jaxlc.study.checkpoint import write_text_atomic
 from jaxlc.study.rundir import RunDir
 
@@ -266,13 +266,6 @@ def _claims_section(run_dir: Path, held: Heldout | None) -> list[str]:
     return lines + ["", text.CONVERGENCE_FOOTNOTE, ""]
 
 
-def _validation_section(run_dir: Path) -> list[str]:
-    """``python -m jaxlc.validate``'s section, where the run was validated."""
-    from jaxlc.evaluation.validation_io import report_section
-
-    return report_section(run_dir)
-
-
 def build_report(run_dir: Path) -> str:
     """The report's Markdown for ``run_dir`` (needs ``eval/eval.json``)."""
     path = RunDir(run_dir).eval_json
@@ -300,7 +293,7 @@ def build_report(run_dir: Path) -> str:
             for path in sorted(RunDir(run_dir).eval.glob("heldout_*/heldout.json"))
             for line in report_heldout.section(read(path, Heldout), path.parent.name[8:])
         ],
-        *_validation_section(run_dir),
+        *report_heldout.validation_section(run_dir),
         *report_heldout.ams_section(run_dir),
         *report_seeds.section(rows),
         "## The paper's other figures beside this run",

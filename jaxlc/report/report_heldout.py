@@ -1,7 +1,8 @@
 """``report.md``'s held-out sections: per cell and per model against the norms (a measure
 registered with a held-out summary adds its column), and every collision tallied by the
-vehicle hit (``eval/heldout.json``, ``jaxlc.evaluation.heldout``); how close to failure, by
-AMS (``validate/ams.json``, ``ams_section``)."""
+vehicle hit (``eval/heldout.json``, ``jaxlc.evaluation.heldout``); ``python -m
+jaxlc.validate``'s section (``validate/validate.json``, also its ``validate.md``); how
+close to failure, by AMS (``validate/ams.json``, ``ams_section``)."""
 
 from __future__ import annotations
 
@@ -12,10 +13,11 @@ from typing import Any
 import numpy as np
 
 from jaxlc.evaluation import ams
-from jaxlc.evaluation.numbers import defined, fixed, percent, read
+from jaxlc.evaluation.numbers import defined, fixed, read
 from jaxlc.evaluation.results import Collision, Heldout, HeldoutRow
+from jaxlc.evaluation.validation_io import Validation, validate_dir
 from jaxlc.report import report_text as text
-from jaxlc.report.report_text import EVERY_STEP
+from jaxlc.report.report_text import EVERY_STEP, percent
 
 # How close to each failure (heldout.MARGIN_KEYS), where the rows have them (older: none).
 MARGINS = {
@@ -149,8 +151,40 @@ def section(doc: Heldout | None, tag: str = "") -> list[str]:
     ]
 
 
-def _g(v: Any) -> str:
-    return fixed(v, ".3g")
+_FAMILY = {"mixture": " (a mixture of one-role braking tilts)"}
+
+
+def _sci(v: Any) -> str:
+    return "-" if v is None or not math.isfinite(v) else f"{v:.3g}"
+
+
+def validation_section(run_dir: Path, out: Path | None = None) -> list[str]:
+    """``report.md``'s section: per model and kind, the probability per lane change and its
+    95% interval; nothing when the run has not been validated."""
+    path = validate_dir(run_dir, out) / "validate.json"
+    if not path.is_file():
+        return []
+    doc = Validation.read(path)
+    lines = [
+        "## How rarely it fails (`python -m jaxlc.validate`)",
+        "",
+        f"{doc.method.upper()}{_FAMILY.get(doc.family, '')} in {doc.traffic}; {doc.date}, "
+        f"matmul peak {doc.matmul_peak_gflops} GFLOP/s. Probability per lane change, 95% "
+        "interval, relative half-width, effective sample size; `validate/validate.json`.",
+        "",
+        "| policy | kind | estimate | 95% interval | rel. half-width | ESS | lane changes | s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for m in doc.models:
+        for kind, e in m.estimates.items():
+            if e.failures == 0 and kind != doc.kind:
+                continue
+            lines.append(
+                f"| {m.meta['label']} | {kind} | {_sci(e.estimate)} | [{_sci(e.lo)}, "
+                f"{_sci(e.hi)}] | {_sci(e.rel_halfwidth)} | {_sci(e.ess)} | "
+                f"{e.lane_changes} | {m.wall_s} |"
+            )
+    return lines + [""]
 
 
 def ams_section(run_dir: Path) -> list[str]:
@@ -169,7 +203,7 @@ def ams_section(run_dir: Path) -> list[str]:
             f"adaptive multilevel splitting: {len(e.repeats)} runs of {e.particles} cases, "
             f"{e.kill:g} killed per round, Cox's 95% interval over the runs; crude Monte Carlo "
             f"on the runs' initial cases beside it (Clopper-Pearson). At m = {e.margin:g} "
-            f"{unit}: {_g(e.estimate)} [{_g(e.lo)}, {_g(e.hi)}]; {e.trajectories} cases "
+            f"{unit}: {_sci(e.estimate)} [{_sci(e.lo)}, {_sci(e.hi)}]; {e.trajectories} cases "
             f"simulated, {e.wall_s} s, matmul peak {e.matmul_peak_gflops:.0f} GFLOP/s.",
             "",
             f"| margin m, {unit} | AMS | 95% interval | crude MC | 95% interval | cases <= m |",
@@ -177,8 +211,8 @@ def ams_section(run_dir: Path) -> list[str]:
         ]
         for c in e.curve:
             lines.append(
-                f"| {c.margin:.3g} | {_g(c.ams)} | [{_g(c.ams_lo)}, {_g(c.ams_hi)}] | "
-                f"{_g(c.crude)} | [{_g(c.crude_lo)}, {_g(c.crude_hi)}] | {c.crude_n} |"
+                f"| {c.margin:.3g} | {_sci(c.ams)} | [{_sci(c.ams_lo)}, {_sci(c.ams_hi)}] | "
+                f"{_sci(c.crude)} | [{_sci(c.crude_lo)}, {_sci(c.crude_hi)}] | {c.crude_n} |"
             )
         lines.append("")
     lines.append("![The exceedance curve](validate/ams_curve.png)")

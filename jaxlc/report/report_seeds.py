@@ -7,9 +7,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from jaxlc.evaluation import stats
-from jaxlc.evaluation.numbers import interval, percent, read, write_csv
+from jaxlc.evaluation.numbers import read, write_csv
 from jaxlc.evaluation.results import EvalError, EvalResult, Row
 from jaxlc.report import report_text as text
+from jaxlc.report.report_text import interval, percent
 from jaxlc.study.checkpoint import write_text_atomic
 from jaxlc.study.rundir import RunDir
 

@@ -1,7 +1,32 @@
 """The prose of ``report.md`` and ``compare.md``: each paragraph and claim row a template whose
-``{fields}`` ``jaxlc.report.report`` fills with the run's numbers (``str.format``)."""
+``{fields}`` ``jaxlc.report.report`` fills with the run's numbers (``str.format``); and the
+terminal's plain-text tables of the evaluation's rows (``format_table``, ``format_heldout``)."""
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from jaxlc.evaluation.numbers import DASH, defined
+from jaxlc.evaluation.results import OUTCOMES, HeldoutRow, Row
+
+TERMINAL_DASH = "-"  # an undefined number in a plain-text table for the terminal (ASCII)
+
+
+def percent(v: Any, digits: int = 1, unit: str = "%", missing: str = DASH) -> str:
+    """A share ``v`` in [0, 1] as a percentage with ``digits`` decimals and ``unit``."""
+    return f"{100 * v:.{digits}f}{unit}" if defined(v) else missing
+
+
+def interval(est: Any, lo: Any, hi: Any, fmt: str, scale: float = 1.0) -> str:
+    """``"est [lo, hi]"`` each times ``scale`` by ``fmt``; the estimate alone without bounds."""
+    if not defined(est):
+        return DASH
+    text = format(scale * est, fmt)
+    if defined(lo):
+        text += f" [{format(scale * lo, fmt)}, {format(scale * hi, fmt)}]"
+    return text
+
 
 # Figure file -> its caption in the report's list of figures (those a run has).
 FIGURES = (
@@ -136,3 +161,44 @@ CURVE_MEASURES = (
     "the run's return range), undecided otherwise, and always below 5 seeds per cell."
 )
 CONVERGENCE_FOOTNOTE = "Every comparison on every measure: `eval/convergence.json`."
+
+
+# --- the terminal's tables --------------------------------------------------------------------
+
+
+def format_table(rows: Sequence[Row]) -> str:
+    """Plain-text table of the evaluation rows for the terminal."""
+    ends = OUTCOMES[1:] + OUTCOMES[:1]
+    head = "policy                    seed    ep  perf  succ%   return  " + " ".join(
+        f"{o[:4]:>4}" for o in ends
+    )
+    lines = [head]
+    for r in rows:
+        sr = "   -" if not defined(r.success_rate) else f"{100 * r.success_rate:5.1f}"
+        ret = "      -" if not defined(r.avg_return) else f"{r.avg_return:8.1f}"
+        counts = " ".join(f"{getattr(r, o):4d}" for o in ends)
+        lines.append(
+            f"{r.label[:26]:26} {'-' if r.seed is None else r.seed:>4} "
+            f"{r.episode or '-':>5} {r.performed:5d} {sr:>6} {ret:>8}  {counts}"
+        )
+    return "\n".join(lines)
+
+
+def _pct(v: Any, digits: int = 1) -> str:
+    """A share for the terminal's table: a percentage without its sign, ``-`` undefined."""
+    return percent(v, digits, unit="", missing=TERMINAL_DASH)
+
+
+def format_heldout(rows: list[HeldoutRow]) -> str:
+    """Plain-text table of held-out rows for the terminal."""
+    lines = [
+        "held-out policy            seed  lane ch.  succ% [95% CP]        coll  fail<%  all norms%"
+    ]
+    for r in rows:
+        ci = f"[{_pct(r.success_lo)}, {_pct(r.success_hi)}]"
+        lines.append(
+            f"{str(r.label)[:26]:26} {'-' if r.seed is None else r.seed:>4} "
+            f"{r.lane_changes:9d}  {_pct(r.success_rate, 2):>6} {ci:14} "
+            f"{r.collision:5d}  {_pct(r.failure_bound, 2):>6}  {_pct(r.norm_all):>9}"
+        )
+    return "\n".join(lines)
