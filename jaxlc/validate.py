@@ -100,6 +100,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--repeats", type=int, default=10, help="ams: independent runs (interval)")
     ap.add_argument("--margin", type=float, default=0.0, help="ams: the margin m (0: failure)")
     ap.add_argument("--max-rounds", type=int, default=2000, help="ams: 0 is crude MC")
+    ap.add_argument("--score", choices=ams.SCORES, default="margin", help="ams: importance fn")
     args = ap.parse_intermixed_args(argv)
     for name in ("lane_changes", "chunk", "max_steps"):
         if getattr(args, name) < 1:
@@ -156,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = heldout.in_traffic(cfg, args.traffic)
         if args.method == "ams":  # all of it in jaxlc.evaluation.ams
             out = io.validate_dir(args.run_dir, args.out)
-            ams.command(cfg, rows, args, out, machine.matmul_peak_gflops())
+            io.ams_command(cfg, rows, args, out, machine.matmul_peak_gflops())
             print(f"Wrote {io.misses_figure(args.run_dir, out)}")
             _report(args)
             return 0

@@ -166,7 +166,9 @@ def sim():
     pol = validation.policies(cfg, None, 1)
     one = jax.tree.map(lambda x: x[0], pol)
     prog = {
-        r: sim_ams.program(cfg, "collision", SIM_N, SIM_KILL, r, SIM_STEPS) for r in (0, SIM_ROUNDS)
+        (score, r): sim_ams.program(cfg, "collision", SIM_N, SIM_KILL, r, SIM_STEPS, score)
+        for score in sim_ams.SCORES
+        for r in (0, SIM_ROUNDS)
     }
     crude = validation.program(cfg, SIM_STEPS, False)
     out, _ = crude(None, pol, keys.stream(0, keys.VALIDATE, range(SIM_N)))
@@ -174,13 +176,14 @@ def sim():
 
 
 @pytest.mark.slow
-def test_a_case_particle_replays_bit_for_bit_from_its_chain(sim):
+@pytest.mark.parametrize("score", ["margin", "anticipate"])
+def test_a_case_particle_replays_bit_for_bit_from_its_chain(sim, score):
     from jaxlc.evaluation import ams as sim_ams
     from jaxlc.learn.networks import make_networks
     from jaxlc.sim.env import EnvParams, action_dim
 
-    prog = sim["prog"][SIM_ROUNDS]
-    res = jax.device_get(prog(jax.random.PRNGKey(3), sim["pol"], sim["cs"], 0.0, SIM_CAP))
+    prog, target = sim["prog"][score, SIM_ROUNDS], -1.0  # m = 1 m: both branches of "anticipate"
+    res = jax.device_get(prog(jax.random.PRNGKey(3), sim["pol"], sim["cs"], target, SIM_CAP))
     assert int(res.rounds) >= 1  # particles were killed and cloned
     steps = np.asarray(res.chains.steps)
     cloned = np.sum(steps != ams.UNUSED, axis=1) >= 2
@@ -188,8 +191,9 @@ def test_a_case_particle_replays_bit_for_bit_from_its_chain(sim):
     cfg = sim["cfg"]
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
-    bind = sim_ams.make_run(base, actor_net.apply, "collision", SIM_STEPS)
-    again = np.asarray(jax.jit(jax.vmap(bind(sim["pol"], sim["cs"], SIM_CAP)))(res.chains))
+    bind = sim_ams.make_run(base, actor_net.apply, "collision", SIM_STEPS, score)
+    again = jax.jit(jax.vmap(bind(sim["pol"], sim["cs"], SIM_CAP, target)))(res.chains)
+    again = np.asarray(again)
     np.testing.assert_array_equal(again, np.asarray(res.paths))
     assert (again.max(axis=1) == res.scores).all()
     # the approach scores below -cap: only a lane change's margin reaches above it
@@ -198,26 +202,32 @@ def test_a_case_particle_replays_bit_for_bit_from_its_chain(sim):
 
 
 @pytest.mark.slow
-def test_no_rounds_is_the_engines_crude_mc_on_the_same_keys(sim):
+@pytest.mark.parametrize("score", ["margin", "anticipate"])
+def test_no_rounds_is_the_engines_crude_mc_on_the_same_keys(sim, score):
     """max_rounds = 0 keeps the first particles: each case's margin (where below the cap) is
     the one the validation's own rollout (jaxlc.evaluation.engine) folds on the same case
-    keys, so the estimate at every margin below the cap is crude MC's share per case."""
-    out, cs = sim["out"], sim["cs"]
+    keys, so the estimate at every margin below the cap is crude MC's share per case. With
+    "anticipate" the score reaches the target's level exactly when the margin is <= m."""
+    out, cs, prog = sim["out"], sim["cs"], sim["prog"][score, 0]
     engine = np.where(out["performed"][0], out["margin_gap"][0], np.inf)  # (SIM_N,)
     assert len(engine) == SIM_N and out["performed"][0].sum() >= SIM_N // 2
-    res = jax.device_get(sim["prog"][0](jax.random.PRNGKey(0), sim["pol"], cs, 0.0, 50.0))
     below = engine < 50.0
-    np.testing.assert_allclose(-np.asarray(res.first)[below], engine[below], rtol=1e-6)
-    assert (-np.asarray(res.first)[~below] >= 50.0).all()  # the approach: at most -cap
+    if score == "margin":
+        res = jax.device_get(prog(jax.random.PRNGKey(0), sim["pol"], cs, 0.0, 50.0))
+        np.testing.assert_allclose(-np.asarray(res.first)[below], engine[below], rtol=1e-6)
+        assert (-np.asarray(res.first)[~below] >= 50.0).all()  # the approach: at most -cap
     for m in np.quantile(engine[below], [0.25, 0.5, 0.75]):
-        est = sim["prog"][0](jax.random.PRNGKey(0), sim["pol"], cs, -float(m), 50.0).estimate
-        assert float(est) == np.float32(np.mean(engine <= m)) > 0  # in float32
+        res = jax.device_get(prog(jax.random.PRNGKey(0), sim["pol"], cs, -float(m), 50.0))
+        hit = engine <= m
+        np.testing.assert_array_equal(-np.asarray(res.first) <= np.float32(m), hit)
+        np.testing.assert_allclose(-np.asarray(res.first)[hit], engine[hit], rtol=1e-6)
+        assert float(res.estimate) == np.float32(np.mean(hit)) > 0  # in float32
 
 
 @pytest.mark.parametrize(
     "bad",
     [["--particles", "1"], ["--kill", "1.0"], ["--repeats", "1"], ["--margin", "-1"],
-     ["--kind", "failure"], ["--max-rounds", "-1"]],
+     ["--kind", "failure"], ["--max-rounds", "-1"], ["--score", "anticipate", "--kind", "timeout"]],
 )  # fmt: skip
 def test_a_bad_ams_argument_is_one_line_and_exit_2(bad, tmp_path, capsys):
     from jaxlc import validate

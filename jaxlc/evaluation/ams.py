@@ -22,6 +22,15 @@ where the traffic's entries, MOBIL decisions, braking events and the side drawn 
 command are still to come, so clones separate; later rounds branch in the lane change. A
 poor importance function costs variance, never bias (Bréhier et al. 2016).
 
+``--score anticipate`` (collision only; the default ``margin`` is the above): in the lane change
+the score is -margin once the margin is <= m, and before that ``below``: an increasing map of
+min(margin so far, the clearance the bodies would leave at constant velocity 0.5-2 s ahead)
+onto [-cap, -m - 0.01] (m computed from the target itself, as float32), so it ranks the cases
+about to close in ~1 s before their margin does. It never reaches the target's level before
+the margin is <= m, nor falls below it after (the margin so far only shrinks): {max score >=
+-m} is still {margin <= m} exactly, the argument below unchanged; the curve is then read at m
+only (above m the score is the prediction's, not the margin's).
+
 Unbiasedness: ``splitting``'s argument needs a clone's future after its branch step to be a
 fresh draw of the simulator's law given its parent's state there, and the score to be a
 function of the path so far. Both hold: env step t (time t after the reset) draws from
@@ -44,7 +53,6 @@ import functools
 import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import flax.struct
@@ -54,7 +62,7 @@ import numpy as np
 
 from jaxlc import config
 from jaxlc.evaluation import keys as streams
-from jaxlc.evaluation import measures, numbers, splitting, validation
+from jaxlc.evaluation import measures, splitting
 from jaxlc.evaluation.engine import Policies
 from jaxlc.evaluation.heldout import clopper_pearson
 from jaxlc.evaluation.numbers import Record, many
@@ -68,6 +76,8 @@ from jaxlc.sim.road import origin_lane, road_curvature
 
 KINDS = tuple(measures.MARGINS)  # collision, timeout, out_of_bounds
 SPAN = 0.6  # m (s for timeouts): the approach scores below -(m + SPAN); the curve spans it
+SCORES = ("margin", "anticipate")  # the lane change's importance function (docstring)
+AHEAD = (0.5, 1.0, 1.5, 2.0)  # s: "anticipate"'s constant-velocity look-ahead
 FAR = 100.0  # m: the approach's gap when no body is near
 
 
@@ -132,6 +142,7 @@ class Estimate(Record):
     traffic: list = dataclasses.field(default_factory=list)
     checkpoint: str | None = None  # relative to the run directory; None: scripted
     k: int = 1
+    score: str = "margin"  # the importance function (``SCORES``)
     curve: list = many(Point)
     nearest: list = many(Miss)
 
@@ -159,6 +170,8 @@ def check(args: Any) -> None:
         raise EvalError(f"--margin {margin:g}: a margin is >= 0 (0: the failure itself)")
     if rounds < 0:
         raise EvalError(f"--max-rounds {rounds}: >= 0 (0: crude Monte Carlo)")
+    if args.score != "margin" and kind != "collision":
+        raise EvalError(f"--score {args.score}: a prediction of the clearance, --kind collision")
 
 
 def starts(cfg: config.Config, n: int, seed: int, lo: int) -> Starts:
@@ -194,8 +207,17 @@ def approach_score(s: EnvState, p: EnvParams, cap: jax.Array) -> jax.Array:
     return -(cap + gap + to_go)
 
 
-def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> Any:
-    """``(pol, cs, cap) -> run(chain) -> (max_steps,)``: the score path (docstring) of the case
+def below(a: jax.Array, m: jax.Array, cap: jax.Array) -> jax.Array:
+    """``()`` "anticipate"'s score of a lane change not yet at margin <= m: minus an increasing
+    map of the anticipated clearance ``a`` >= 0 onto (m, cap] (the identity past cap): < -m."""
+    lo = m + 0.01  # m: well above m's float32 spacing, so never rounded onto the target
+    return -jnp.where(a <= cap, lo + (cap - lo) * jnp.maximum(a, 0.0) / cap, a)
+
+
+def make_run(
+    base: EnvParams, actor_apply: Any, kind: str, max_steps: int, score: str = "margin"
+) -> Any:
+    """``(pol, cs, cap, target) -> run(chain) -> (max_steps,)``: the ``score`` path of the case
     whose run key is the chain's first (``cs``: ``Starts``) after each env step, held once the
     case ends (``reason``) or reaches ``max_steps``. ``pol``: one policy (no policies axis).
     ``run(chain, record=True)``: the path and the state after each step ((max_steps, ...))."""
@@ -203,7 +225,7 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
     fn = {m.name: m for m in measures.BUILTIN}[measures.MARGINS[kind]]
     time_like = fn.reduce == "last"  # the time left: the current value, not the least
 
-    def bind(pol: Policies, cs: Starts, cap: jax.Array) -> Any:
+    def bind(pol: Policies, cs: Starts, cap: jax.Array, target: Any = -jnp.inf) -> Any:
         p = base.replace(k=pol.k)
 
         def run(chain: Chain, record: bool = False) -> Any:
@@ -226,7 +248,13 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
                 )  # fmt: skip
                 v = fn.fn(step, p)
                 margin = jnp.where(rl, v if time_like else jnp.minimum(margin, v), margin)
-                value = jnp.where(jnp.isfinite(margin), -margin, approach_score(new, p, cap))
+                value = -margin
+                if score == "anticipate":  # -margin at the target's level, below it before
+                    ahead = collision.clearance_ahead(
+                        new.traffic, new.ego, p, AHEAD, road_curvature(new, p))  # fmt: skip
+                    ahead = below(jnp.minimum(margin, ahead), -target, cap)
+                    value = jnp.where(value >= target, value, ahead)
+                value = jnp.where(jnp.isfinite(margin), value, approach_score(new, p, cap))
                 done = (reason != 0) | (new.time >= max_steps)
                 if record:  # the state after each step, for pictures (``replay``)
                     seen = jax.tree.map(lambda b, x: b.at[s.time].set(x), seen, new)
@@ -248,47 +276,31 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
 
 
 @functools.lru_cache(maxsize=4)
-def program(cfg: config.Config, kind: str, particles: int, kill: float, rounds: int, steps: int):
+def program(
+    cfg: config.Config, kind: str, particles: int, kill: float, rounds: int, steps: int,
+    score: str = "margin",
+):  # fmt: skip
     """Jitted ``(key, pol, cs (N,), target, cap) -> Splitting``: one AMS run of one policy on
     the cases ``cs``; ``target`` minus the margin sought, ``cap`` the approach's (docstring)."""
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
-    bind = make_run(base, actor_net.apply, kind, steps)
+    bind = make_run(base, actor_net.apply, kind, steps, score)
 
     def one(key, pol: Policies, cs: Starts, target, cap) -> splitting.Splitting:
         return splitting.splitting(
-            bind(pol, cs, cap), key, target, particles=particles, kill_fraction=kill,
+            bind(pol, cs, cap, target), key, target, particles=particles, kill_fraction=kill,
             max_rounds=rounds, initial=cs.key,
         )  # fmt: skip
 
     return jax.jit(one)
 
 
-def command(cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, peak: float) -> int:
-    """``python -m jaxlc.validate --method ams``'s work on the chosen policies (``rows``:
-    validate's ``model_rows``): each one's estimate printed, the files written."""
-    results = []
-    for actor, k, meta in rows:
-        pol = validation.policies(cfg, actor, k)
-        results.append(r := estimate(cfg, meta, args, pol, peak))
-        print(
-            f"{r.label}: P(lane change with {args.kind} margin <= {args.margin:g}) {r.estimate:.3g}"
-            f" [{r.lo:.3g}, {r.hi:.3g}] per case, {r.trajectories} cases simulated, {r.wall_s} s"
-        )
-        if any(r.extinct):
-            print(
-                f"  {sum(r.extinct)} of {len(r.extinct)} runs went extinct: their clones drew no"
-                f" future of their own (distinct final paths {min(r.distinct):.0%} at least)"
-            )
-    print(f"Wrote {write(out_dir, results)}")
-    return 0
-
-
 def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float) -> Estimate:
     """``a.repeats`` independent AMS runs of one policy (``a``: validate's arguments): the
     estimate of P(lane change with margin <= a.margin) per case with Cox's 95% interval, the
     curve beside crude MC's on the runs' initial particles below the cap, the nearest misses."""
-    run = program(cfg, a.kind, a.particles, a.kill, a.max_rounds, a.max_steps)
+    score = getattr(a, "score", "margin")
+    run = program(cfg, a.kind, a.particles, a.kill, a.max_rounds, a.max_steps, score)
     key, runs, t0, cap = jax.random.PRNGKey(a.seed), [], time.perf_counter(), a.margin + SPAN
     pol = jax.tree.map(lambda x: x[0], pol)  # one policy, no axis
     for r in range(a.repeats):
@@ -299,6 +311,7 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
     mean, lo, hi = splitting.interval(ests, log=True)
     first = np.concatenate([-np.asarray(res.first) for res in runs])  # crude MC's draws
     grid = np.unique(np.concatenate([[a.margin], np.linspace(a.margin, cap, 7)[:-1]]))
+    grid = grid if score == "margin" else grid[:1]  # "anticipate": exact at the target only
     per = np.asarray([splitting.exceedance_at(res, a.particles, -grid) for res in runs])
     curve = []
     for j, m in enumerate(grid):
@@ -317,7 +330,7 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
         cases_started=a.repeats * a.particles,
         trajectories=sum(int(res.trajectories) for res in runs), wall_s=round(wall, 1),
         matmul_peak_gflops=peak, seed=a.seed, max_steps=a.max_steps, traffic=list(a.traffic),
-        checkpoint=meta.get("checkpoint"), k=int(meta.get("k") or 1), curve=curve,
+        checkpoint=meta.get("checkpoint"), k=int(meta.get("k") or 1), score=score, curve=curve,
         nearest=_nearest(runs),
     )  # fmt: skip
 
@@ -343,10 +356,13 @@ def _nearest(runs: list, keep: int = 5) -> list[Miss]:
 
 
 @functools.lru_cache(maxsize=4)
-def _case_program(cfg: config.Config, kind: str, steps: int, record: bool) -> Any:
+def _case_program(cfg: config.Config, kind: str, steps: int, record: bool, score: str) -> Any:
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    bind = make_run(base, make_networks(cfg.ddpg, action_dim(cfg.env))[0].apply, kind, steps)
-    return jax.jit(lambda pol, cs, cap, ch: jax.vmap(lambda c: bind(pol, cs, cap)(c, record))(ch))
+    net = make_networks(cfg.ddpg, action_dim(cfg.env))[0]
+    bind = make_run(base, net.apply, kind, steps, score)
+    return jax.jit(
+        lambda pol, cs, cap, tg, ch: jax.vmap(lambda c: bind(pol, cs, cap, tg)(c, record))(ch)
+    )
 
 
 def replay(cfg: config.Config, est: Estimate, miss: Miss, pol: Policies, exact: bool) -> tuple:
@@ -360,41 +376,11 @@ def replay(cfg: config.Config, est: Estimate, miss: Miss, pol: Policies, exact: 
     margin = math.nan
     if exact:
         tiled = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), chain)
-        paths = _case_program(cfg, est.kind, est.max_steps, False)(pol, cs, est.cap, tiled)
+        run = _case_program(cfg, est.kind, est.max_steps, False, est.score)
+        paths = run(pol, cs, est.cap, -est.margin, tiled)
         margin = float(-np.asarray(paths[0]).max())
     one = jax.tree.map(lambda x: x[None], chain)
-    path, states = jax.device_get(_case_program(cfg, est.kind, est.max_steps, True)(
-        pol, cs, est.cap, one))  # fmt: skip
+    path, states = jax.device_get(_case_program(cfg, est.kind, est.max_steps, True, est.score)(
+        pol, cs, est.cap, -est.margin, one))  # fmt: skip
     end = int(states.time[0].max())  # the steps the case took
     return margin, path[0, :end], jax.tree.map(lambda x: x[0, :end], states)
-
-
-def write(out_dir: Path, results: list[Estimate]) -> Path:
-    """``ams.json``, ``ams_curve.csv`` (per policy and margin: AMS and crude MC with their
-    95% intervals) and ``ams_curve.png`` in ``out_dir``; the json's path."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    numbers.write(out_dir / "ams.json", Ams(results))
-    rows = [dict(label=r.label, kind=r.kind, **c.as_dict()) for r in results for c in r.curve]
-    numbers.write_csv(out_dir / "ams_curve.csv", rows)
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for r in results:
-        cols = ("margin", "ams", "ams_lo", "ams_hi", "crude", "crude_lo", "crude_hi")
-        got = (np.asarray([getattr(x, f) for x in r.curve]) for f in cols)
-        m, p, p_lo, p_hi, c, c_lo, c_hi = got
-        line = ax.step(m, p, where="post", label=f"{r.label} AMS")
-        ax.fill_between(m, p_lo, p_hi, step="post", alpha=0.2, color=line[0].get_color())
-        ax.errorbar(m, c, yerr=[c - c_lo, c_hi - c], fmt=".", color="k",
-                    label="crude MC" if r is results[0] else None)  # fmt: skip
-    ax.set_yscale("log")
-    unit = "s" if results[0].kind == "timeout" else "m"
-    ax.set_xlabel(f"margin to {results[0].kind.replace('_', ' ')}, {unit}")
-    ax.set_ylabel("P(lane change with margin ≤ m) per case")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out_dir / "ams_curve.png", dpi=120)
-    plt.close(fig)
-    return out_dir / "ams.json"

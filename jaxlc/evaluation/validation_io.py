@@ -311,3 +311,56 @@ def replay_miss(run_dir: Path, index: int, out: Path | None = None) -> tuple[Pat
             writer.grab_frame()
     plt.close(fig)
     return gif, margin == miss.margin
+
+
+def ams_command(
+    cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, peak: float
+) -> int:
+    """``python -m jaxlc.validate --method ams``'s work on the chosen policies (``rows``:
+    validate's ``model_rows``): each one's estimate printed, the files written."""
+    results = []
+    for actor, k, meta in rows:
+        pol = validation.policies(cfg, actor, k)
+        results.append(r := ams.estimate(cfg, meta, args, pol, peak))
+        print(
+            f"{r.label}: P(lane change with {args.kind} margin <= {args.margin:g}) {r.estimate:.3g}"
+            f" [{r.lo:.3g}, {r.hi:.3g}] per case, {r.trajectories} cases simulated, {r.wall_s} s"
+        )
+        if any(r.extinct):
+            print(
+                f"  {sum(r.extinct)} of {len(r.extinct)} runs went extinct: their clones drew no"
+                f" future of their own (distinct final paths {min(r.distinct):.0%} at least)"
+            )
+    print(f"Wrote {write_ams(out_dir, results)}")
+    return 0
+
+
+def write_ams(out_dir: Path, results: list[ams.Estimate]) -> Path:
+    """``ams.json``, ``ams_curve.csv`` (per policy and margin: AMS and crude MC with their
+    95% intervals) and ``ams_curve.png`` in ``out_dir``; the json's path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    numbers.write(out_dir / "ams.json", ams.Ams(results))
+    rows = [dict(label=r.label, kind=r.kind, **c.as_dict()) for r in results for c in r.curve]
+    numbers.write_csv(out_dir / "ams_curve.csv", rows)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for r in results:
+        cols = ("margin", "ams", "ams_lo", "ams_hi", "crude", "crude_lo", "crude_hi")
+        got = (np.asarray([getattr(x, f) for x in r.curve]) for f in cols)
+        m, p, p_lo, p_hi, c, c_lo, c_hi = got
+        line = ax.step(m, p, where="post", label=f"{r.label} AMS")
+        ax.fill_between(m, p_lo, p_hi, step="post", alpha=0.2, color=line[0].get_color())
+        ax.errorbar(m, c, yerr=[c - c_lo, c_hi - c], fmt=".", color="k",
+                    label="crude MC" if r is results[0] else None)  # fmt: skip
+    ax.set_yscale("log")
+    unit = "s" if results[0].kind == "timeout" else "m"
+    ax.set_xlabel(f"margin to {results[0].kind.replace('_', ' ')}, {unit}")
+    ax.set_ylabel("P(lane change with margin ≤ m) per case")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out_dir / "ams_curve.png", dpi=120)
+    plt.close(fig)
+    return out_dir / "ams.json"

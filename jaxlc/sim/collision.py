@@ -45,6 +45,20 @@ def clearance(traffic: Traffic, ego: Ego, p: EnvParams, kappa: Array | None = No
     return jnp.where(traffic.active, gap, jnp.inf)
 
 
+def clearance_ahead(
+    traffic: Traffic, ego: Ego, p: EnvParams, horizons: tuple, kappa: Array | None = None
+) -> Array:
+    """``()`` the least ``clearance`` to any body at each of ``horizons`` (s) ahead, every
+    body and the ego moving on at their current velocity (a prediction: no step, no draw)."""
+
+    def at(h: float) -> Array:
+        tr = traffic.replace(x=traffic.x + traffic.v * h)
+        vx, vy = ego.v * jnp.cos(ego.psi), ego.v * jnp.sin(ego.psi)
+        return clearance(tr, ego.replace(x=ego.x + vx * h, y=ego.y + vy * h), p, kappa).min()
+
+    return jnp.min(jnp.stack([at(h) for h in horizons]))
+
+
 def collided(
     traffic: Traffic, ego: Ego, spawned: Array, p: EnvParams, kappa: Array | None = None
 ) -> Array:
