@@ -24,9 +24,9 @@ poor importance function costs variance, never bias (Bréhier et al. 2016).
 
 ``--score anticipate`` (collision only; the default ``margin`` is the above): in the lane change
 the score is -margin once the margin is <= m, and before that ``below``: an increasing map of
-min(margin so far, the clearance the bodies would leave at constant velocity 0.5-2 s ahead)
-onto [-cap, -m - 0.01] (m computed from the target itself, as float32), so it ranks the cases
-about to close in ~1 s before their margin does. It never reaches the target's level before
+min(margin so far, the signed clearance the bodies would leave at constant velocity 0.5-2 s
+ahead) onto [-cap, -m - 0.01) (m from the target itself, in float32), so it ranks the cases
+about to close ~1 s before their margin does. It never reaches the target's level before
 the margin is <= m, nor falls below it after (the margin so far only shrinks): {max score >=
 -m} is still {margin <= m} exactly, the argument below unchanged; the curve is then read at m
 only (above m the score is the prediction's, not the margin's).
@@ -209,9 +209,11 @@ def approach_score(s: EnvState, p: EnvParams, cap: jax.Array) -> jax.Array:
 
 def below(a: jax.Array, m: jax.Array, cap: jax.Array) -> jax.Array:
     """``()`` "anticipate"'s score of a lane change not yet at margin <= m: minus an increasing
-    map of the anticipated clearance ``a`` >= 0 onto (m, cap] (the identity past cap): < -m."""
+    map of the anticipated signed clearance ``a`` onto (m, cap] (the identity past cap): < -m.
+    A predicted overlap (a < 0) maps into (lo, lo + 0.05], so its depth still ranks."""
     lo = m + 0.01  # m: well above m's float32 spacing, so never rounded onto the target
-    return -jnp.where(a <= cap, lo + (cap - lo) * jnp.maximum(a, 0.0) / cap, a)
+    ramp = lo + 0.05 + (cap - lo - 0.05) * jnp.maximum(a, 0.0) / cap
+    return -jnp.where(a < 0.0, lo + 0.05 * jnp.exp(a), jnp.where(a <= cap, ramp, a))
 
 
 def make_run(

@@ -48,13 +48,21 @@ def clearance(traffic: Traffic, ego: Ego, p: EnvParams, kappa: Array | None = No
 def clearance_ahead(
     traffic: Traffic, ego: Ego, p: EnvParams, horizons: tuple, kappa: Array | None = None
 ) -> Array:
-    """``()`` the least ``clearance`` to any body at each of ``horizons`` (s) ahead, every
-    body and the ego moving on at their current velocity (a prediction: no step, no draw)."""
+    """``()`` the least signed ``clearance`` to any body at each of ``horizons`` (s) ahead,
+    every body and the ego moving on at their current velocity (a prediction: no step, no
+    draw); signed: minus the boxes' penetration depth where they would overlap, so a deeper
+    predicted overlap ranks lower, not tied at 0."""
+    L, W = p.vehicle_length, p.vehicle_width
+    vx, vy = ego.v * jnp.cos(ego.psi), ego.v * jnp.sin(ego.psi)
 
     def at(h: float) -> Array:
         tr = traffic.replace(x=traffic.x + traffic.v * h)
-        vx, vy = ego.v * jnp.cos(ego.psi), ego.v * jnp.sin(ego.psi)
-        return clearance(tr, ego.replace(x=ego.x + vx * h, y=ego.y + vy * h), p, kappa).min()
+        e = ego.replace(x=ego.x + vx * h, y=ego.y + vy * h)
+        c, lane_y, hx, hy = _frame(tr, e, p, kappa)
+        dx = jnp.abs(e.x * c - hx - (tr.x * c - 0.5 * L)) - (hx + 0.5 * L)
+        dy = jnp.abs(e.y - lane_y) - (hy + 0.5 * W)
+        gap = jnp.hypot(jnp.maximum(dx, 0.0), jnp.maximum(dy, 0.0))
+        return jnp.where(tr.active, gap + jnp.minimum(jnp.maximum(dx, dy), 0.0), jnp.inf).min()
 
     return jnp.min(jnp.stack([at(h) for h in horizons]))
 
