@@ -43,7 +43,8 @@ cases (tested). The policy is deterministic; the traffic's draws are the only ra
 
 Measured (benchmarks/ams_sim_cpu_2026-11-29): no gain over crude MC, each run following its
 initial cases; the last rounds branch ~0.7 s into the lane change, ~1 s before its closest
-moment (docs/decisions.md, "where AMS's branches fall"), too little randomness left.
+moment (docs/decisions.md, "where AMS's branches fall"), too little randomness left;
+``--score anticipate`` did worse (decisions.md, "an anticipating importance function").
 """
 
 from __future__ import annotations
