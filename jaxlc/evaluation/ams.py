@@ -160,7 +160,7 @@ def approach_score(s: EnvState, p: EnvParams, cap: jax.Array) -> jax.Array:
     """``()`` minus (cap + the lengthwise gap to the nearest body in the ego's lane or a lane
     beside, the target's side once commanded, + the distance still to cruise): <= -cap."""
     ego, tr = s.ego, s.traffic
-    c, lane_y, hx, _ = collision._frame(tr, ego, p, road_curvature(s, p))
+    c, lane_y, hx, _ = collision.frame(tr, ego, p, road_curvature(s, p))
     dx = jnp.abs(ego.x * c - hx - (tr.x * c - 0.5 * p.vehicle_length)) - hx
     dx = dx - 0.5 * p.vehicle_length  # (lanes, slots) bumper to bumper, < 0 alongside
     dy, side = lane_y - ego.y, ego.target - origin_lane(p)  # side 0 before the command
@@ -224,13 +224,17 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
     return bind
 
 
+def _bound(cfg: config.Config, kind: str, steps: int) -> Any:
+    """``make_run``'s ``bind`` for the run's env and actor network (``program``, ``replay``)."""
+    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+    return make_run(base, make_networks(cfg.ddpg, action_dim(cfg.env))[0].apply, kind, steps)
+
+
 @functools.lru_cache(maxsize=4)
 def program(cfg: config.Config, kind: str, particles: int, kill: float, rounds: int, steps: int):
     """Jitted ``(key, pol, cs (N,), target, cap) -> Splitting``: one AMS run of one policy on
     the cases ``cs``; ``target`` minus the margin sought, ``cap`` the approach's (docstring)."""
-    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
-    bind = make_run(base, actor_net.apply, kind, steps)
+    bind = _bound(cfg, kind, steps)
 
     def one(key, pol: Policies, cs: Starts, target, cap) -> splitting.Splitting:
         return splitting.splitting(
@@ -323,8 +327,7 @@ def _nearest(runs: list, keep: int = 5) -> list[Miss]:
 
 @functools.lru_cache(maxsize=4)
 def _case_program(cfg: config.Config, kind: str, steps: int, record: bool) -> Any:
-    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    bind = make_run(base, make_networks(cfg.ddpg, action_dim(cfg.env))[0].apply, kind, steps)
+    bind = _bound(cfg, kind, steps)
     return jax.jit(lambda pol, cs, cap, ch: jax.vmap(lambda c: bind(pol, cs, cap)(c, record))(ch))
 
 

@@ -400,10 +400,16 @@ def replay_case(run_dir: Path, index: int, out: Path | None = None) -> tuple[Pat
 PHASES = {WAIT: "waiting", CRUISE: "cruise", GAP: "gap search", RL: "lane change"}
 
 
-def _miss_title(est: ams.Estimate, miss: ams.Miss, f: int, p: EnvParams, phase: int) -> str:
+def _draw_miss(ax: Any, est: ams.Estimate, miss: ams.Miss, states: Any, f: int, p: EnvParams,
+               extra: str = "", fontsize: int = 8) -> None:  # fmt: skip
+    """A replayed miss's scene after step ``f`` (``render_frame``), titled with its margin,
+    time and phase (and ``extra``)."""
+    ax.imshow(render_frame(jax.tree.map(lambda x: x[f], states), p))
+    ax.set_axis_off()
     unit = "s" if est.kind == "timeout" else "m"
-    return (f"{est.label}, run {miss.repeat}: {est.kind} margin {miss.margin:.3f} {unit}; "
-            f"t = {(f + 1) * p.dt:.1f} s, {PHASES[int(phase)]}")  # fmt: skip
+    title = (f"{est.label}, run {miss.repeat}: {est.kind} margin {miss.margin:.3f} {unit}; "
+             f"t = {(f + 1) * p.dt:.1f} s, {PHASES[int(states.ego.phase[f])]}")  # fmt: skip
+    ax.set_title(title + extra, fontsize=fontsize, loc="left")
 
 
 def ams_misses(run_dir: Path, out: Path | None = None) -> Path | None:
@@ -416,10 +422,7 @@ def ams_misses(run_dir: Path, out: Path | None = None) -> Path | None:
     fig, axes = plt.subplots(len(misses), 1, figsize=(8, 1.2 * len(misses) + 0.2), squeeze=False)
     for ax, (est, miss) in zip(axes[:, 0], misses, strict=True):
         _, path, states, p = validation_io.rerun_miss(run_dir, est, miss, exact=False)
-        f = int(np.argmax(path))
-        ax.imshow(render_frame(jax.tree.map(lambda x, f=f: x[f], states), p))
-        ax.set_axis_off()
-        ax.set_title(_miss_title(est, miss, f, p, states.ego.phase[f]), fontsize=8, loc="left")
+        _draw_miss(ax, est, miss, states, int(np.argmax(path)), p)
     return save(fig, out / "ams_misses.png")
 
 
@@ -442,11 +445,8 @@ def replay_miss(run_dir: Path, index: int, out: Path | None = None) -> tuple[Pat
     with writer.saving(fig, gif, dpi=90):
         for f in range(start, len(phase), stride):
             ax.clear()
-            ax.imshow(render_frame(jax.tree.map(lambda x, f=f: x[f], states), p))
-            ax.set_axis_off()
             so_far = f"so far {-path[f]:.2f}" if path[f] > -est.cap else "not yet"
-            title = _miss_title(est, miss, f, p, phase[f]) + f"; margin {so_far}"
-            ax.set_title(title, fontsize=7, loc="left")
+            _draw_miss(ax, est, miss, states, f, p, f"; margin {so_far}", fontsize=7)
             writer.grab_frame()
     plt.close(fig)
     return gif, margin == miss.margin

@@ -11,7 +11,7 @@ from jaxlc.sim.road import lane_scales
 from jaxlc.sim.state import CRUISE, Ego, EnvParams, Traffic
 
 
-def _frame(traffic: Traffic, ego: Ego, p: EnvParams, kappa: Array | None) -> tuple:
+def frame(traffic: Traffic, ego: Ego, p: EnvParams, kappa: Array | None) -> tuple:
     """``(c, lane_y, hx, hy)``: each vehicle's lane scale and lateral position (broadcast to
     ``(lanes, slots)``), the half sizes of the ego's axis-aligned box."""
     c = lane_scales(p.curvature if kappa is None else kappa, p)
@@ -25,7 +25,7 @@ def overlaps(traffic: Traffic, ego: Ego, p: EnvParams, kappa: Array | None = Non
     """``(lanes, slots)`` bool: the vehicles whose box the ego's heading-aligned bounding box
     overlaps (whatever the ego's phase); lengthwise in metres along each lane."""
     L, W = p.vehicle_length, p.vehicle_width
-    c, lane_y, hx, hy = _frame(traffic, ego, p, kappa)
+    c, lane_y, hx, hy = frame(traffic, ego, p, kappa)
     overlap = (jnp.abs(ego.x * c - hx - (traffic.x * c - 0.5 * L)) < hx + 0.5 * L) & (
         jnp.abs(ego.y - lane_y) < hy + 0.5 * W
     )
@@ -38,7 +38,7 @@ def clearance(traffic: Traffic, ego: Ego, p: EnvParams, kappa: Array | None = No
     axis-aligned boxes, lengthwise in metres along each lane; exactly 0 where they overlap
     (the evaluation's margin to collision, ``jaxlc.evaluation.measures``; not in the step)."""
     L, W = p.vehicle_length, p.vehicle_width
-    c, lane_y, hx, hy = _frame(traffic, ego, p, kappa)
+    c, lane_y, hx, hy = frame(traffic, ego, p, kappa)
     dx = jnp.abs(ego.x * c - hx - (traffic.x * c - 0.5 * L)) - (hx + 0.5 * L)
     dy = jnp.abs(ego.y - lane_y) - (hy + 0.5 * W)
     gap = jnp.hypot(jnp.maximum(dx, 0.0), jnp.maximum(dy, 0.0))

@@ -234,7 +234,7 @@ def end_reason(
 
 
 def episode_reason(in_rl: Array, rl_reason: Array, crashed: Array, no_gap: Array) -> Array:
-    """``()`` int32 reason code of ``REASONS``: the RL manoeuvre's own, else a
-    collision or no gap before it, else NONE."""
+    """``()`` int32 reason code of ``REASONS``: the RL manoeuvre's own, else a collision or
+    no gap before it, else NONE."""
     before_rl = jnp.where(crashed, COLLISION, jnp.where(no_gap, NO_GAP, NONE))
     return jnp.where(in_rl, rl_reason, before_rl).astype(jnp.int32)
