@@ -39,7 +39,6 @@ from jaxlc.evaluation.protocol import final_checkpoints, load_rows
 from jaxlc.evaluation.results import SCRIPTED, EvalError
 from jaxlc.paper.grid import tag_of
 from jaxlc.report import plots, plots_scenes, report, report_heldout
-from jaxlc.sim.params import value_range
 from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
 from jaxlc.study.rundir import RunDir
@@ -100,6 +99,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--kill", type=float, default=0.1, help="ams: share killed per round")
     ap.add_argument("--repeats", type=int, default=10, help="ams: independent runs (interval)")
     ap.add_argument("--margin", type=float, default=0.0, help="ams: the margin m (0: failure)")
+    ap.add_argument("--span", type=float, default=ams.SPAN, help="ams: the curve's, above m")
     ap.add_argument("--max-rounds", type=int, default=2000, help="ams: 0 is crude MC")
     args = ap.parse_intermixed_args(argv)
     for name in ("lane_changes", "chunk", "max_steps"):
@@ -160,18 +160,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"Wrote {plots_scenes.ams_misses(args.run_dir, out)}")
             _report(args)
             return 0
-        if (
-            args.method == "is"
-            and args.family == "mixture"
-            and not (cfg.env.braking and value_range(cfg.env.braking_rate)[1] > 0)
-        ):
-            raise EvalError(
-                "--family mixture tilts braking events, and this traffic has none "
-                "(--traffic env.braking=true, env.braking_rate > 0)"
-            )
-        peak = machine.matmul_peak_gflops()
         names = [f.name for f in dataclasses.fields(validation.Settings)]
-        settings = validation.Settings(**{n: getattr(args, n) for n in names})
+        settings = validation.check(
+            cfg, validation.Settings(**{n: getattr(args, n) for n in names})
+        )
+        peak = machine.matmul_peak_gflops()
         results = []
         for i, row in enumerate(rows):
             results.append(METHODS[args.method](cfg, *row, settings, model=i))

@@ -402,3 +402,31 @@ def test_any_road_draws_every_range_and_the_paper_and_default_draw_none():
     for name in ("paper.toml", "default.toml"):
         q = jaxlc.make(config.load(config.CONFIG_DIR / name))[1]
         assert q.drawn == () and q.operating_speed == () and not q.curvature_drawn, name
+
+
+def test_a_share_of_the_episodes_draws_each_range_at_its_ends():
+    """``env.range_edge_share`` q: each drawn value is its range's min with probability q/2,
+    its max with q/2, and otherwise uniform inside; q = 0 is the uniform draw itself."""
+    from jaxlc.sim.state import draw_episode
+
+    over = (*RANGES, "env.curvature=[-0.004, 0.004]")
+    keys = jax.random.split(jax.random.PRNGKey(3), 4000)
+    p0 = jaxlc.make(config.load(overrides=over))[1]
+    pq = jaxlc.make(config.load(overrides=(*over, "env.range_edge_share=0.3")))[1]
+    assert p0.range_edge_share == 0.0 and pq.drawn == p0.drawn
+    uniform = np.asarray(jax.vmap(draw_episode, (0, None))(keys, p0))  # (keys, n drawn)
+    edged = np.asarray(jax.vmap(draw_episode, (0, None))(keys, pq))
+    u = np.asarray(
+        jax.vmap(lambda k: jax.random.uniform(jax.random.fold_in(k, 2), (len(p0.drawn),)))(keys)
+    )
+    for i, (lo, hi) in enumerate(p0.ranges):
+        assert np.array_equal(uniform[i], np.float32(lo) + u[:, i] * np.float32(hi - lo))
+        ends = [np.isclose(edged[i], e, rtol=1e-6, atol=0.0) for e in (lo, hi)]  # float32's
+        assert all(abs(np.mean(at) - 0.15) < 0.03 for at in ends)  # 5 sd of 4,000 draws
+        inside = edged[i][~ends[0] & ~ends[1]]
+        assert np.all((inside > lo) & (inside < hi))
+        assert abs(np.mean(inside) - 0.5 * (lo + hi)) < 0.03 * (hi - lo)  # still centred
+    # the road's curvature, drawn at the reset, has its ends too
+    env = jaxlc.make(config.load(overrides=(*over, "env.range_edge_share=0.3")))[0]
+    roads = np.asarray(jax.vmap(env.reset, (0, None))(keys[:64], pq)[1].curvature)
+    assert 0.05 < np.mean(np.abs(roads) == np.float32(0.004)) < 0.6

@@ -8,9 +8,10 @@ its path is the ego's wait, cruise, gap search and lane change, env step t keyed
 ``max_rounds=0`` is the validation's crude MC on the same cases). The estimand is per case
 started: P(a lane change whose margin of ``--kind`` (``measures.MARGINS``) is <= m). The score
 is minus the margin from the first RL step on, and before it ``approach_score``, below
--(m + ``SPAN``), so {max score >= -m'} is {margin <= m'} for every m' < m + ``SPAN``. The
-score is a function of the path so far and a clone replays its parent's keys to its branch,
-which is what ``splitting``'s unbiasedness needs. Measured: no gain over crude MC; the last
+-(m + span) (``--span``, ``SPAN`` by default), so {max score >= -m'} is {margin <= m'} for
+every m' < m + span: the curve is read there. The score is a function of the path so far and
+a clone replays its parent's keys to its branch, which is what ``splitting``'s unbiasedness
+needs. Measured: no gain over crude MC; the last
 rounds branch ~0.7 s into the lane change, ~1 s before its closest moment (decisions.md).
 """
 
@@ -44,7 +45,7 @@ from jaxlc.sim.env import CRUISE, RL, WAIT, EnvParams, EnvState, LaneChangeEnv, 
 from jaxlc.sim.road import origin_lane, road_curvature
 
 KINDS = tuple(measures.MARGINS)  # collision, timeout, out_of_bounds
-SPAN = 0.6  # m (s for timeouts): the approach scores below -(m + SPAN); the curve spans it
+SPAN = 0.6  # m (s for timeouts): --span's default; the approach scores below -(m + span)
 FAR = 100.0  # m: the approach's gap when no body is near
 
 
@@ -136,6 +137,8 @@ def check(args: Any) -> None:
         raise EvalError(f"--margin {margin:g}: a margin is >= 0 (0: the failure itself)")
     if rounds < 0:
         raise EvalError(f"--max-rounds {rounds}: >= 0 (0: crude Monte Carlo)")
+    if not args.span > 0.0:
+        raise EvalError(f"--span {args.span:g}: > 0 (the curve is read from m to m + span)")
 
 
 def starts(cfg: config.Config, n: int, seed: int, lo: int) -> Starts:
@@ -263,6 +266,12 @@ def command(
                 f"  {sum(r.extinct)} of {len(r.extinct)} runs went extinct: their clones drew no"
                 f" future of their own (distinct final paths {min(r.distinct):.0%} at least)"
             )
+        if r.nearest and r.nearest[0].margin > args.margin:
+            at = min(r.curve, key=lambda c: abs(c.margin - r.nearest[0].margin))
+            print(
+                f"  no run reached {args.margin:g}; the least margin reached {at.margin:.3g}: "
+                f"P(margin <= it) {at.ams:.3g} [{at.ams_lo:.3g}, {at.ams_hi:.3g}] per case"
+            )
     print(f"Wrote {write(out_dir, results)}")
     return results
 
@@ -272,7 +281,7 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
     estimate of P(lane change with margin <= a.margin) per case with Cox's 95% interval, the
     curve beside crude MC's on the runs' initial particles below the cap, the nearest misses."""
     run = program(cfg, a.kind, a.particles, a.kill, a.max_rounds, a.max_steps)
-    key, runs, t0, cap = jax.random.PRNGKey(a.seed), [], time.perf_counter(), a.margin + SPAN
+    key, runs, t0, cap = jax.random.PRNGKey(a.seed), [], time.perf_counter(), a.margin + a.span
     pol = jax.tree.map(lambda x: x[0], pol)  # one policy, no axis
     for r in range(a.repeats):
         cs = starts(cfg, a.particles, a.seed, r * a.particles)
@@ -281,7 +290,11 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
     ests = np.asarray([float(res.estimate) for res in runs])
     mean, lo, hi = splitting.interval(ests, log=True)
     first = np.concatenate([-np.asarray(res.first) for res in runs])  # crude MC's draws
-    grid = np.unique(np.concatenate([[a.margin], np.linspace(a.margin, cap, 7)[:-1]]))
+    # the least margin any run reached is a point of the curve: where no run reaches m, what
+    # the runs can say is how likely a lane change comes that close
+    least = min(-float(np.max(res.scores)) for res in runs)
+    grid = np.linspace(a.margin, cap, 7)[:-1]
+    grid = np.unique(np.concatenate([grid, [least] if a.margin < least < cap else []]))
     per = np.asarray([splitting.exceedance_at(res, a.particles, -grid) for res in runs])
     curve = []
     for j, m in enumerate(grid):

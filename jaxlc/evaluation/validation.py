@@ -31,10 +31,11 @@ from jaxlc.evaluation.cases import Policies, columns, init_actor, make_rollout, 
 from jaxlc.evaluation.heldout import lane_change_measures
 from jaxlc.evaluation.mixture import Mixture
 from jaxlc.evaluation.proposal import Proposal, Record, TiltedEnv
-from jaxlc.evaluation.results import OUTCOMES
+from jaxlc.evaluation.results import OUTCOMES, EvalError
 from jaxlc.evaluation.safety import NORMS
 from jaxlc.learn.networks import make_networks
 from jaxlc.sim.env import EnvParams, action_dim
+from jaxlc.sim.params import value_range
 
 ENDS = ("collision", "out_of_bounds", "timeout", "unfinished")
 KINDS = ("failure", *ENDS, *(f"norm_{name}" for name, *_ in NORMS))
@@ -183,6 +184,17 @@ class Settings:
     chunk: int = 2048
     seed: int = 0
     max_steps: int = config.EvalConfig().max_steps
+
+
+def check(cfg: config.Config, s: Settings) -> Settings:
+    """``s`` where the traffic allows it; else ``EvalError`` in one sentence."""
+    if s.method == "is" and s.family == "mixture":
+        if not (cfg.env.braking and value_range(cfg.env.braking_rate)[1] > 0):
+            raise EvalError(
+                "--family mixture tilts braking events, and this traffic has none "
+                "(--traffic env.braking=true, env.braking_rate > 0)"
+            )
+    return s
 
 
 @dataclass

@@ -79,6 +79,7 @@ from jaxlc.sim.state import (  # noqa: F401 (the state types and phases re-expor
     between,
     draw_episode,
     episode_params,
+    episode_value,
 )
 
 
@@ -119,7 +120,9 @@ def _advance(
     if p.braking:
         hazards |= braking.counts(t.events, ego, p)
     if p.curvature_drawn:  # a new episode, a new road (the traffic keeps its s and lanes)
-        kappa = jnp.where(spawned, between(u.curvature, p.curvature_min, p.curvature_max), kappa)
+        kappa = jnp.where(
+            spawned, episode_value(u.curvature, p.curvature_min, p.curvature_max, p), kappa
+        )
     nb, leader_gap, leader_v = observe_lanes(traffic, ego, p, kappa)
     crashed = collided(traffic, ego, spawned, p, kappa)
 
@@ -219,7 +222,7 @@ class LaneChangeEnv:
         road = None
         if p.curvature_drawn:  # its own key: a constant road's draws are left as they were
             u_road = jax.random.uniform(jax.random.fold_in(k_init, 1))
-            road = between(u_road, p.curvature_min, p.curvature_max)
+            road = episode_value(u_road, p.curvature_min, p.curvature_max, p)
         nb, leader_gap, leader_v = observe_lanes(
             traffic, ego, p, p.curvature if road is None else road
         )

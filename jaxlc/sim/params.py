@@ -160,6 +160,15 @@ class EnvParams:
         doc="a state input: a number (a constant road) or [min, max], drawn per episode from "
         "U(min, max)",
     )
+    range_edge_share: float = setting(
+        0.0,
+        0.0,
+        0.9,
+        unit="",
+        static=True,  # on, it adds the draw's map to the program
+        doc="of the episodes, the share whose drawn value of a range (each key given as "
+        "[min, max], the curvature's too) is one of its ends, half each; 0: U(min, max)",
+    )
     dt: float = setting(0.1, 0.0, 1.0, unit="s", open_lo=True)
     vehicle_length: float = setting(5.0, 1.0, 20.0, unit="m")
     vehicle_width: float = setting(1.8, 1.0, 3.0, unit="m")

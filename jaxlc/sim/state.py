@@ -91,10 +91,10 @@ class EnvState:
 
 
 def draw_episode(key: Array, p: EnvParams) -> tuple[Array, ...]:
-    """An episode's values of ``p.drawn``, each U(min, max) of ``p.ranges``, from
+    """An episode's values of ``p.drawn``, each ``episode_value`` of ``p.ranges``, from
     ``fold_in(key, 2)`` (the step's other draws are left as they were)."""
     u = jax.random.uniform(jax.random.fold_in(key, 2), (len(p.drawn),))
-    return tuple(between(u[i], lo, hi) for i, (lo, hi) in enumerate(p.ranges))
+    return tuple(episode_value(u[i], lo, hi, p) for i, (lo, hi) in enumerate(p.ranges))
 
 
 def episode_params(state: EnvState, p: EnvParams) -> EnvParams:
@@ -157,3 +157,13 @@ def _mix(h: Array) -> Array:
 def between(u: Array, lo: Array, hi: Array) -> Array:
     """``u`` in [0, 1) mapped to [lo, hi)."""
     return lo + u * (hi - lo)
+
+
+def episode_value(u: Array, lo: Array, hi: Array, p: EnvParams) -> Array:
+    """An episode's value of a range ``[lo, hi]`` from ``u`` in [0, 1): U(lo, hi), but the
+    share ``p.range_edge_share`` of the episodes at the ends, half at ``lo``, half at ``hi``:
+    a range's ends are its hardest cases, which a uniform draw seldom comes near."""
+    q = p.range_edge_share
+    if q > 0.0:  # static: off, the uniform draw's program is unchanged
+        u = jnp.clip((u - 0.5 * q) / (1.0 - q), 0.0, 1.0)
+    return between(u, lo, hi)
