@@ -739,3 +739,42 @@ def test_a_command_outside_the_operating_range_is_declined_and_only_then():
         taken += list(v[np.asarray(E.commanded(s.ego))])
     assert len(declined) > 5 and len(taken) > 5
     assert max(declined) < 55.0 <= min(taken)
+
+
+@pytest.mark.slow
+def test_the_lane_relative_yaw_rate_is_0_holding_a_bend_and_the_scripted_law_reads_it(
+    env_params,
+):
+    """``env.yaw_rate_obs = "lane"``: at the first RL observation on a bend, where the ego
+    holds its lane's line, obs[3] is 0 where the absolute yaw rate is kappa_d*v, the other
+    entries alike; the scripted controller acts the same on either and completes its lane
+    changes reading the relative one."""
+    from jaxlc.sim.decision import reset_core, step_core
+    from jaxlc.sim.observation import INDEX
+    from jaxlc.sim.reward import NONE, SUCCESS
+
+    _, p = env_params
+    p = p.replace(curvature=jnp.float32(0.004))
+    q = p.replace(yaw_rate_obs="lane")
+
+    def run(params):
+        @jax.jit
+        @jax.vmap
+        def episodes(key):
+            key, s, out = reset_core(key, params, 3000)
+
+            def body(c, _):
+                key, s, obs = c
+                key, _, s, o = step_core(key, s, scripted_action(obs, params), params, 3000)
+                return (key, s, o["next_obs"]), o["reason_code"]
+
+            return out["obs"], jax.lax.scan(body, (key, s, out["obs"]), None, 150)[1]
+
+        return (np.asarray(a) for a in episodes(jax.random.split(jax.random.PRNGKey(7), 8)))
+
+    (obs_a, _), (obs_l, ends) = run(p), run(q)
+    i = INDEX["omega"]
+    assert np.all(np.abs(obs_a[:, i]) > 1e-3) and np.allclose(obs_l[:, i], 0.0, atol=1e-5)
+    np.testing.assert_array_equal(np.delete(obs_a, i, 1), np.delete(obs_l, i, 1))
+    np.testing.assert_allclose(scripted_action(obs_a, p), scripted_action(obs_l, q), atol=1e-5)
+    assert (ends == SUCCESS).sum() >= 8 and np.all((ends == NONE) | (ends == SUCCESS))

@@ -57,6 +57,7 @@ def test_env_params_spells_env_config_in_its_order_with_its_converted_defaults()
         "lanes", "slots_per_lane", "longitudinal", "assist", "mobil", "braking",
         "warmup_steps", "mobil_deciders", "curvature_drawn", "drawn", "reward_terms",
         "operating_speed", "manoeuvre_distance", "manoeuvre_time_max", "range_edge_share",
+        "yaw_rate_obs",
     }  # fmt: skip
 
 

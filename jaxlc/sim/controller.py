@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxlc.sim.ego import held_action, held_long_action
-from jaxlc.sim.observation import INDEX, observation, scale
+from jaxlc.sim.observation import INDEX, lane_relative, observation, scale
 from jaxlc.sim.road import origin_lane
 from jaxlc.sim.state import RL, EnvParams, EnvState, action_dim
 
@@ -63,7 +63,9 @@ def _pole_placement(raw: dict[str, Array], e: Array, params: EnvParams, pole: fl
     d = d + raw["offset"]  # the ego's distance from the road's centre line
     kappa_d = kappa / (1.0 - kappa * d)  # exactly 0 on a straight road
     cos_psi = jnp.cos(psi)
-    omega_r = raw["omega"] - kappa_d * raw["v"] * cos_psi  # relative to the lane's yaw rate
+    omega_r = raw["omega"]  # relative to the lane's yaw rate, as observed or from it:
+    if not lane_relative(params):
+        omega_r = omega_r - kappa_d * raw["v"] * cos_psi
     feed_forward = kappa_d * raw["accel"] * cos_psi
     a_lat = feed_forward - (pole**3 * e + 3 * pole**2 * v * psi + 3 * pole * v * omega_r) / v
     return jnp.clip(a_lat / params.max_yaw_acc, -1.0, 1.0)[..., None]

@@ -25,6 +25,7 @@ from jaxlc.sim.leaders import occupancy
 from jaxlc.sim.reward import step_limit
 from jaxlc.sim.road import (
     current_lane,
+    ego_yaw_rate,
     lane_offset,
     lane_row,
     lateral_offset,
@@ -47,7 +48,8 @@ LAYOUT: tuple[Entry, ...] = (
     Entry("v", 30.0, 1.0, "ego speed, m/s"),
     Entry("accel", 3.0, 1.0, "ego longitudinal acceleration, m/s^2"),
     Entry("psi", 0.1, -1.0, "heading relative to the lane's direction, rad"),
-    Entry("omega", 0.1, -1.0, "yaw rate (kappa_d*v holds a lane of a curve), rad/s"),
+    # kappa_d*v holds a lane of a curve; with env.yaw_rate_obs = "lane" relative to that: 0
+    Entry("omega", 0.1, -1.0, "yaw rate, rad/s"),
     Entry("offset", "offset_obs_scale", -1.0, "signed offset from the target lane's centre, m"),
     Entry("held", 1.0, -1.0, "action being executed (held for k steps), in [-1, 1]"),
     # 0 unless terminal_timeout: a bootstrapped timeout must not be observable (``observation``).
@@ -95,8 +97,9 @@ def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
 
     On a curved road the RL phase starts with the lane-holding yaw rate kappa_d*v (|kappa_d| <=
     K, the largest path curvature within ``border`` of a lane's centre), so |omega| <=
-    K*v_max + A*dt*n, and the yaw rate relative to the lane's (psi's rate) is at most
-    A*dt*k + 2*K*v_max at step k: psi gains 2*K*v_max*n*dt over the straight road's bound.
+    K*v_max + A*dt*n, and the yaw rate relative to the lane's (psi's rate, obs[3] with
+    ``env.yaw_rate_obs = "lane"``) is at most A*dt*k + 2*K*v_max at step k: psi gains
+    2*K*v_max*n*dt over the straight road's bound.
     """
     p = params
     v_max = max(_highest(p, "entry_speed_max"), _highest(p, "desired_speed_max"))
@@ -109,7 +112,7 @@ def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     d_max = 0.5 * (int(p.lanes) - 1) * _highest(p, "lane_width") + offset  # from the road's centre
     # Past kappa*d = 1 the lines would cross the bend's centre: no bound (no sane road).
     k_path = kappa / (1.0 - kappa * d_max) if kappa * d_max < 1.0 else np.inf
-    omega = k_path * v_max + float(p.max_yaw_acc) * dt * n
+    omega = float(p.max_yaw_acc) * dt * n + k_path * v_max * (2.0 if lane_relative(p) else 1.0)
     psi = float(p.max_yaw_acc) * dt * dt * n * (n + 1) / 2 + 2.0 * k_path * v_max * n * dt
     raw = {  # name -> (low, high) before scaling
         "v": (0.0, v_max),
@@ -130,6 +133,11 @@ def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
     high = np.array([raw[e.name][1] for e in LAYOUT]) / div
     pad = 1e-3 * np.maximum(1.0, np.abs(np.where(np.isfinite(high), high, 0.0)))
     return (low - pad).astype(np.float32), (high + pad).astype(np.float32)
+
+
+def lane_relative(p: EnvParams) -> bool:
+    """obs[3] is the yaw rate relative to the lane's (``env.yaw_rate_obs = "lane"``)."""
+    return getattr(p, "yaw_rate_obs", "absolute") == "lane"
 
 
 def observe_lanes(
@@ -186,18 +194,19 @@ def observation(state: EnvState, p: EnvParams) -> Array:
         return jnp.where(present, v_other - eg.v, 0.0)
 
     has_leader = state.leader_gap < NO_LEADER_GAP
+    kappa = road_curvature(state, p)
     lead_gap, lag_gap = target_gaps(state, p)
     raw = {
         "v": eg.v,
         "accel": eg.accel,
         "psi": eg.psi,
-        "omega": eg.omega,
+        "omega": ego_yaw_rate(eg, kappa, p) if lane_relative(p) else eg.omega,
         "offset": lateral_offset(eg, p),
         "held": eg.held,
         # A truncated timeout is bootstrapped, so the time must not be observed: values at
         # time = limit are never learned as current states (Pardo et al., 2018).
         "time": jnp.where(p.terminal_timeout, eg.steps * p.dt, 0.0),
-        "curvature": road_curvature(state, p) * jnp.ones_like(eg.v),
+        "curvature": kappa * jnp.ones_like(eg.v),
         "lead_gap": gap_m(lead_gap, nb.has_a1),
         "lead_dv": dv(nb.a1_v, nb.has_a1),
         "lag_gap": gap_m(lag_gap, nb.has_b1),

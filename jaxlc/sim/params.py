@@ -284,6 +284,14 @@ class EnvParams:
     offset_obs_scale: float = setting(
         3.7, 0.0, 100.0, unit="m", open_lo=True, doc="per unit of obs dd"
     )
+    yaw_rate_obs: str = setting(
+        "absolute",
+        unit="",
+        static=True,
+        choices=("absolute", "lane"),
+        doc="obs[3]: the ego's yaw rate ('absolute', the paper's) or its yaw rate relative to "
+        "its lane's ('lane': 0 holds the lane on a bend, as the success test reads it)",
+    )
     longitudinal: str = setting(
         "idm",
         unit="",
