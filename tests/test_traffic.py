@@ -392,6 +392,7 @@ def test_any_road_draws_every_range_and_the_paper_and_default_draw_none():
     cfg = config.load(config.CONFIG_DIR / "any_road.toml")
     p = jaxlc.make(cfg)[1]
     assert set(p.drawn) == set(RANGED) and p.curvature_drawn and cfg.env.mobil and cfg.env.braking
+    assert p.range_edge_share > 0 and p.manoeuvre_distance > 0 and p.yaw_rate_obs == "lane"
     settings = suite.load(cfg.eval.suite)
     assert {"paper", "reactive", "harsh", "stop_and_go"} <= set(settings)
     harsh = heldout.in_traffic(cfg, settings["harsh"]).env
@@ -402,6 +403,8 @@ def test_any_road_draws_every_range_and_the_paper_and_default_draw_none():
     for name in ("paper.toml", "default.toml"):
         q = jaxlc.make(config.load(config.CONFIG_DIR / name))[1]
         assert q.drawn == () and q.operating_speed == () and not q.curvature_drawn, name
+        assert q.range_edge_share == 0 and q.manoeuvre_distance == 0, name
+        assert q.yaw_rate_obs == "absolute", name  # the paper's observation
 
 
 def test_a_share_of_the_episodes_draws_each_range_at_its_ends():
