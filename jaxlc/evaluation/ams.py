@@ -11,8 +11,8 @@ is minus the margin from the first RL step on, and before it ``approach_score``,
 -(m + span) (``--span``, ``SPAN`` by default), so {max score >= -m'} is {margin <= m'} for
 every m' < m + span: the curve is read there. The score is a function of the path so far and
 a clone replays its parent's keys to its branch, which is what ``splitting``'s unbiasedness
-needs. Measured: no gain over crude MC; the last
-rounds branch ~0.7 s into the lane change, ~1 s before its closest moment (decisions.md).
+needs. Measured: no gain over crude MC; the last rounds branch ~0.7 s into the lane change,
+~1 s before its closest moment (decisions.md).
 """
 
 from __future__ import annotations
