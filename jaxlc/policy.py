@@ -71,7 +71,7 @@ def sidecar(path: Path, meta: dict[str, Any], run_dir: Path, fmt: str) -> dict[s
                 {
                     "index": i,
                     "name": e.name,
-                    "meaning": e.meaning,
+                    "meaning": observation.meaning(e, params),
                     "scale": float(observation.scale(e.name, params)),
                     "mirror_sign": e.mirror,
                 }

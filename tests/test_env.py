@@ -750,7 +750,7 @@ def test_the_lane_relative_yaw_rate_is_0_holding_a_bend_and_the_scripted_law_rea
     entries alike; the scripted controller acts the same on either and completes its lane
     changes reading the relative one."""
     from jaxlc.sim.decision import reset_core, step_core
-    from jaxlc.sim.observation import INDEX
+    from jaxlc.sim.observation import INDEX, LAYOUT, meaning
     from jaxlc.sim.reward import NONE, SUCCESS
 
     _, p = env_params
@@ -777,4 +777,8 @@ def test_the_lane_relative_yaw_rate_is_0_holding_a_bend_and_the_scripted_law_rea
     assert np.all(np.abs(obs_a[:, i]) > 1e-3) and np.allclose(obs_l[:, i], 0.0, atol=1e-5)
     np.testing.assert_array_equal(np.delete(obs_a, i, 1), np.delete(obs_l, i, 1))
     np.testing.assert_allclose(scripted_action(obs_a, p), scripted_action(obs_l, q), atol=1e-5)
+    assert (
+        "relative to the lane" in meaning(LAYOUT[i], q)
+        and meaning(LAYOUT[i], p) == "yaw rate, rad/s"
+    )
     assert (ends == SUCCESS).sum() >= 8 and np.all((ends == NONE) | (ends == SUCCESS))

@@ -140,6 +140,13 @@ def lane_relative(p: EnvParams) -> bool:
     return getattr(p, "yaw_rate_obs", "absolute") == "lane"
 
 
+def meaning(e: Entry, p: EnvParams) -> str:
+    """What entry ``e`` holds under ``p`` (obs[3] follows ``env.yaw_rate_obs``)."""
+    if e.name == "omega" and lane_relative(p):
+        return "yaw rate relative to the lane's (0 holds the lane on a bend), rad/s"
+    return e.meaning
+
+
 def observe_lanes(
     tr: Traffic, eg: Ego, p: EnvParams, kappa: Array | None = None
 ) -> tuple[gap.Neighbours, Array, Array]:
