@@ -266,8 +266,9 @@ def command(
                 f"  {sum(r.extinct)} of {len(r.extinct)} runs went extinct: their clones drew no"
                 f" future of their own (distinct final paths {min(r.distinct):.0%} at least)"
             )
-        if r.nearest and r.nearest[0].margin > args.margin:
-            at = min(r.curve, key=lambda c: abs(c.margin - r.nearest[0].margin))
+        least = r.nearest[0].margin if r.nearest else math.inf
+        if args.margin < least < r.cap:  # as ``estimate`` put it on the curve
+            at = min(r.curve, key=lambda c: abs(c.margin - least))
             print(
                 f"  no run reached {args.margin:g}; the least margin reached {at.margin:.3g}: "
                 f"P(margin <= it) {at.ams:.3g} [{at.ams_lo:.3g}, {at.ams_hi:.3g}] per case"

@@ -76,7 +76,6 @@ from jaxlc.sim.state import (  # noqa: F401 (the state types and phases re-expor
     Traffic,
     TrafficDraws,
     action_dim,
-    between,
     draw_episode,
     episode_params,
     episode_value,

@@ -137,7 +137,7 @@ def bounds(params: EnvParams) -> tuple[np.ndarray, np.ndarray]:
 
 def lane_relative(p: EnvParams) -> bool:
     """obs[3] is the yaw rate relative to the lane's (``env.yaw_rate_obs = "lane"``)."""
-    return getattr(p, "yaw_rate_obs", "absolute") == "lane"
+    return p.yaw_rate_obs == "lane"
 
 
 def meaning(e: Entry, p: EnvParams) -> str:
