@@ -264,7 +264,7 @@ def command(
         if any(r.extinct):
             print(
                 f"  {sum(r.extinct)} of {len(r.extinct)} runs went extinct: their clones drew no"
-                f" future of their own (distinct final paths {min(r.distinct):.0%} at least)"
+                f" future of their own (distinct final paths {min(r.distinct):.1%} at least)"
             )
         least = r.nearest[0].margin if r.nearest else math.inf
         if args.margin < least < r.cap:  # as ``estimate`` put it on the curve
