@@ -30,17 +30,28 @@ def idm_acceleration(
     s0: Array | float,
     delta: Array | float,
     b_max: Array | float,
+    free: Array | None = None,
 ) -> Array:
     """IDM acceleration (m/s^2) for speed ``v``, desired speed ``v0`` and net ``gap`` (m)
-    to a leader driving at ``v_lead``; every argument broadcasts (e.g. ``(lanes, slots)``)."""
+    to a leader driving at ``v_lead``; every argument broadcasts (e.g. ``(lanes, slots)``).
+    ``free``: ``free_road(v, v0, delta)`` where the caller has it already."""
     dv = v - v_lead
     s_star = s0 + jnp.maximum(0.0, v * time_headway + v * dv / (2.0 * jnp.sqrt(a_max * b)))
-    free = jnp.power(jnp.maximum(v, 0.0) / v0, delta)
+    free = free_road(v, v0, delta) if free is None else free
     interaction = jnp.square(s_star / jnp.maximum(gap, MIN_GAP))
     return jnp.maximum(a_max * (1.0 - free - interaction), -b_max)
 
 
-def idm_with_params(v: Array, v0: Array, gap: Array, v_lead: Array, p) -> Array:
+def free_road(v: Array, v0: Array, delta: Array | float) -> Array:
+    """The IDM's free-road term ``(v/v0)**delta``, a function of the follower alone: a traffic
+    that weighs one vehicle behind several leaders (MOBIL, a body in two lanes) computes it
+    once per vehicle, as ``pow`` is the costliest operation of the law on XLA's CPU."""
+    return jnp.power(jnp.maximum(v, 0.0) / v0, delta)
+
+
+def idm_with_params(
+    v: Array, v0: Array, gap: Array, v_lead: Array, p, free: Array | None = None
+) -> Array:
     """``idm_acceleration`` with the IDM constants of ``p`` (an ``EnvParams``)."""
     return idm_acceleration(
         v,
@@ -53,4 +64,5 @@ def idm_with_params(v: Array, v0: Array, gap: Array, v_lead: Array, p) -> Array:
         p.idm_s0,
         p.idm_delta,
         p.idm_b_max,
+        free,
     )

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxlc.sim import gap, kinematics
+from jaxlc.sim.idm import free_road
 from jaxlc.sim.road import current_lane, ego_lanes
 from jaxlc.sim.state import Ego, EnvParams, Traffic
 
@@ -63,6 +64,7 @@ class Around(NamedTuple):
     x: Array  # (V,) front bumper, s along the road's centre line, m
     v: Array  # (V,) speed, m/s
     v0: Array  # (V,) desired speed, m/s
+    free: Array  # (V,) the IDM's free-road term (``idm.free_road``), once per body
     length: Array  # (V,) body length along the road, m (the ego's heading-aligned box)
     occ: Array  # (lanes, V) bool, the lanes each body counts in
     key: Array  # (V,) int32 position key (``_keys``): the bodies' order along the road
@@ -85,10 +87,12 @@ def around(tr: Traffic, eg: Ego, p: EnvParams, scale: Array) -> Around:
     )
     key = _keys(x, p.road_length)
     lead, has_lead = _index(_nearest(key, occ, key, ahead=True), x.shape[0])
+    v, v0 = jnp.append(tr.v.reshape(-1), eg.v), jnp.append(tr.v0.reshape(-1), eg.v0)
     return Around(
         x=x,
-        v=jnp.append(tr.v.reshape(-1), eg.v),
-        v0=jnp.append(tr.v0.reshape(-1), eg.v0),
+        v=v,
+        v0=v0,
+        free=free_road(v, v0, p.idm_delta),
         length=jnp.append(jnp.full(tr.x.size, p.vehicle_length, x.dtype), 2.0 * hx),
         occ=occ,
         key=key,

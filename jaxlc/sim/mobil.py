@@ -54,7 +54,7 @@ def _idm(a: Around, f: Array, lead: Array, present: Array, lane: Array, p: EnvPa
     c = a.scale[lane]
     g = jnp.where(present, a.x[lead] * c - a.length[lead] - a.x[f] * c, NO_LEADER_GAP)
     v_lead = jnp.where(present, a.v[lead], a.v[f])
-    return idm_with_params(a.v[f], a.v0[f], g, v_lead, p), g
+    return idm_with_params(a.v[f], a.v0[f], g, v_lead, p, a.free[f]), g
 
 
 def _in_lane(t: Array, lane: Array) -> Array:

@@ -77,7 +77,7 @@ def _position_accel(state: EnvState, a: Around, p: EnvParams) -> Array:
     use_ego = yields & (eg.x > a.x[:n]) & (ego_gap < gap_l[:, :n])
     gap_l = jnp.where(use_ego, ego_gap, gap_l[:, :n])
     lead_v = jnp.where(use_ego, eg.v, lead_v[:, :n])
-    acc = idm_with_params(a.v[:n], a.v0[:n], gap_l, lead_v, p)  # (lanes, N)
+    acc = idm_with_params(a.v[:n], a.v0[:n], gap_l, lead_v, p, a.free[:n])  # (lanes, N)
     acc = jnp.min(jnp.where(a.occ[:, :n], acc, jnp.inf), axis=0).reshape(tr.x.shape)
     return jnp.where(tr.active, acc, 0.0)
 
