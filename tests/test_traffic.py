@@ -211,6 +211,22 @@ def test_leaders_by_keys_equal_every_pair_compared_in_float():
 
 
 @pytest.mark.slow
+def test_the_nearest_key_is_found_when_every_body_or_none_counts_in_a_lane():
+    # The search takes a key's distance as uint32: a lane every body counts in (no key
+    # standing for "none" among them), an empty one, and the first and last keys as subjects.
+    rng = np.random.default_rng(7)
+    key = np.sort(rng.choice(2**30, 49, replace=False)).astype(np.int32) * 2
+    occ = np.stack([np.ones(49, bool), np.zeros(49, bool), rng.uniform(size=49) < 0.5])
+    find = jax.jit(leaders._nearest, static_argnames="ahead")
+    for ahead, none in ((True, np.iinfo(np.int32).max), (False, -1)):
+        got = np.asarray(find(jnp.asarray(key), jnp.asarray(occ), jnp.asarray(key), ahead=ahead))
+        for lane in range(3):
+            for i, k in enumerate(key):
+                side = key[occ[lane] & ((key > k) if ahead else (key < k))]
+                want = (side.min() if ahead else side.max()) if side.size else none
+                assert got[lane, i] == want, (ahead, lane, i)
+
+
 def test_rates_are_traced_one_program_runs_a_batch_of_traffics():
     env, p = jaxlc.make(config.load(overrides=(*HAZARDS, "env.warmup_time=20.0")))
     rates = jnp.array([0.0, 3600.0])  # braking events per vehicle-hour

@@ -142,22 +142,32 @@ def _nearest(key: Array, occ: Array, subject: Array, ahead: bool) -> Array:
     each of ``subject`` ``(S,)`` (``ahead``; ``_NONE_ABOVE`` where none) or the greatest below
     it (``_NONE_BELOW``). ``key`` ``(V,)``, ``occ`` ``(lanes, V)``.
 
-    Every body compared with every subject, as a loop over the body of elementwise min or max
-    passes over ``(lanes, S)``: under ``vmap`` each pass is elementwise over the batch, which
-    XLA's CPU runs several times faster than a sort of the bodies or a reduction over a pair
-    axis. Unrolled by the largest divisor of ``V`` up to 8 (7 for 49 bodies): a remainder
-    loop, or no unrolling, ran the hazard traffic 17-32% slower, a full unroll 3x slower."""
+    Every body compared with every subject, as a loop over the body of elementwise passes over
+    ``(lanes, S)``: under ``vmap`` each pass is elementwise over the batch, which XLA's CPU runs
+    several times faster than a sort of the bodies (a bitonic network of the 49 keys alone
+    cost more than this whole search) or a reduction over a pair axis. A pass is one
+    subtraction and one min: the distance ``key - (subject + 1)`` (ahead; ``(subject - 1) -
+    key`` behind) taken as uint32 is small for a key on the wanted side and wraps past 2**31
+    for the others, and a body not in the lane has the key ``none``, whose distance is that of
+    the answer "none". Unrolled by the largest divisor of ``V`` up to 8 (7 for 49 bodies): a
+    remainder loop, or no unrolling, ran the hazard traffic 17-32% slower, a full unroll 3x
+    slower."""
     none = _NONE_ABOVE if ahead else _NONE_BELOW
-    nearer, beyond = (jnp.minimum, jnp.greater) if ahead else (jnp.maximum, jnp.less)
+    u32 = lambda a: jax.lax.bitcast_convert_type(a, jnp.uint32)  # noqa: E731
+    masked = u32(jnp.where(occ, key[None, :], none))  # (lanes, V)
+    edge = u32(subject + 1 if ahead else subject - 1)[None, :]  # (1, S)
+
+    def gap(k: Array) -> Array:  # the uint32 distance of key k from each subject
+        return k - edge if ahead else edge - k
 
     def body(j: Array, found: Array) -> Array:
-        kj, in_lane = key[j], occ[:, j][:, None]  # (), (lanes, 1)
-        return nearer(found, jnp.where(in_lane & beyond(kj, subject), kj, none))
+        return jnp.minimum(found, gap(masked[:, j][:, None]))
 
-    init = jnp.full((occ.shape[0], subject.shape[0]), none, jnp.int32)
+    init = jnp.broadcast_to(gap(u32(jnp.int32(none))), (occ.shape[0], subject.shape[0]))
     n = key.shape[0]
     unroll = max(d for d in range(1, 9) if n % d == 0)
-    return jax.lax.fori_loop(0, n, body, init, unroll=unroll)
+    d = jax.lax.fori_loop(0, n, body, init, unroll=unroll)
+    return jax.lax.bitcast_convert_type(d + edge if ahead else edge - d, jnp.int32)
 
 
 def ego_neighbours(tr: Traffic, eg: Ego, p: EnvParams) -> Array:
