@@ -210,7 +210,6 @@ def test_leaders_by_keys_equal_every_pair_compared_in_float():
     assert checked > 1000  # exercised: many leaders and followers, straddlers among them
 
 
-@pytest.mark.slow
 def test_the_nearest_key_is_found_when_every_body_or_none_counts_in_a_lane():
     # The search takes a key's distance as uint32: a lane every body counts in (no key
     # standing for "none" among them), an empty one, and the first and last keys as subjects.
@@ -227,6 +226,7 @@ def test_the_nearest_key_is_found_when_every_body_or_none_counts_in_a_lane():
                 assert got[lane, i] == want, (ahead, lane, i)
 
 
+@pytest.mark.slow
 def test_rates_are_traced_one_program_runs_a_batch_of_traffics():
     env, p = jaxlc.make(config.load(overrides=(*HAZARDS, "env.warmup_time=20.0")))
     rates = jnp.array([0.0, 3600.0])  # braking events per vehicle-hour
