@@ -157,13 +157,13 @@ def _nearest(key: Array, occ: Array, subject: Array, ahead: bool) -> Array:
     masked = u32(jnp.where(occ, key[None, :], none))  # (lanes, V)
     edge = u32(subject + 1 if ahead else subject - 1)[None, :]  # (1, S)
 
-    def gap(k: Array) -> Array:  # the uint32 distance of key k from each subject
+    def distance(k: Array) -> Array:  # uint32, of key k from each subject
         return k - edge if ahead else edge - k
 
     def body(j: Array, found: Array) -> Array:
-        return jnp.minimum(found, gap(masked[:, j][:, None]))
+        return jnp.minimum(found, distance(masked[:, j][:, None]))
 
-    init = jnp.broadcast_to(gap(u32(jnp.int32(none))), (occ.shape[0], subject.shape[0]))
+    init = jnp.broadcast_to(distance(u32(jnp.int32(none))), (occ.shape[0], subject.shape[0]))
     n = key.shape[0]
     unroll = max(d for d in range(1, 9) if n % d == 0)
     d = jax.lax.fori_loop(0, n, body, init, unroll=unroll)
