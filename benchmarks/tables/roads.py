@@ -1,5 +1,5 @@
-"""Curved roads: the roads study's policies and the straight-trained default's on held-out
-lane changes of straight and curved roads."""
+"""Away from home: the roads study's policies and the straight-trained default's on held-out
+lane changes of straight and curved roads; every config's policies on the held-out suite."""
 
 from __future__ import annotations
 
@@ -9,6 +9,15 @@ from jaxlc.evaluation.results import HeldoutRow
 
 # configs/roads.toml's study, with both probes of env.curvature (roads- and straight-trained).
 ROADS_STUDY = BENCHMARKS / "study_roads_cpu_s3"
+# Every config's run on the held-out suite (configs/suite.toml), three seeds each.
+SUITE_STUDY = BENCHMARKS / "study_suite_cpu_s3"
+# The suite table's columns: a config of suite.csv and its header.
+SUITE_CONFIGS = (
+    ("any_road", "`any_road`"),
+    ("default", "`default`"),
+    ("roads", "`roads`"),
+    ("reactive", "`reactive`"),
+)
 
 
 def roads_table() -> str:
@@ -47,4 +56,39 @@ def roads_table() -> str:
     return "\n".join(lines)
 
 
-BLOCKS = {"roads": roads_table}
+def suite_table() -> str:
+    """Per setting and config: the cells whose seeds' pooled success is >= 99.9%, the lowest
+    and highest cell, the timeouts / collisions of every model; the scripted controller's
+    row of the first config's run."""
+    rows = csv_rows(SUITE_STUDY / "suite.csv")
+    heads = " | ".join(head for _, head in SUITE_CONFIGS)
+    lines = [
+        f"| setting | {heads} | scripted controller |",
+        "|---" * (len(SUITE_CONFIGS) + 2) + "|",
+    ]
+    for setting in dict.fromkeys(r["setting"] for r in rows):
+        mine = [r for r in rows if r["setting"] == setting]
+        entries = []
+        for name, _ in SUITE_CONFIGS:
+            models = [r for r in mine if r["config"] == name and r["cell"] != ""]
+            cells: dict[str, list[int]] = {}
+            for r in models:
+                n = cells.setdefault(r["label"], [0, 0])
+                n[0] += int(r["success"])
+                n[1] += int(r["lane_changes"])
+            rate = {label: s / n for label, (s, n) in cells.items()}
+            lo, hi = min(rate, key=rate.get), max(rate, key=rate.get)
+            ends = [sum(int(r[k]) for r in models) for k in ("timeout", "collision")]
+            entries.append(
+                f"{sum(v >= 0.999 for v in rate.values())} of {len(rate)}; "
+                f"{100 * rate[lo]:.2f}% ({lo.split()[0]}) – {100 * rate[hi]:.2f}%; "
+                f"{ends[0]:,} / {ends[1]:,}"
+            )
+        (script,) = [r for r in mine if r["config"] == SUITE_CONFIGS[0][0] and r["cell"] == ""]
+        done = f"{int(script['success']):,} of {int(script['lane_changes']):,}"
+        name = setting.replace("curve_", "curve ")
+        lines.append(f"| {name} | {' | '.join(entries)} | {done} |")
+    return "\n".join(lines)
+
+
+BLOCKS = {"roads": roads_table, "suite": suite_table}
