@@ -164,6 +164,16 @@ class EvalConfig:
         doc="the held-out suite of --suite: a file of named settings, or its name in configs/ "
         "('suite': configs/suite.toml); '' for configs/suite.toml",
     )
+    choose_episodes: tuple[int, ...] = _f(
+        [],
+        1,
+        doc="--choose: the episodes whose checkpoints each model's final is weighed against on "
+        "the suite's settings; the fewest failures is the model's policy ([]: the final one)",
+    )
+    choose_lane_changes: int = _f(200, 1, doc="--choose: lane changes per checkpoint and setting")
+    choose_seed: int = _f(
+        1, 0, 2**31 - 1, doc="--choose: seed of its lane changes, never eval.heldout_seed"
+    )
 
 
 @dataclass(frozen=True)
@@ -321,6 +331,11 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError(
             f"config key 'env.braking_decel_max': must be <= env.idm_b_max ({e.idm_b_max:g} "
             "m/s^2): a follower must be able to brake as hard as its leader"
+        )
+    if cfg.eval.choose_episodes and cfg.eval.choose_seed == cfg.eval.heldout_seed:
+        raise ConfigError(
+            "config key 'eval.choose_seed': must differ from eval.heldout_seed (a checkpoint "
+            "chosen on the lane changes it is judged on would flatter it)"
         )
     speeds = e.operating_speed
     if len(speeds) not in (0, 2) or list(speeds) != sorted(speeds) or any(v < 0 for v in speeds):

@@ -5,6 +5,7 @@
     python -m jaxlc.evaluate --checkpoint runs/paper/checkpoints/m03_s0/ep05000.msgpack
     python -m jaxlc.evaluate runs/smoke --heldout-only --traffic env.mobil=true env.braking=true
     python -m jaxlc.evaluate runs/smoke --suite      # every setting of configs/suite.toml
+    python -m jaxlc.evaluate runs/any_road --choose --suite   # each model's checkpoint chosen
 
 The cases are ``jaxlc.evaluation.cases``, a result row ``jaxlc.evaluation.results``; this
 module picks the checkpoints, runs them and writes the files (outcomes: the reason codes of
@@ -104,22 +105,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--max-steps", type=int, help="step cap per case (eval.max_steps)")
     ap.add_argument("--chunk", type=int, help="policies per compiled batch (eval.chunk)")
     ap.add_argument("--no-figures", action="store_true", help="skip figures (report still)")
-    ap.add_argument(
-        "--lane-changes",
-        type=int,
-        help="held-out lane changes per final checkpoint (eval.lane_changes; 0 skips them)",
-    )
+    ap.add_argument("--lane-changes", type=int, help="held-out lane changes (eval.lane_changes)")
     ap.add_argument("--heldout-seed", type=int, help="seed of the held-out cases")
     ap.add_argument("--traffic", nargs="+", metavar="env.KEY=VALUE", help="eval.traffic")
     ap.add_argument("--tag", default="traffic", help="--traffic: eval/heldout_TAG/")
     ap.add_argument("--heldout-only", action="store_true", help="held-out lane changes only")
     ap.add_argument("--suite", nargs="?", const="", help="the held-out suite (eval.suite) only")
-    ap.add_argument(
-        "--heldout-episodes",
-        type=_episodes_arg,
-        default=None,
-        help="held-out evaluation of these checkpoints too, beside each model's last",
-    )
+    ap.add_argument("--heldout-episodes", type=_episodes_arg, help="held-out checkpoints too")
+    ap.add_argument("--choose", action="store_true", help="each model's checkpoint (eval.choose_*)")
     ap.add_argument(
         "--devices",
         type=int,
@@ -144,18 +137,25 @@ def _evaluate_run_dir(args: argparse.Namespace, ev: config.EvalConfig, devices: 
     if args.run_dir is None:
         raise EvalError("give a run directory (or --checkpoint FILE)")
     kw = dict(max_steps=ev.max_steps, chunk=ev.chunk, devices=devices)
-    held = dict(lane_changes=ev.lane_changes, seed=ev.heldout_seed, traffic=ev.traffic, **kw)
+    held = dict(lane_changes=ev.lane_changes, seed=ev.heldout_seed, **kw)
+    if args.choose:  # eval/choice.json: each model's policy in every evaluation after it
+        from jaxlc.evaluation.suite import choose
+
+        chosen = (ev.choose_episodes, ev.choose_lane_changes, ev.choose_seed)
+        print(choose(args.run_dir, args.suite or ev.suite, *chosen, **kw).table())
+        if args.suite is None:
+            return 0
     if args.suite is not None:  # jaxlc.evaluation.suite: every named setting, one CSV
         from jaxlc.evaluation import suite
         from jaxlc.report.plots import suite_figure
 
-        del held["traffic"]
         rows = suite.run_suite(args.run_dir, args.suite or ev.suite, **held)
         png = suite_figure({args.run_dir.name: rows}, RunDir(args.run_dir).eval / "suite/suite.png")
         print(f"Wrote {png.parent}: {len(rows)} rows")
         return 0
+    other_traffic = dict(tag=args.tag, traffic=ev.traffic, **held)  # --traffic, --tag
     if args.heldout_only:
-        result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)
+        result = evaluate_heldout(args.run_dir, args.heldout_episodes, **other_traffic)
         print(format_heldout(result.rows))
         return 0
     result = evaluate_run(
@@ -164,7 +164,7 @@ def _evaluate_run_dir(args: argparse.Namespace, ev: config.EvalConfig, devices: 
     print(format_table(result.rows))
     write_convergence(args.run_dir)
     if ev.lane_changes > 0:
-        result = evaluate_heldout(args.run_dir, args.heldout_episodes, tag=args.tag, **held)
+        result = evaluate_heldout(args.run_dir, args.heldout_episodes, **other_traffic)
         print(format_heldout(result.rows))
     from jaxlc.report import plots, report
 

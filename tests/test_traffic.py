@@ -404,6 +404,57 @@ def test_the_suite_runs_each_setting_and_its_counts_add_up(smoke_run, tmp_path):
         suite.load(path)
 
 
+def test_choose_takes_each_models_checkpoint_that_fails_least_and_later_evaluations_drive_it(
+    smoke_run, tmp_path
+):
+    """``--choose``: per model, of its final checkpoint and those of ``eval.choose_episodes``,
+    the one failing the fewest lane changes of the suite's settings on held-out seed
+    ``eval.choose_seed`` (a tie: the later); ``eval/choice.json`` says so, and the suite run
+    after it drives those checkpoints. A choice on the judged seed, or of nothing, is refused."""
+    import csv
+    import shutil
+
+    from jaxlc.evaluate import main
+    from jaxlc.evaluation import suite
+    from jaxlc.evaluation.numbers import read
+    from jaxlc.evaluation.protocol import final_checkpoints
+    from jaxlc.evaluation.results import Choice
+
+    run = tmp_path / "run"  # a copy: the choice is the run's policy from now on
+    shutil.copytree(smoke_run[0], run, ignore=shutil.ignore_patterns("eval"))
+    path = tmp_path / "harsh.toml"
+    path.write_text(f'base = ["env.mobil=false"]\n[settings]\nharsh = {json.dumps(HARSH)}\n')
+    lane_changes = ["--lane-changes", str(HARSH_LANE_CHANGES)]
+    assert main([str(run), "--choose", *lane_changes]) == 2  # eval.choose_episodes is []
+    toml = run / "config.toml"
+    text = toml.read_text().replace("choose_episodes = []", "choose_episodes = [20]")
+    toml.write_text(text.replace("choose_lane_changes = 200", "choose_lane_changes = 12"))
+    assert main([str(run), "--choose", "--suite", str(path), *lane_changes]) == 0
+    choice = read(run / "eval" / "choice.json", Choice)
+    assert (choice.seed, choice.lane_changes, choice.settings) == (1, 12, ["harsh"])
+    failed: dict[str, dict[str, int]] = {}
+    with open(run / "eval" / "heldout_choice_harsh" / "heldout.csv") as f:
+        for r in csv.DictReader(f):
+            if r["model"]:
+                n = int(r["lane_changes"]) - int(r["success"])
+                failed.setdefault(r["model"], {})[r["episode"]] = n
+    assert choice.failures == failed and all(set(v) == {"20", "40"} for v in failed.values())
+    assert choice.episode == suite.least_failed(failed)
+    with open(run / "eval" / "heldout_suite_harsh" / "heldout.csv") as f:
+        judged = {r["model"]: int(r["episode"]) for r in csv.DictReader(f) if r["model"]}
+    assert judged == {m: choice.episode[m] for m in failed}
+    # what every evaluation reads: a choice of episode 20 for model 0 alone, else the last
+    (run / "eval" / "choice.json").write_text(json.dumps({"episode": {"0": 20}}))
+    picked = {(m["model"], m["episode"]) for _, m in final_checkpoints(run)}
+    assert (0, 20) in picked and (0, 40) not in picked and (1, 40) in picked
+    assert {m["episode"] for _, m in final_checkpoints(run, chosen=False)} == {40}
+    with pytest.raises(config.ConfigError, match="eval.choose_seed"):
+        config.load(overrides=("eval.choose_episodes=[20]", "eval.choose_seed=0"))
+    # the rule by hand: the fewest failures, the later episode of a tie
+    by_hand = {"0": {"20": 3, "40": 5}, "1": {"20": 2, "40": 2}, "2": {"4000": 0, "4200": 1}}
+    assert suite.least_failed(by_hand) == {"0": 20, "1": 40, "2": 4000}
+
+
 def test_any_road_draws_every_range_and_the_paper_and_default_draw_none():
     """configs/any_road.toml: every key of params.RANGED a range, its suite a valid file; the
     paper's and the default's configs keep constants and every command taken."""

@@ -27,10 +27,12 @@ from jaxlc.evaluation.cases import (
     evaluate_policies,
     init_actor,
 )
-from jaxlc.evaluation.numbers import write, write_csv
+from jaxlc.evaluation.numbers import read, write, write_csv
 from jaxlc.evaluation.results import (
+    CHOICE,
     OUTCOMES,
     SCRIPTED,
+    Choice,
     EvalError,
     EvalResult,
     Heldout,
@@ -148,11 +150,16 @@ def evaluate_run(
 
 
 def final_checkpoints(
-    run_dir: Path, episodes: Sequence[int] | None = None
+    run_dir: Path, episodes: Sequence[int] | None = None, chosen: bool = True
 ) -> list[tuple[Path, dict[str, Any]]]:
-    """Each model's last checkpoint, and those of ``episodes`` too, by model then episode."""
-    found = RunDir(run_dir).saved_checkpoints()
+    """Each model's policy, and the checkpoints of ``episodes`` too, by model then episode: its
+    last checkpoint, or with ``chosen`` the one ``eval/choice.json`` names where the run has
+    one (``python -m jaxlc.evaluate RUN --choose``; ``results.Choice``)."""
+    rd = RunDir(run_dir)
+    found = rd.saved_checkpoints()
     last, want = _last_episodes(found), set(episodes or ())
+    if chosen and (rd.eval / CHOICE).is_file():
+        last.update({int(m): e for m, e in read(rd.eval / CHOICE, Choice).episode.items()})
     return [(p, m) for p, m in found if m["episode"] in want | {last[m["model"]]}]
 
 
@@ -167,6 +174,7 @@ def evaluate_heldout(
     devices: int = 1,
     traffic: Sequence[str] = (),
     tag: str = "",
+    chosen: bool = True,
 ) -> Heldout:
     """Every model's final checkpoint (and those of ``episodes``) and the scripted baseline
     on ``lane_changes`` held-out lane changes (``jaxlc.evaluation.heldout``); writes
@@ -175,10 +183,10 @@ def evaluate_heldout(
 
     ``traffic``: ``[env]`` overrides (``env.KEY=VALUE``) under which the lane changes are
     driven, in place of the training's traffic, checked as any config value; the files then
-    go to ``eval/heldout_TAG/`` (``tag``, default ``traffic``)."""
+    go to ``eval/heldout_TAG/`` (``tag``, default ``traffic``). ``chosen``: a model's policy
+    is the checkpoint ``--choose`` chose, where it did (``final_checkpoints``)."""
     run_dir, rd = Path(run_dir), RunDir(run_dir)
-    chosen = final_checkpoints(run_dir, episodes)
-    cfg, actors, metas = load_rows(run_dir, chosen)
+    cfg, actors, metas = load_rows(run_dir, final_checkpoints(run_dir, episodes, chosen))
     out_dir = rd.eval
     if traffic:
         cfg = heldout.in_traffic(cfg, traffic)

@@ -346,6 +346,33 @@ class Heldout(Record):
     measures: list[str] | None = optional()
 
 
+CHOICE = "choice.json"  # under RUN_DIR/eval/: each model's chosen checkpoint
+
+
+@dataclass
+class Choice(Record):
+    """``eval/choice.json`` (``python -m jaxlc.evaluate RUN --choose``): per model (its index as
+    text) the episode of the checkpoint chosen and, per candidate episode, its failed lane
+    changes (not successes) over the ``settings``, ``lane_changes`` each on held-out
+    ``seed``."""
+
+    seed: int = 0
+    lane_changes: int = 0
+    settings: list[str] = field(default_factory=list)
+    episode: dict[str, int] = field(default_factory=dict)
+    failures: dict[str, dict[str, int]] = field(default_factory=dict)
+
+    def table(self) -> str:
+        """One line per model: its candidates' failures, the chosen episode marked."""
+        head = f"failed of {self.lane_changes} x {len(self.settings)} lane changes (* chosen)"
+        lines = [f"model  {head}"]
+        for m, by in self.failures.items():
+            ep = str(self.episode[m])
+            cells = [f"{e}: {n}{'*' if e == ep else ''}" for e, n in by.items()]
+            lines.append(f"{m:>5}  " + ", ".join(cells))
+        return "\n".join(lines)
+
+
 def heldout_fields(measures: Sequence[str] = ()) -> tuple[str, ...]:
     """``heldout.csv``'s columns: the identity, ``HeldoutRow``'s, then ``measures``'."""
     own_ = [f.name for f in fields(HeldoutRow)[len(fields(Policy)) :] if f.name != "measures"]

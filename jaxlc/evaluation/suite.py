@@ -8,6 +8,7 @@ Clopper-Pearson interval) and ``suite.png`` (success by setting).
 
     python -m jaxlc.evaluate RUN --suite            # eval.suite, else configs/suite.toml
     python -m jaxlc.evaluate RUN --suite FILE.toml
+    python -m jaxlc.evaluate RUN --choose [--suite]  # each model's checkpoint first (choose)
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import re
 import sys
 import tomllib
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +24,9 @@ import numpy as np
 
 from jaxlc import config
 from jaxlc.evaluation import heldout
-from jaxlc.evaluation.numbers import write_csv
+from jaxlc.evaluation.numbers import write, write_csv
 from jaxlc.evaluation.protocol import evaluate_heldout, final_checkpoints, load_rows
-from jaxlc.evaluation.results import EvalError
+from jaxlc.evaluation.results import CHOICE, Choice, EvalError
 from jaxlc.sim.reward import DECLINED, NO_GAP
 from jaxlc.study.rundir import RunDir
 
@@ -61,8 +63,8 @@ def load(path: str | Path | None = None) -> dict[str, tuple[str, ...]]:
     return out
 
 
-def _tag(name: str) -> str:
-    return "suite_" + re.sub(r"[^A-Za-z0-9_.+-]", "_", name)
+def _tag(name: str, kind: str = "suite") -> str:
+    return f"{kind}_" + re.sub(r"[^A-Za-z0-9_.+-]", "_", name)
 
 
 def _starts(path: Path) -> dict[str, int]:
@@ -96,3 +98,37 @@ def run_suite(run_dir: Path, suite: str | Path | None = None, **heldout_kw: Any)
     (rd.eval / "suite").mkdir(parents=True, exist_ok=True)
     write_csv(rd.eval / "suite" / "suite.csv", rows, FIELDS)
     return rows
+
+
+def choose(
+    run_dir: Path,
+    suite: str | Path | None,
+    episodes: Sequence[int],
+    lane_changes: int,
+    seed: int,
+    **heldout_kw: Any,
+) -> Choice:
+    """Each model's policy among its last checkpoint and those of ``episodes``: the one that
+    fails the fewest of ``lane_changes`` held-out lane changes of seed ``seed`` (cases apart
+    from those a suite judges on) in every setting of ``suite``, the later on a tie. The
+    settings' evaluations go to ``eval/heldout_choice_NAME/``, the choice to
+    ``eval/choice.json`` (a former one is not read while it chooses), which every later
+    evaluation of the run reads (``protocol.final_checkpoints``)."""
+    if not episodes:
+        raise EvalError("eval.choose_episodes is []: give the episodes whose checkpoints to weigh")
+    settings, failures = load(suite), {}
+    for name, overrides in settings.items():
+        kw = dict(lane_changes=lane_changes, seed=seed, traffic=overrides, chosen=False)
+        result = evaluate_heldout(run_dir, episodes, tag=_tag(name, "choice"), **kw, **heldout_kw)
+        for r in result.rows[1:]:  # the scripted row first
+            by = failures.setdefault(str(r.model), {})
+            by[str(r.episode)] = by.get(str(r.episode), 0) + r.lane_changes - r.success
+    choice = Choice(seed, lane_changes, list(settings), least_failed(failures), failures)
+    write(RunDir(run_dir).eval / CHOICE, choice)
+    return choice
+
+
+def least_failed(failures: dict[str, dict[str, int]]) -> dict[str, int]:
+    """Per model, of its candidates' failures (``{model: {episode: failed}}``, as text), the
+    episode that failed the fewest, the later of a tie."""
+    return {m: int(max(by, key=lambda e: (-by[e], int(e)))) for m, by in failures.items()}
