@@ -14,6 +14,7 @@ SUITE_STUDY = BENCHMARKS / "study_suite_cpu_s3"
 # The suite table's columns: a config of suite.csv and its header.
 SUITE_CONFIGS = (
     ("any_road", "`any_road`"),
+    ("any_road_chosen", "`any_road`, `--choose`"),
     ("default", "`default`"),
     ("roads", "`roads`"),
     ("reactive", "`reactive`"),
