@@ -77,7 +77,7 @@ def suite_table() -> str:
                 n = cells.setdefault(r["label"], [0, 0])
                 n[0] += int(r["success"])
                 n[1] += int(r["lane_changes"])
-            rate = {label: s / n for label, (s, n) in cells.items()}
+            rate = {label: ok / total for label, (ok, total) in cells.items()}
             lo, hi = min(rate, key=rate.get), max(rate, key=rate.get)
             ends = [sum(int(r[k]) for r in models) for k in ("timeout", "collision")]
             entries.append(

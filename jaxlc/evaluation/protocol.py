@@ -176,15 +176,16 @@ def evaluate_heldout(
     tag: str = "",
     chosen: bool = True,
 ) -> Heldout:
-    """Every model's final checkpoint (and those of ``episodes``) and the scripted baseline
-    on ``lane_changes`` held-out lane changes (``jaxlc.evaluation.heldout``); writes
-    ``eval/heldout.json``, ``heldout.csv``, ``heldout_cells.csv``, ``collisions.csv`` and
-    ``heldout_cases.npz``; returns the JSON's content.
+    """Every model's policy (its final checkpoint, or the one ``--choose`` chose; and those
+    of ``episodes``) and the scripted baseline on ``lane_changes`` held-out lane changes
+    (``jaxlc.evaluation.heldout``); writes ``eval/heldout.json``, ``heldout.csv``,
+    ``heldout_cells.csv``, ``collisions.csv`` and ``heldout_cases.npz``; returns the JSON's
+    content.
 
     ``traffic``: ``[env]`` overrides (``env.KEY=VALUE``) under which the lane changes are
     driven, in place of the training's traffic, checked as any config value; the files then
-    go to ``eval/heldout_TAG/`` (``tag``, default ``traffic``). ``chosen``: a model's policy
-    is the checkpoint ``--choose`` chose, where it did (``final_checkpoints``)."""
+    go to ``eval/heldout_TAG/`` (``tag``, default ``traffic``). ``chosen=False``: the final
+    checkpoints whatever ``--choose`` chose (``final_checkpoints``)."""
     run_dir, rd = Path(run_dir), RunDir(run_dir)
     cfg, actors, metas = load_rows(run_dir, final_checkpoints(run_dir, episodes, chosen))
     out_dir = rd.eval
