@@ -15,6 +15,7 @@ SUITE_STUDY = BENCHMARKS / "study_suite_cpu_s3"
 SUITE_CONFIGS = (
     ("any_road", "`any_road`"),
     ("any_road_chosen", "`any_road`, `--choose`"),
+    ("any_road_chosen_seeds4to6", "`any_road` seeds 4–6, `--choose`"),
     ("default", "`default`"),
     ("roads", "`roads`"),
     ("reactive", "`reactive`"),
