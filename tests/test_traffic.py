@@ -418,7 +418,7 @@ def test_choose_takes_each_models_checkpoint_that_fails_least_and_later_evaluati
     from jaxlc.evaluation import suite
     from jaxlc.evaluation.numbers import read
     from jaxlc.evaluation.protocol import final_checkpoints
-    from jaxlc.evaluation.results import Choice
+    from jaxlc.evaluation.results import Choice, EvalError
 
     run = tmp_path / "run"  # a copy: the choice is the run's policy from now on
     shutil.copytree(smoke_run[0], run, ignore=shutil.ignore_patterns("eval"))
@@ -448,6 +448,9 @@ def test_choose_takes_each_models_checkpoint_that_fails_least_and_later_evaluati
     picked = {(m["model"], m["episode"]) for _, m in final_checkpoints(run)}
     assert (0, 20) in picked and (0, 40) not in picked and (1, 40) in picked
     assert {m["episode"] for _, m in final_checkpoints(run, chosen=False)} == {40}
+    (run / "eval" / "choice.json").write_text(json.dumps({"episode": {"0": 60}}))
+    with pytest.raises(EvalError, match="model 0 episode 60"):  # no such checkpoint
+        final_checkpoints(run)
     with pytest.raises(config.ConfigError, match="eval.choose_seed"):
         config.load(overrides=("eval.choose_episodes=[20]", "eval.choose_seed=0"))
     # the rule by hand: the fewest failures, the later episode of a tie

@@ -160,6 +160,13 @@ def final_checkpoints(
     last, want = _last_episodes(found), set(episodes or ())
     if chosen and (rd.eval / CHOICE).is_file():
         last.update({int(m): e for m, e in read(rd.eval / CHOICE, Choice).episode.items()})
+        saved = {(m["model"], m["episode"]) for _, m in found}
+        lack = [f"model {m} episode {e}" for m, e in last.items() if (m, e) not in saved]
+        if lack:  # else that model would drop out of every evaluation without a word
+            raise EvalError(
+                f"{rd.eval / CHOICE} names checkpoints the run lacks ({', '.join(lack)}); "
+                "run python -m jaxlc.evaluate RUN --choose again"
+            )
     return [(p, m) for p, m in found if m["episode"] in want | {last[m["model"]]}]
 
 
