@@ -720,25 +720,29 @@ def test_paper_defaults_are_written_once():
 
 
 def test_a_command_outside_the_operating_range_is_declined_and_only_then():
-    """``env.operating_speed = [min, max]``: a command at a speed outside it ends the episode
-    as 'declined' (never an RL phase), one inside it goes on as before; off by default."""
+    """``env.operating_speed = [min, max]``: a command at a speed outside it, or a gap found
+    once the speed has left it, ends the episode as 'declined' (never an RL phase); a command
+    inside it goes on as before, and every lane change starts inside it; off by default."""
     assert jaxlc.make()[1].operating_speed == ()
     cfg = config.load(None, ["env.operating_speed=[55.0, 250.0]"])
     env, p = jaxlc.make(cfg)
     keys = jax.random.split(jax.random.PRNGKey(0), 64)
     obs, s = jax.jit(jax.vmap(env.reset, (0, None)))(keys, p)
     step = jax.jit(jax.vmap(env.step, (0, 0, 0, None)))
-    declined, taken = [], []
+    declined, taken, started, in_gap = [], [], [], 0
     for k in jax.random.split(jax.random.PRNGKey(1), 400):
         phase = np.asarray(s.ego.phase)
         obs, s, _, _, _, info = step(jax.random.split(k, 64), s, scripted_action(obs, p), p)
         v = np.asarray(s.ego.v) * 3.6  # km/h at the step (kept as a declined episode ends)
         gone = np.asarray(info["reason"]) == reward.DECLINED
-        assert np.all(phase[gone] == E.CRUISE)  # declined at the command, before any gap
+        # at the command (entering the gap search) or when the gap is found in it
+        assert np.all((phase[gone] == E.CRUISE) | (phase[gone] == E.GAP))
+        in_gap += int(np.sum(phase[gone] == E.GAP))
         declined += list(v[gone])
         taken += list(v[np.asarray(E.commanded(s.ego))])
-    assert len(declined) > 5 and len(taken) > 5
-    assert max(declined) < 55.0 <= min(taken)
+        started += list(v[np.asarray(info["lane_change"])])
+    assert len(declined) > 5 and len(taken) > 5 and len(started) > 5 and in_gap > 0
+    assert max(declined) < 55.0 <= min(taken) and 55.0 <= min(started)
 
 
 @pytest.mark.slow

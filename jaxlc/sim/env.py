@@ -136,8 +136,8 @@ def _advance(
     rl_reason = reward.end_reason(offset, ego.psi, yaw_rate, ego.steps, crashed, p, ego.v)
     accept, no_gap = gap_decision(ego, nb, p, kappa)
     reason = reward.episode_reason(in_rl, rl_reason, crashed, no_gap)
-    if p.operating_speed:  # static: a command outside the operating range is declined
-        declined = commanded(ego) & ~crashed & outside(ego.v, p.operating_speed)
+    if p.operating_speed:  # static: a command, or a gap found, outside the range is declined
+        declined = (commanded(ego) | accept) & ~crashed & outside(ego.v, p.operating_speed)
         accept = accept & ~declined
         reason = jnp.where(declined, reward.DECLINED, reason).astype(jnp.int32)
     ended = reason != reward.NONE

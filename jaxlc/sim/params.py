@@ -327,12 +327,13 @@ class EnvParams:
     operating_speed: tuple[float, ...] = setting(
         (),
         unit="km/h",
-        static=True,  # on, it adds the command's check to the program
+        static=True,  # on, it adds the check to the program
         toml=tuple[float, ...],
         si=lambda v: tuple(kmh(x) for x in v),
-        doc="[] (off: every command is taken) or [min, max]: the ego's speed at the command "
-        "within which a lane change is taken (UN R79, ACSF category C: [60, 130]); a command "
-        "outside it ends the episode as 'declined', counted apart from the failures",
+        doc="[] (off: every command is taken) or [min, max]: the ego's speeds at the command "
+        "and when its gap is found within which a lane change is taken (UN R79, ACSF "
+        "category C: [60, 130]); a command, or a gap found, outside it ends the episode as "
+        "'declined', counted apart from the failures",
     )
     # Traffic that cuts in and brakes ([D], SPEC "Beyond the paper"): off in the paper's
     # traffic. The switches are static (they add state); every number below is traced.
