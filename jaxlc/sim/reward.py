@@ -174,8 +174,9 @@ def total(values: dict[str, Array]) -> Array:
 
 
 # Why an episode ended (info["reason"]).
-# DECLINED: a lane change commanded outside the operating range (env.operating_speed) is not
-# taken; the episode ends at the command, apart from the failures (none in its absence).
+# DECLINED: a lane change commanded, or its gap found, outside the operating range
+# (env.operating_speed) is not taken; the episode ends there, apart from the failures (none
+# in its absence).
 NONE, SUCCESS, OUT_OF_BOUNDS, COLLISION, TIMEOUT, NO_GAP, DECLINED = 0, 1, 2, 3, 4, 5, 6
 REASONS = ("none", "success", "out_of_bounds", "collision", "timeout", "no_gap", "declined")
 
