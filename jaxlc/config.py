@@ -108,6 +108,11 @@ class DDPGConfig:
     symmetric_actor: bool = _f(
         True, doc="actor odd under the road's reflection: mu(s) = (f(s) - f(Ms)) / 2"
     )
+    held_aware: bool = _f(
+        False,
+        doc="with k > 1: the target's next action is the held one where s' does not refresh "
+        "it, and the actor learns on the states that do (the paper: false)",
+    )
 
 
 @dataclass(frozen=True)
@@ -364,6 +369,11 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError(
             "config key 'ddpg.batch_size': reflection pairs (ddpg.mirror_pairs, the default) "
             f"need an even batch, got {d.batch_size}; or set ddpg.mirror_pairs = false"
+        )
+    if d.held_aware and (d.learner != "ddpg" or cfg.env.longitudinal == "policy"):
+        raise ConfigError(
+            "config key 'ddpg.held_aware': needs ddpg.learner = 'ddpg' and one action "
+            "(env.longitudinal other than 'policy')"
         )
     for name in ("k", "memory"):
         if not getattr(g, name):

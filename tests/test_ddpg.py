@@ -13,7 +13,7 @@ from jaxlc import config
 from jaxlc.config import DDPGConfig
 from jaxlc.learn import ddpg, learners
 from jaxlc.learn.networks import Actor, make_networks
-from jaxlc.sim.observation import MIRROR_SIGNS
+from jaxlc.sim.observation import INDEX, MIRROR_SIGNS
 from jaxlc.sim.observation import OBS_DIM as FULL_OBS
 
 OBS_DIM = 5
@@ -274,6 +274,37 @@ def test_vmapped_update_equals_each_model_alone(update_fn):
         _close(jax.tree.map(one, grid), alone)
     kernels = grid[0].actor["params"]["mlp"]["Dense_0"]["kernel"]
     assert not np.allclose(kernels[0], kernels[2])  # the lrs did differ
+
+
+def test_held_aware_bootstraps_on_the_held_action_and_teaches_the_actor_where_it_acts():
+    """ddpg.held_aware: y = r + gamma (1 - d) Q'(s', a') with a' = mu'(s') only where s'
+    refreshes the action, the held one (obs "held") elsewhere; the actor's loss averages
+    -Q(s, mu(s)) over the states that refresh it. Checked against the plain MLPs."""
+    cfg = dataclasses.replace(CFG, held_aware=True)
+    learner = jax.device_get(
+        jax.jit(lambda k: ddpg.init_learner(k, FULL_OBS, cfg))(jax.random.key(5))
+    )
+    rng = np.random.default_rng(6)
+    n = cfg.batch_size
+    batch = {
+        "obs": rng.normal(size=(n, FULL_OBS)).astype(np.float32),
+        "action": rng.uniform(-1, 1, (n, 1)).astype(np.float32),
+        "reward": rng.normal(size=n).astype(np.float32),
+        "next_obs": rng.normal(size=(n, FULL_OBS)).astype(np.float32),
+        "terminated": np.zeros(n, np.float32),
+        "refresh": np.float32([[1, 0], [0, 1], [1, 0], [0, 0], [1, 1], [0, 0], [1, 0], [0, 1]]),
+    }
+    _, metrics = jax.jit(lambda lrn, b: ddpg.update(lrn, b, HYPER, cfg))(learner, batch)
+    s, s2, ref = batch["obs"], batch["next_obs"], batch["refresh"]
+    mu2 = _mu(learner.actor_target, s2)  # (n, 1)
+    a2 = np.where(ref[:, 1:] > 0, mu2, s2[:, INDEX["held"], None])
+    assert not np.allclose(a2, mu2)  # the held actions differ from the target actor's
+    y = batch["reward"] + cfg.gamma * _q(learner.critic_target, s2, a2)
+    critic = np.mean((y - _q(learner.critic, s, batch["action"])) ** 2)
+    q_mu = _q(learner.critic, s, _mu(learner.actor, s))
+    actor = -np.sum(ref[:, 0] * q_mu) / np.sum(ref[:, 0])
+    assert math.isclose(float(metrics["critic_loss"]), float(critic), rel_tol=1e-5)
+    assert math.isclose(float(metrics["actor_loss"]), float(actor), rel_tol=1e-5)
 
 
 def test_explore_truncates_noise_and_stays_in_bounds():

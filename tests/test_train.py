@@ -149,10 +149,11 @@ def test_sweep_refuses_a_run_dir_of_another_config(smoke_run, capsys):
         ("ddpg.gamma=two", "must be a number"),
         ("env.no_such_key=1", "unknown config key 'env.no_such_key'"),
         ("train.noise_final=1.5", "train.noise_final': must be >= 0 and <= 1"),
+        ("ddpg.learner=td3 ddpg.held_aware=true", "ddpg.held_aware': needs ddpg.learner"),
     ],
 )
 def test_bad_config_values_get_one_clear_line(override, words, capsys, tmp_path):
-    rc = sweep.main(["--config", str(SMOKE), "--out", str(tmp_path / "r"), override])
+    rc = sweep.main(["--config", str(SMOKE), "--out", str(tmp_path / "r"), *override.split()])
     assert rc == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0], err

@@ -15,6 +15,7 @@ import optax
 
 from jaxlc.config import DDPGConfig
 from jaxlc.learn.networks import batch_actor, make_networks
+from jaxlc.sim.observation import INDEX
 
 Params = dict
 
@@ -120,6 +121,11 @@ def update(
     policy = batch_actor(actor, cfg)  # (batch, obs_dim) -> (batch, act_dim)
 
     next_act = policy(learner.actor_target, next_obs)
+    weight = None
+    if cfg.held_aware:  # the action s' executes: mu'(s') only where s' refreshes it
+        held = next_obs[:, INDEX["held"], None]  # (batch, 1), scale 1
+        next_act = jnp.where(batch["refresh"][:, 1:] > 0.0, next_act, held)
+        weight = batch["refresh"][:, 0]  # (batch,) the actor learns where its output acts
     next_q = critic.apply(learner.critic_target, next_obs, next_act)
     y = batch["reward"] + cfg.gamma * (1.0 - batch["terminated"]) * next_q  # (batch,)
 
@@ -128,7 +134,10 @@ def update(
         return jnp.sum(jnp.mean(critic_error(q, y, cfg), axis=-1)), q
 
     def actor_loss(params: Params) -> jax.Array:
-        return -jnp.mean(critic.apply(learner.critic, obs, policy(params, obs)))
+        q = critic.apply(learner.critic, obs, policy(params, obs))  # (batch,)
+        if weight is None:
+            return -jnp.mean(q)
+        return -jnp.sum(weight * q) / jnp.maximum(jnp.sum(weight), 1.0)
 
     (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(learner.critic)
     a_loss, a_grads = jax.value_and_grad(actor_loss)(learner.actor)

@@ -24,10 +24,16 @@ class Replay:
     capacity: jax.Array  # () int32, <= cap_max
     ptr: jax.Array  # () int32, next slot to write, in [0, capacity)
     size: jax.Array  # () int32, filled slots, in [0, capacity]
+    # (cap_max, 2) float32 0/1: the action is refreshed at s, at s' (``ddpg.held_aware``);
+    # None otherwise, so the paper's memory and its programs are unchanged
+    refresh: jax.Array | None = None
 
 
-def init(cap_max: int, obs_dim: int, act_dim: int, capacity: jax.Array | int) -> Replay:
-    """An empty memory with arrays of ``cap_max`` rows that uses the first ``capacity``."""
+def init(
+    cap_max: int, obs_dim: int, act_dim: int, capacity: jax.Array | int, held: bool = False
+) -> Replay:
+    """An empty memory with arrays of ``cap_max`` rows that uses the first ``capacity``;
+    ``held``: it also keeps where the action is refreshed (``Replay.refresh``)."""
     f32 = jnp.float32
     return Replay(
         obs=jnp.zeros((cap_max, obs_dim), f32),
@@ -38,6 +44,7 @@ def init(cap_max: int, obs_dim: int, act_dim: int, capacity: jax.Array | int) ->
         capacity=jnp.asarray(capacity, jnp.int32),
         ptr=jnp.zeros((), jnp.int32),
         size=jnp.zeros((), jnp.int32),
+        refresh=jnp.zeros((cap_max, 2), f32) if held else None,
     )
 
 
@@ -49,12 +56,14 @@ def add(
     next_obs: jax.Array,
     terminated: jax.Array,
     valid: jax.Array,
+    refresh: jax.Array | None = None,
 ) -> Replay:
     """Insert the rows with ``valid`` set, in row order, overwriting the oldest when full.
 
     Shapes: obs/next_obs ``(n, obs_dim)``, action ``(n, act_dim)``, reward/terminated/valid
-    ``(n,)``. Requires ``n <= capacity``: with more valid rows than slots two rows would land on
-    one slot and which one survives is unspecified.
+    ``(n,)``, ``refresh`` ``(n, 2)`` where the memory keeps it. Requires ``n <= capacity``:
+    with more valid rows than slots two rows would land on one slot and which one survives is
+    unspecified.
     """
     cap_max = replay.obs.shape[0]
     take = valid.astype(jnp.int32)
@@ -74,6 +83,7 @@ def add(
         terminated=put(replay.terminated, terminated),
         ptr=(replay.ptr + n_valid) % replay.capacity,
         size=jnp.minimum(replay.size + n_valid, replay.capacity),
+        refresh=None if replay.refresh is None else put(replay.refresh, refresh),
     )
 
 
@@ -113,6 +123,8 @@ def sample(
         "next_obs": replay.next_obs[idx],
         "terminated": replay.terminated[idx],
     }
+    if replay.refresh is not None:
+        batch["refresh"] = replay.refresh[idx]  # (batch, 2)
     if mirror is None:
         return batch
     flip = jax.random.bernoulli(jax.random.fold_in(key, 1), 0.5, (batch_size, 1))

@@ -33,6 +33,7 @@ from jax.sharding import PartitionSpec as P
 from jaxlc.config import Config, ConfigError, DDPGConfig, TrainConfig
 from jaxlc.learn import ddpg, learners, replay, tree
 from jaxlc.learn.networks import make_networks
+from jaxlc.sim.ego import refreshes
 from jaxlc.sim.env import ACTION_MIRROR, EnvParams, EnvState, LaneChangeEnv, action_dim
 from jaxlc.sim.observation import MIRROR_SIGNS, OBS_DIM
 from jaxlc.sim.reward import SUCCESS
@@ -202,7 +203,9 @@ def init_model(key: Array, hyper: ModelHyper, cfg: Config) -> TrainState:
     learner = learners.of(d).init_learner(k_learn, OBS_DIM, d, action_dim(base))
     return TrainState(
         learner=learner,
-        memory=replay.init(max(cfg.grid.memory), OBS_DIM, action_dim(base), hyper.capacity),
+        memory=replay.init(
+            max(cfg.grid.memory), OBS_DIM, action_dim(base), hyper.capacity, d.held_aware
+        ),
         env=env_state,
         obs=obs,
         terms=jnp.zeros((t.envs_per_model, len(base.reward_terms)), jnp.float32),
@@ -308,6 +311,10 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
             jax.random.split(k_env, n_envs), ts.env, action, base.replace(k=hyper.k)
         )
         rl = info["rl_step"]  # (envs,)
+        refresh = None
+        if d.held_aware:  # the step refreshed the action at s; will s' refresh it
+            n = info["episode_steps"]  # (envs,) RL steps taken, this one included
+            refresh = jnp.stack([refreshes(n - 1, hyper.k), refreshes(n, hyper.k)], -1)
         memory = replay.add(
             ts.memory,
             ts.obs,
@@ -316,6 +323,7 @@ def make_model_fns(cfg: Config) -> tuple[Callable, Callable]:
             obs,
             term.astype(jnp.float32),
             rl,
+            refresh,
         )
 
         # DDPG updates once the memory holds one batch [P]/[S].

@@ -47,9 +47,15 @@ def clean_action(action: Array, entry: int = 0) -> Array:
     return jnp.clip(jnp.nan_to_num(a, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
 
 
+def refreshes(steps: Array, k: Array) -> Array:
+    """Whether the RL step taken after ``steps`` RL steps refreshes the held action: every
+    ``k``-th, the first included [P]."""
+    return steps % k == 0
+
+
 def _hold(ego: Ego, value: Array, held: Array, p: EnvParams) -> Array:
     in_rl = ego.phase == RL
-    refresh = in_rl & (ego.steps % p.k == 0)
+    refresh = in_rl & refreshes(ego.steps, p.k)
     return jnp.where(refresh, value, jnp.where(in_rl, held, 0.0))
 
 
