@@ -315,7 +315,7 @@ def _build(table: str, values: dict[str, Any]) -> Any:
 
 
 def _cross_checks(cfg: Config) -> None:
-    e, d, g = cfg.env, cfg.ddpg, cfg.grid
+    e = cfg.env
     if not e.reward_terms or len(set(e.reward_terms)) != len(e.reward_terms):
         raise ConfigError("config key 'env.reward_terms': must name one term or more, each once")
     for lo, hi in (
@@ -361,6 +361,24 @@ def _cross_checks(cfg: Config) -> None:
         raise ConfigError("config key 'env.gap_x_limit': must be < env.road_length")
     if e.command_distance >= e.gap_x_limit:
         raise ConfigError("config key 'env.command_distance': must be < env.gap_x_limit")
+    _learner_checks(cfg)
+    t = cfg.train
+    if t.episodes % t.checkpoint_every:
+        raise ConfigError("config key 'train.checkpoint_every': must divide train.episodes")
+    # A chunk this short passes at most one checkpoint episode per model, so the one snapshot
+    # slot per model suffices.
+    n = MIN_EPISODE_STEPS
+    if t.chunk_steps * t.envs_per_model > n * t.checkpoint_every:
+        raise ConfigError(
+            f"config key 'train.chunk_steps': must be <= {n} * train.checkpoint_every / "
+            f"train.envs_per_model = {n * t.checkpoint_every // t.envs_per_model}, "
+            f"got {t.chunk_steps}"
+        )
+
+
+def _learner_checks(cfg: Config) -> None:
+    """The ``[ddpg]`` values against each other and against the grid's memories."""
+    d, g = cfg.ddpg, cfg.grid
     if not d.hidden:
         raise ConfigError("config key 'ddpg.hidden': must list at least one layer width")
     # without mirrored batches there is nothing to pair: mirror_pairs is then ignored, so
@@ -384,18 +402,6 @@ def _cross_checks(cfg: Config) -> None:
                 f"config key 'grid.memory': every size must be >= "
                 f"ddpg.batch_size ({d.batch_size}), got {m}"
             )
-    t = cfg.train
-    if t.episodes % t.checkpoint_every:
-        raise ConfigError("config key 'train.checkpoint_every': must divide train.episodes")
-    # A chunk this short passes at most one checkpoint episode per model, so the one snapshot
-    # slot per model suffices.
-    n = MIN_EPISODE_STEPS
-    if t.chunk_steps * t.envs_per_model > n * t.checkpoint_every:
-        raise ConfigError(
-            f"config key 'train.chunk_steps': must be <= {n} * train.checkpoint_every / "
-            f"train.envs_per_model = {n * t.checkpoint_every // t.envs_per_model}, "
-            f"got {t.chunk_steps}"
-        )
 
 
 def from_dict(data: dict[str, Any], *, resolved: bool = False) -> Config:

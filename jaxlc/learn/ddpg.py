@@ -106,7 +106,10 @@ def update(
     """One DDPG update from a batch (keys and shapes as ``replay.sample`` returns them).
 
     Critic: minimise eq. (4), y = r + gamma (1 - terminated) Q'(s', mu'(s')), per sample
-    ``critic_error``; actor: ascend eq. (5); targets: eqs. (6)/(7) after the Adam steps.
+    ``critic_error``; actor: ascend eq. (5); targets: eqs. (6)/(7) after the Adam steps. With
+    ``cfg.held_aware`` (``batch["refresh"]``) the target's next action is mu'(s') only where s'
+    refreshes the held action, the held one elsewhere, and eq. (5) averages over the states
+    that refresh it (docs/decisions.md).
     Metrics: critic_loss, actor_loss (= -mean Q(s, mu(s))), mean_q (= mean Q(s, a)), each
     ``()``. ``key`` is unused (DDPG's update draws nothing); the learner interface passes it.
 
