@@ -17,6 +17,10 @@ SUITE_CONFIGS = (
     ("any_road_chosen", "`any_road`, `--choose`"),
     ("any_road_chosen_seeds4to6", "`any_road` seeds 4–6, `--choose`"),
     ("any_road_floor_chosen_seeds7to9", "`any_road` ≥ 16.8 km/h, seeds 7–9, `--choose`"),
+    (
+        "any_road_held_aware_chosen_seeds13to15",
+        "**`any_road` as committed**, seeds 13–15, `--choose`",
+    ),
     ("default", "`default`"),
     ("roads", "`roads`"),
     ("reactive", "`reactive`"),
