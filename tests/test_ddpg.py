@@ -32,15 +32,15 @@ CFG = dataclasses.replace(
 HYPER = ddpg.Hyper(jnp.float32(3e-2), jnp.float32(5e-2), jnp.float32(0.2))
 
 
-def _batch(seed, n=CFG.batch_size):
+def _batch(seed, n=CFG.batch_size, obs_dim=OBS_DIM):
     """Host-side data: jax.random here would cost a compile per shape."""
     rng = np.random.default_rng(seed)
     f32 = np.float32
     return {
-        "obs": rng.normal(size=(n, OBS_DIM)).astype(f32),
+        "obs": rng.normal(size=(n, obs_dim)).astype(f32),
         "action": rng.uniform(-1, 1, (n, 1)).astype(f32),
         "reward": rng.normal(size=n).astype(f32),
-        "next_obs": rng.normal(size=(n, OBS_DIM)).astype(f32),
+        "next_obs": rng.normal(size=(n, obs_dim)).astype(f32),
         "terminated": (rng.random(n) < 0.3).astype(f32),
     }
 
@@ -284,14 +284,8 @@ def test_held_aware_bootstraps_on_the_held_action_and_teaches_the_actor_where_it
     learner = jax.device_get(
         jax.jit(lambda k: ddpg.init_learner(k, FULL_OBS, cfg))(jax.random.key(5))
     )
-    rng = np.random.default_rng(6)
-    n = cfg.batch_size
     batch = {
-        "obs": rng.normal(size=(n, FULL_OBS)).astype(np.float32),
-        "action": rng.uniform(-1, 1, (n, 1)).astype(np.float32),
-        "reward": rng.normal(size=n).astype(np.float32),
-        "next_obs": rng.normal(size=(n, FULL_OBS)).astype(np.float32),
-        "terminated": np.zeros(n, np.float32),
+        **_batch(6, obs_dim=FULL_OBS),
         "refresh": np.float32([[1, 0], [0, 1], [1, 0], [0, 0], [1, 1], [0, 0], [1, 0], [0, 1]]),
     }
     _, metrics = jax.jit(lambda lrn, b: ddpg.update(lrn, b, HYPER, cfg))(learner, batch)
@@ -299,7 +293,7 @@ def test_held_aware_bootstraps_on_the_held_action_and_teaches_the_actor_where_it
     mu2 = _mu(learner.actor_target, s2)  # (n, 1)
     a2 = np.where(ref[:, 1:] > 0, mu2, s2[:, INDEX["held"], None])
     assert not np.allclose(a2, mu2)  # the held actions differ from the target actor's
-    y = batch["reward"] + cfg.gamma * _q(learner.critic_target, s2, a2)
+    y = batch["reward"] + cfg.gamma * (1 - batch["terminated"]) * _q(learner.critic_target, s2, a2)
     critic = np.mean((y - _q(learner.critic, s, batch["action"])) ** 2)
     q_mu = _q(learner.critic, s, _mu(learner.actor, s))
     actor = -np.sum(ref[:, 0] * q_mu) / np.sum(ref[:, 0])

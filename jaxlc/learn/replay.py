@@ -98,8 +98,8 @@ def sample(
     """``batch_size`` transitions drawn uniformly, with replacement, from the filled slots.
 
     Returns obs/next_obs ``(batch, obs_dim)``, action ``(batch, act_dim)``, reward/terminated
-    ``(batch,)``. An empty memory yields slot 0 (zeros); callers start updating once a batch
-    is stored ([P]/[S]: docs/decisions.md).
+    ``(batch,)``, and refresh ``(batch, 2)`` where the memory keeps it. An empty memory yields
+    slot 0 (zeros); callers start updating once a batch is stored ([P]/[S]: docs/decisions.md).
 
     With ``mirror`` (per-entry signs of the reflection, ``jaxlc.sim.observation.MIRROR_SIGNS``)
     each drawn transition is reflected with probability 1/2: obs and next obs times the signs,
