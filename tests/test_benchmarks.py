@@ -184,20 +184,45 @@ def test_program_hashes_tell_the_traffics_apart_and_repeat():
 
 
 COMMANDS = sorted(p.stem for p in (ROOT / "benchmarks").glob("*.py") if p.stem != "__init__")
+# Every script's ``--help`` run as ``python -m`` runs it (``runpy``), in one interpreter: a
+# subprocess per script paid ~1.3 s of imports apiece. Prints ``{name: [exit code, stdout]}``.
+HELP = """
+import contextlib, io, json, runpy, sys
+out = {}
+for name in sys.argv[1:]:
+    sys.argv, buf = [name, "--help"], io.StringIO()
+    try:
+        with contextlib.redirect_stdout(buf):
+            runpy.run_module(f"benchmarks.{name}", run_name="__main__", alter_sys=True)
+        code = "returned without exiting"
+    except SystemExit as e:
+        code = e.code
+    except Exception as e:  # noqa: BLE001  (reported per script, not as one failure)
+        code = repr(e)
+    out[name] = [code, buf.getvalue()]
+print(json.dumps(out))
+"""
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", COMMANDS)
-def test_every_script_is_a_command_with_help(name):
-    """``python -m benchmarks.NAME --help`` from the repository root, as the docs run them."""
+@pytest.fixture(scope="module")
+def helps() -> dict[str, list]:
     done = subprocess.run(
-        [sys.executable, "-m", f"benchmarks.{name}", "--help"],
+        [sys.executable, "-c", HELP, *COMMANDS],
         cwd=ROOT,
         capture_output=True,
         text=True,
         timeout=HANG_GUARD_S,
     )
-    assert done.returncode == 0 and done.stdout.startswith("usage:"), done.stderr[-2000:]
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout.splitlines()[-1])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", COMMANDS)
+def test_every_script_is_a_command_with_help(name, helps):
+    """``python -m benchmarks.NAME --help`` from the repository root, as the docs run them."""
+    code, text = helps[name]
+    assert code == 0 and text.startswith("usage:"), (code, text[-2000:])
 
 
 def test_ams_toy_tiny(tmp_path, capsys):
