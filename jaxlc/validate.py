@@ -89,6 +89,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     ap.add_argument("--traffic", nargs="+", default=[], metavar="env.KEY=VALUE")
     ap.add_argument("--chunk", type=int, default=2048, help="lane-change cases per program")
+    ap.add_argument("--chain", type=int, default=1, help="mc: lane changes per case, one traffic")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-steps", type=int, default=config.EvalConfig().max_steps)
     ap.add_argument("--out", type=Path, default=None, help="default: RUN_DIR/validate")
@@ -102,7 +103,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--span", type=float, default=ams.SPAN, help="ams: the curve's, above m")
     ap.add_argument("--max-rounds", type=int, default=2000, help="ams: 0 is crude MC")
     args = ap.parse_intermixed_args(argv)
-    for name in ("lane_changes", "chunk", "max_steps"):
+    for name in ("lane_changes", "chunk", "max_steps", "chain"):
         if getattr(args, name) < 1:
             ap.error(f"--{name.replace('_', '-')} must be >= 1")
     if not 0.0 <= args.rel_halfwidth < 1.0:

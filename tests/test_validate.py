@@ -184,6 +184,65 @@ def test_replay_reproduces_a_case_bit_for_bit(validated):
     assert all(c["component"] in (-1, 0) and c["proposal"]["shares"] == [1.0] for c in cases)
 
 
+# Hard braking at a high rate with no TTC gap test: many lane changes time out, the second of
+# a chain among them.
+HARSH_CHAIN = ["env.braking=true", "env.braking_rate=3000", "env.gap_min_ttc=0"]
+
+
+def test_a_chain_of_lane_changes_begins_with_the_unchained_case_and_replays(smoke_run, tmp_path):
+    """``--chain 2`` (crude MC): each case drives two lane changes in one traffic; the first
+    is the unchained case bit for bit, the second starts where the first left the traffic,
+    and a failure of the second replays from its case's key and place; other methods refuse."""
+    import json
+
+    from jaxlc import validate
+    from jaxlc.evaluation import validation
+    from jaxlc.evaluation.cases import columns
+    from jaxlc.evaluation.heldout import in_traffic
+    from jaxlc.study.rundir import RunDir
+
+    run_dir, chunk = smoke_run[0], 8
+    args = [str(run_dir), "--model", "scripted", "--method", "mc", "--kind", "failure"]
+    args += ["--chunk", str(chunk), "--traffic", *HARSH_CHAIN, "--out", str(tmp_path)]
+    assert validate.main([*args, "--chain", "2", "--method", "is"]) == 2
+    assert validate.main([*args, "--chain", "2", "--lane-changes", "24"]) == 0
+    doc = json.loads((tmp_path / "validate.json").read_text())
+    (model,) = doc["models"]
+    assert doc["chain"] == 2 and model["cases_started"] % (2 * chunk) == 0
+    places = np.asarray(model["places"])  # per place: lane changes, each kind's failures
+    assert places.shape == (2, 1 + len(validation.KINDS)) and places[1, 0] > 0
+    assert places[:, 0].sum() == model["lane_changes"]
+    failed = places[:, 1:].sum(axis=0)
+    assert [int(e["failures"]) for e in model["estimates"].values()] == failed.tolist()
+    cases = json.loads((tmp_path / "cases.json").read_text())
+    second = [i for i, c in enumerate(cases) if c.get("chain") == 1]
+    assert second and all(c.get("chain", 0) in (0, 1) for c in cases)
+    assert validate.main([*args[:1], "--replay", str(second[0]), "--out", str(tmp_path)]) == 0
+    cfg = in_traffic(RunDir(run_dir).load_config(), HARSH_CHAIN)
+    steps, pol = config.EvalConfig().max_steps, validation.policies(cfg, None, 1)
+    keys = streams.stream(0, streams.VALIDATE, range(chunk))
+    one = columns(jax.device_get(validation.program(cfg, steps, False)(None, pol, keys)[0]))
+    two = columns(jax.device_get(validation.program(cfg, steps, False, 2)(None, pol, keys)[0]))
+    for name, col in one.items():
+        np.testing.assert_array_equal(two[name][:, :chunk], col, err_msg=name)
+    assert two["performed"][0, chunk:].any()  # the second lane changes, in their traffic
+
+
+def test_a_chain_whose_places_fail_at_different_rates_is_told_apart():
+    """``unlike_places``: one rate along the chain keeps a large p-value, a rate that doubles
+    from the first place on gives a small one, a kind never seen gives NaN."""
+    from jaxlc.evaluation.validation import KINDS, unlike_places
+
+    places = np.zeros((4, 1 + len(KINDS)), int)
+    places[:, 0] = 3000
+    t = 1 + KINDS.index("timeout")
+    places[:, t] = [250, 262, 241, 255]
+    assert unlike_places(places, "timeout") > 0.5
+    places[:, t] = [250, 500, 480, 510]  # the traffic after the first lane change is harsher
+    assert unlike_places(places, "timeout") < 1e-6
+    assert math.isnan(unlike_places(places, "collision"))
+
+
 def test_nominal_proposal_weights_are_one(smoke_run):
     """The proposal equal to the traffic's own distribution: every log ratio exactly 0."""
     from jaxlc.evaluation import mixture, proposal

@@ -168,8 +168,13 @@ def make_start_cases(
         clock, cases, kept = c
         return clock, tree.where(on(cases), jax.vmap(step)(cases), cases), kept
 
-    def start_cases(keys: Array) -> Cases:
-        _, started, _ = spill(together, on, ((), jax.vmap(begin)(keys), ()), axis=0)
+    def start_cases(keys: Array, states: EnvState | None = None) -> Cases:
+        """``states`` ``(n, ...)``: go on from them, the clock back at 0 and ``keys`` the run
+        keys, instead of a reset (a chain's next lane change in the traffic its last left)."""
+        c = jax.vmap(begin)(keys) if states is None else (
+            states.replace(time=jnp.zeros_like(states.time)), jnp.zeros_like(states.time), keys
+        )  # fmt: skip
+        _, started, _ = spill(together, on, ((), c, ()), axis=0)
         return jax.vmap(finish)(started)
 
     return start_cases
@@ -198,12 +203,18 @@ def _start_step(
 
 
 def make_rollout(
-    base: EnvParams, actor_apply: Callable, max_steps: int, env: LaneChangeEnv | None = None
+    base: EnvParams,
+    actor_apply: Callable,
+    max_steps: int,
+    env: LaneChangeEnv | None = None,
+    final: bool = False,
 ) -> Callable:
     """``(Policies, Cases, traced) -> (Outcome, Trace)``: every policy on every case, from the
     start of its RL phase until it ends, ``max_steps`` env time or the manoeuvre's step cap
     (``env``: a proposal's, as ``make_start_case``'s), each measure of ``measures.of(base)``
-    folded over its steps; ``traced`` ``(traced,)`` the cases whose frames are kept."""
+    folded over its steps; ``traced`` ``(traced,)`` the cases whose frames are kept.
+    ``final``: the states where each ended ``(policies, cases, ...)`` too, the env's next
+    episode begun (its auto-reset), for a chain's next lane change."""
     env = LaneChangeEnv() if env is None else env
     limit = int(step_limit(base))  # RL steps before a timeout
     ms = measures.of(base)
@@ -262,9 +273,9 @@ def make_rollout(
             first=n - n // 4,
             more=lambda i: i <= limit,
         )
-        _, (final, _, _, out, _), trace = c
+        _, (last, _, _, out, _), trace = c
         # A case still running here hit the cap: its reason stays 0, "unfinished".
-        end = start.replace(state=final, reason=out["reason"], steps=out["steps"])
-        return measures.finish(ms, out, end, base), trace
+        end = start.replace(state=last, reason=out["reason"], steps=out["steps"])
+        return (measures.finish(ms, out, end, base), trace) + ((last,) if final else ())
 
     return rollout

@@ -22,6 +22,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.stats
 from tqdm import tqdm
 
 from jaxlc import config
@@ -43,17 +44,43 @@ CASE_CAP = 1000  # failures kept per model and kind, highest weight first
 
 
 @functools.lru_cache(maxsize=4)
-def program(cfg: config.Config, max_steps: int, tilted: bool) -> Callable:
+def program(cfg: config.Config, max_steps: int, tilted: bool, chain: int = 1) -> Callable:
     """Jitted ``(proposal, policies, keys (chunk, 2)) -> (Outcome, Trace)`` of one policy on a
     chunk of cases, under a ``Proposal`` (traced: ``EnvParams.draws``); ``tilted=False``: the
-    simulator's own draws (the proposal, None, is ignored)."""
+    simulator's own draws (the proposal, None, is ignored).
+
+    ``chain`` > 1 (crude MC): each case drives ``chain`` lane changes in one traffic, the
+    ego commanded again from the env's auto-reset after each (its approach, no warm-up),
+    lane change ``j`` > 0 keyed ``fold_in(case key, j)``; the Outcome's ``(1, chain * chunk)``
+    columns lane change after lane change (``j * chunk + case``), the Trace ``(chain, ...)``
+    each one's of case 0. Lane change 0 is the unchained case bit for bit."""
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
     actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
+    none = jnp.zeros(1, jnp.int32)  # case 0 traced (replay)
 
     def run(prop: Proposal | None, pol: Policies, keys: jax.Array) -> tuple:
         p, env = (base.replace(draws=prop), TiltedEnv()) if tilted else (base, None)
-        cs = make_start_cases(p, max_steps, env, traffic_warmup=True)(keys)
-        return make_rollout(p, actor_net.apply, max_steps, env)(pol, cs, jnp.zeros(1, jnp.int32))
+        start = make_start_cases(p, max_steps, env, traffic_warmup=True)
+        if chain == 1:
+            return make_rollout(p, actor_net.apply, max_steps, env)(pol, start(keys), none)
+        rollout = make_rollout(p, actor_net.apply, max_steps, env, final=True)
+
+        def drive(cs: Any) -> tuple:
+            out, trace, last = rollout(pol, cs, none)
+            # ended: not cut by max_steps mid-manoeuvre, so the next one starts afresh
+            ended = (out["reason"][0] != 0) | ~out["performed"][0]
+            return (jax.tree.map(lambda a: a[0], last), ended), (out, trace)
+
+        def next_one(c: tuple, j: jax.Array) -> tuple:
+            cs = start(jax.vmap(jax.random.fold_in, (0, None))(keys, j), c[0])
+            return drive(cs.replace(performed=cs.performed & c[1]))
+
+        first = drive(start(keys))
+        _, (outs, traces) = jax.lax.scan(next_one, first[0], jnp.arange(1, chain))
+        both = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first[1], (outs, traces))
+        rows = (1, chain * keys.shape[0])
+        out = jax.tree.map(lambda a: jnp.moveaxis(a, 0, 1).reshape(rows + a.shape[3:]), both[0])
+        return out, both[1]
 
     return jax.jit(run)
 
@@ -103,6 +130,7 @@ class Case:
     checkpoint: str | None
     k: int
     method: str
+    chain: int = 0  # its place in its case's chain of lane changes (``--chain``)
 
 
 @dataclass
@@ -120,6 +148,7 @@ class Tally:
     components: list[int] = field(default_factory=list)
     cases: list[Case] = field(default_factory=list)
     started: int = 0
+    places: np.ndarray | None = None  # (chain, 1 + kinds) lane changes, failures per place
 
     @property
     def drawn(self) -> Mixture | None:
@@ -132,8 +161,9 @@ class Tally:
         return int(sum(a.sum() for a in self.perf))
 
     def add(self, out: dict, lo: int, keys: np.ndarray, dt: float, component: int) -> None:
-        """A chunk's cases (``component``: the one that drew them, -1 the traffic's own)."""
-        perf, k = out["performed"][0], kinds(out, dt)
+        """A chunk's cases (``component``: the one that drew them, -1 the traffic's own; a
+        chained chunk's lane changes one case's chain after another's, ``program``)."""
+        perf, k, n = out["performed"][0], kinds(out, dt), len(keys)
         keep = np.ones_like(perf) if self.ratio else perf
         self.components.append(component)
         log_r, log_w, prop = np.zeros((perf.size, 0)), np.zeros(perf.size), None
@@ -144,14 +174,21 @@ class Tally:
         self.kinds.append(k[keep] & perf[keep, None])
         self.perf.append(perf[keep])
         for c in np.nonzero(perf & k[:, 0])[0]:
-            hit = [n for n, h in zip(KINDS, k[c], strict=True) if h]
+            hit = [name for name, h in zip(KINDS, k[c], strict=True) if h]
             reason = OUTCOMES[int(out["reason"][0][c])]
-            key = [int(x) for x in keys[c]]
-            case = Case(lo + int(c), key, float(log_w[c]), hit, reason, component, prop, **self.who)
+            at, i = divmod(int(c), n)  # its place in the chain, its case
+            key = [int(x) for x in keys[i]]
+            case = Case(
+                lo + i, key, float(log_w[c]), hit, reason, component, prop, **self.who, chain=at
+            )
             self.cases.append(case)
         self.cases.sort(key=lambda r: -r.log_w)
         del self.cases[CASE_CAP:]
         self.started += perf.size
+        if perf.size > n:  # chained: (chain, n) lane changes, each place's counts
+            hits = (k & perf[:, None]).reshape(-1, n, len(KINDS)).sum(axis=1)
+            counts = np.column_stack([perf.reshape(-1, n).sum(axis=1), hits])
+            self.places = counts if self.places is None else self.places + counts
 
     def estimates(self) -> dict[str, rare.Estimate]:
         """Per kind: crude MC's, IS's or (``ratio``) IS's ratio estimate of the lane changes so
@@ -184,10 +221,13 @@ class Settings:
     chunk: int = 2048
     seed: int = 0
     max_steps: int = config.EvalConfig().max_steps
+    chain: int = 1  # mc: lane changes per case, in one traffic (``program``)
 
 
 def check(cfg: config.Config, s: Settings) -> Settings:
     """``s`` where the traffic allows it; else ``EvalError`` in one sentence."""
+    if s.chain > 1 and s.method != "mc":
+        raise EvalError(f"--chain {s.chain}: only crude MC (--method mc) chains lane changes")
     if s.method == "is" and s.family == "mixture":
         if not (cfg.env.braking and value_range(cfg.env.braking_rate)[1] > 0):
             raise EvalError(
@@ -215,6 +255,18 @@ class Result:
     lane_changes_per_s: float
     interrupted: bool
     cases: list[Case] = field(default_factory=list)
+    places: list[list[int]] | None = None  # chained: per place, lane changes, kinds' failures
+
+
+def unlike_places(places: np.ndarray, kind: str) -> float:
+    """P-value of a chi-squared test that the chain's places fail ``kind`` at one rate: a
+    small one says the traffic changes along the chain (its warm-up too short to settle), so
+    chained lane changes are not the independent cases' (docs/decisions.md); NaN with none."""
+    failed = places[:, 1 + KINDS.index(kind)]
+    table = np.stack([failed, places[:, 0] - failed])
+    if not (table.sum(axis=0).all() and table.sum(axis=1).all()):
+        return float("nan")
+    return float(scipy.stats.chi2_contingency(table)[1])
 
 
 def fit(base: EnvParams, run: Callable, pol: Policies, s: Settings) -> tuple[Mixture | None, list]:
@@ -242,7 +294,7 @@ def estimate(
     proposal (``is``), then chunks until the lane changes or the relative half-width are
     reached, or Ctrl-C."""
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    run, pol = program(cfg, s.max_steps, s.method == "is"), policies(cfg, actor, k)
+    run, pol = program(cfg, s.max_steps, s.method == "is", s.chain), policies(cfg, actor, k)
     t0 = time.perf_counter()
     fitted, history = fit(base, run, pol, s)
     who = {"model": model, "label": meta["label"], "checkpoint": meta.get("checkpoint")}
@@ -269,6 +321,9 @@ def estimate(
     bar.close()
     t2 = time.perf_counter()
     drawn = tally.drawn
+    if tally.places is not None and unlike_places(tally.places, s.kind) < 0.01:
+        tqdm.write(f"{meta['label']}: {s.kind} differs along the chain (p < 0.01); see "
+                   "validate.json's places, and prefer --chain 1 in this traffic")  # fmt: skip
     return Result(
         meta=meta,
         method=s.method,
@@ -283,4 +338,5 @@ def estimate(
         lane_changes_per_s=round(tally.lane_changes / max(t2 - t1, 1e-9), 1),
         interrupted=interrupted,
         cases=tally.cases,
+        places=None if tally.places is None else tally.places.tolist(),
     )

@@ -52,6 +52,7 @@ class Validation:
     matmul_peak_gflops: int
     date: str
     models: list[validation.Result]
+    chain: int = 1  # lane changes per case (``validation.program``); written only when > 1
 
     def to_json(self) -> str:
         models = [
@@ -59,7 +60,12 @@ class Validation:
             | {"estimates": {k: e.to_dict() for k, e in r.estimates.items()}}
             for r in self.models
         ]
+        for m in models:  # unchained: as every file before ``--chain``
+            if m["places"] is None:
+                del m["places"]
         doc = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        if self.chain == 1:  # as every file before ``--chain``
+            del doc["chain"]
         return json.dumps(doc | {"models": models}, indent=1, default=str) + "\n"
 
     @classmethod
@@ -85,7 +91,7 @@ def write_outputs(
     family = args.family if args.method == "is" else None
     doc = Validation(
         heldout.traffic_of(cfg.env), list(args.traffic), args.method, family, args.kind,
-        args.chunk, args.seed, args.max_steps, round(peak), date, results,
+        args.chunk, args.seed, args.max_steps, round(peak), date, results, args.chain,
     )  # fmt: skip
     (out / "validate.json").write_text(doc.to_json())
     more = {"matmul_peak_gflops": round(peak)}
@@ -97,10 +103,14 @@ def write_outputs(
     ]  # fmt: skip
     checkpoint.write_text_atomic(out / "validate.csv", csv_text(rows, FIELDS))
     cases = [c for r in results for c in r.cases]
-    (out / "cases.json").write_text(
-        json.dumps([dataclasses.asdict(c) for c in cases], indent=1) + "\n"
-    )
+    (out / "cases.json").write_text(json.dumps([_case_dict(c) for c in cases], indent=1) + "\n")
     return out
+
+
+def _case_dict(c: validation.Case) -> dict[str, Any]:
+    """A failure as ``cases.json`` holds it: its place in a chain only where it has one."""
+    d = dataclasses.asdict(c)
+    return d if d["chain"] else {k: v for k, v in d.items() if k != "chain"}
 
 
 def read_cases(out: Path) -> list[validation.Case]:
@@ -114,11 +124,14 @@ def rerun(run_dir: Path, cfg: config.Config, doc: Validation, case: validation.C
     actor = None
     if case.checkpoint:
         actor = checkpoint.load(Path(run_dir) / case.checkpoint)[0]
-    run = validation.program(cfg, doc.max_steps, case.method == "is")
+    run = validation.program(cfg, doc.max_steps, case.method == "is", doc.chain)
     pol = validation.policies(cfg, actor, int(case.k))
     keys = jnp.tile(jnp.asarray(case.key, jnp.uint32)[None], (doc.chunk, 1))
     mix = case.proposal and Mixture.from_dict(case.proposal)
     o, trace = jax.device_get(run(mix and mix.proposal(case.component), pol, keys))
+    if doc.chain > 1:  # its lane change of the chain: column chain * chunk, trace [chain]
+        trace = jax.tree.map(lambda a: a[case.chain], trace)
+        o = jax.tree.map(lambda a: a[:, case.chain * doc.chunk :], o)
     o, tr = columns(o), columns(trace)
     last = max(int(tr["frames"][0, 0]) - 1, 0)
     tr["side"] = np.asarray([1 if tr["y"][0, 0, 0] < tr["y"][0, 0, last] else -1])
