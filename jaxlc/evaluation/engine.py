@@ -180,6 +180,20 @@ def make_start_cases(
     return start_cases
 
 
+def make_resets(
+    base: EnvParams, env: LaneChangeEnv | None = None, traffic_warmup: bool = False
+) -> Callable[[Array], tuple[EnvState, Array]]:
+    """``keys (n, 2) -> (states, run keys)``: each case's reset as ``make_start_cases`` begins
+    it; ``start_cases(run keys, states)`` then goes on as from ``start_cases(keys)``."""
+    begin = _start_parts(base, 0, env, traffic_warmup)[0]
+
+    def resets(keys: Array) -> tuple[EnvState, Array]:
+        states, _, run = jax.vmap(begin)(keys)
+        return states, run
+
+    return resets
+
+
 def _start_step(
     cs: Cases, state: EnvState, side: Array, performed: Array, counted: Array, bcast: Callable
 ) -> Step:

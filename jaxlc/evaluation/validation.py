@@ -29,6 +29,7 @@ from jaxlc import config
 from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation import mixture, rare
 from jaxlc.evaluation.cases import Policies, columns, init_actor, make_rollout, make_start_cases
+from jaxlc.evaluation.engine import make_resets
 from jaxlc.evaluation.heldout import lane_change_measures
 from jaxlc.evaluation.mixture import Mixture
 from jaxlc.evaluation.proposal import Proposal, Record, TiltedEnv
@@ -64,23 +65,21 @@ def program(cfg: config.Config, max_steps: int, tilted: bool, chain: int = 1) ->
         if chain == 1:
             return make_rollout(p, actor_net.apply, max_steps, env)(pol, start(keys), none)
         rollout = make_rollout(p, actor_net.apply, max_steps, env, final=True)
+        states, run0 = make_resets(p, env, traffic_warmup=True)(keys)  # one warm-up per case
 
-        def drive(cs: Any) -> tuple:
-            out, trace, last = rollout(pol, cs, none)
-            # ended: not cut by max_steps mid-manoeuvre, so the next one starts afresh
+        def next_one(c: tuple, j: jax.Array) -> tuple:
+            last, ended = c  # ended: not cut by max_steps mid-manoeuvre, so this one starts
+            run = jnp.where(j == 0, run0, jax.vmap(jax.random.fold_in, (0, None))(keys, j))
+            cs = start(run, last)
+            out, trace, last = rollout(pol, cs.replace(performed=cs.performed & ended), none)
             ended = (out["reason"][0] != 0) | ~out["performed"][0]
             return (jax.tree.map(lambda a: a[0], last), ended), (out, trace)
 
-        def next_one(c: tuple, j: jax.Array) -> tuple:
-            cs = start(jax.vmap(jax.random.fold_in, (0, None))(keys, j), c[0])
-            return drive(cs.replace(performed=cs.performed & c[1]))
-
-        first = drive(start(keys))
-        _, (outs, traces) = jax.lax.scan(next_one, first[0], jnp.arange(1, chain))
-        both = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first[1], (outs, traces))
+        first = (states, jnp.ones(keys.shape[0], bool))
+        _, (outs, traces) = jax.lax.scan(next_one, first, jnp.arange(chain))
         rows = (1, chain * keys.shape[0])
-        out = jax.tree.map(lambda a: jnp.moveaxis(a, 0, 1).reshape(rows + a.shape[3:]), both[0])
-        return out, both[1]
+        out = jax.tree.map(lambda a: jnp.moveaxis(a, 0, 1).reshape(rows + a.shape[3:]), outs)
+        return out, traces
 
     return jax.jit(run)
 
