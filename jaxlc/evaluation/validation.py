@@ -68,11 +68,13 @@ def program(cfg: config.Config, max_steps: int, tilted: bool, chain: int = 1) ->
         states, run0 = make_resets(p, env, traffic_warmup=True)(keys)  # one warm-up per case
 
         def next_one(c: tuple, j: jax.Array) -> tuple:
-            last, ended = c  # ended: not cut by max_steps mid-manoeuvre, so this one starts
+            # ended: no lane change of the case so far cut by max_steps mid-manoeuvre (one
+            # that was leaves its state in the RL phase, never stepped again: the chain ends)
+            last, ended = c
             run = jnp.where(j == 0, run0, jax.vmap(jax.random.fold_in, (0, None))(keys, j))
             cs = start(run, last)
             out, trace, last = rollout(pol, cs.replace(performed=cs.performed & ended), none)
-            ended = (out["reason"][0] != 0) | ~out["performed"][0]
+            ended &= (out["reason"][0] != 0) | ~out["performed"][0]
             return (jax.tree.map(lambda a: a[0], last), ended), (out, trace)
 
         first = (states, jnp.ones(keys.shape[0], bool))
