@@ -9,6 +9,8 @@ reset with its traffic-only warm-up, its approach (``cases.make_start_cases``), 
 (``cases.make_rollout``)), median of ``--repeats`` after compiling. Its env-steps are the
 steps its cases needed (warm-up, approach, manoeuvre; the warm-up's are the traffic's alone);
 beside them the scan of ``sim_throughput.py`` at ``--chunk`` envs, in the same process.
+``--chain 1 8``: also each case driving 8 lane changes in one traffic (``validate --chain``;
+its env-steps are not counted: the later lane changes' approaches are not returned).
 Writes ``OUT/throughput.csv`` with the matmul peak before and after.
 """
 
@@ -34,10 +36,10 @@ from jaxlc.study import machine
 TRAFFIC = sim_throughput.TRAFFIC  # the traffics by name: the simulator benchmark's
 
 
-def mc_chunk(traffic: str, chunk: int, repeats: int) -> dict:
+def mc_chunk(traffic: str, chunk: int, repeats: int, chain: int = 1) -> dict:
     cfg = heldout.in_traffic(config.load(), TRAFFIC[traffic])
     base = EnvParams.from_config(cfg.env)
-    run = validation.program(cfg, config.EvalConfig().max_steps, False)
+    run = validation.program(cfg, config.EvalConfig().max_steps, False, chain)
     start = jax.jit(make_start_cases(base, config.EvalConfig().max_steps, traffic_warmup=True))
     pol = validation.policies(cfg, None, 1)
     times, lcs, steps = [], [], []
@@ -46,17 +48,19 @@ def mc_chunk(traffic: str, chunk: int, repeats: int) -> dict:
         t0 = time.perf_counter()
         out = columns(jax.device_get(run(None, pol, keys)[0]))
         times.append(time.perf_counter() - t0)
-        approach = np.asarray(start(keys).state.time)  # the same cases' approach, untimed
         lcs.append(int(out["performed"][0].sum()))
-        steps.append(int(chunk * base.warmup_steps + approach.sum() + out["steps"][0].sum()))
+        if chain == 1:
+            approach = np.asarray(start(keys).state.time)  # the same cases' approach, untimed
+            steps.append(int(chunk * base.warmup_steps + approach.sum() + out["steps"][0].sum()))
     i = int(np.argsort(times[1:])[len(times[1:]) // 2]) + 1  # the median repeat
     return {
         "traffic": traffic,
         "envs": chunk,
+        "chain": chain,
         "lane_changes": lcs[i],
         "median_s": round(times[i], 3),
         "lane_changes_per_s": round(lcs[i] / times[i], 1),
-        "env_steps_per_s": round(steps[i] / times[i]),
+        "env_steps_per_s": round(steps[i] / times[i]) if steps else "",
         "first_call_s": round(times[0], 1),
     }
 
@@ -67,23 +71,26 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--steps", type=int, default=200, help="sim_throughput's scan length")
     ap.add_argument("--traffic", nargs="+", default=["paper", "braking"], choices=TRAFFIC)
+    ap.add_argument("--chain", type=int, nargs="+", default=[1], help="lane changes per case")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     peak0 = machine.matmul_peak_gflops()
     rows = []
     for t in args.traffic:
-        mc = mc_chunk(t, args.chunk, args.repeats)
-        s = sim_throughput.measure(args.chunk, args.steps, args.repeats, t)
-        mc["sim_env_steps_per_s"] = round(s["env_steps_per_s"])
-        mc["share_of_sim"] = round(mc["env_steps_per_s"] / s["env_steps_per_s"], 3)
-        rows.append(mc)
-        print(mc, flush=True)
+        s = sim_throughput.measure(args.chunk, args.steps, args.repeats, t)["env_steps_per_s"]
+        for chain in args.chain:
+            mc = mc_chunk(t, args.chunk, args.repeats, chain)
+            mc["sim_env_steps_per_s"] = round(s)
+            mc["share_of_sim"] = round(mc["env_steps_per_s"] / s, 3) if chain == 1 else ""
+            rows.append(mc)
+            print(mc, flush=True)
     peak1 = machine.matmul_peak_gflops()
     today = datetime.date.today().isoformat()
     for r in rows:
         r |= {"matmul_peak_before": round(peak0), "matmul_peak_after": round(peak1), "date": today}
     write_csv(args.out / "throughput.csv", rows)
-    print("median share of the simulator:", statistics.median([r["share_of_sim"] for r in rows]))
+    shares = [r["share_of_sim"] for r in rows if r["chain"] == 1]
+    print("median share of the simulator:", statistics.median(shares) if shares else "-")
 
 
 if __name__ == "__main__":

@@ -297,25 +297,43 @@ def sb3_table() -> str:
 
 def validate_speed_table() -> str:
     """Crude MC's lane changes per second and its env-steps per second against the
-    simulator's at the same envs (``validate_throughput.py``'s CSV, one session)."""
+    simulator's at the same envs (``validate_throughput.py``'s CSV: a session per date)."""
     rows = csv_rows(VALIDATE / "throughput_hazards.csv")
     names = {
         "paper": "the paper's",
         "braking": "braking events (2 per vehicle-hour)",
         "hazards": "MOBIL lane changes and braking events (SPEC's rates)",
     }
-    peaks = [int(r[k]) for r in rows for k in ("matmul_peak_before", "matmul_peak_after")]
+
+    def _count(n: str) -> str:
+        return f"{int(n):,}" if n else "–"
+
+    def share(r: dict) -> str:
+        return f"{100 * float(r['share_of_sim']):.1f}%" if r["share_of_sim"] else "–"
+
+    def peaks(day: str) -> str:
+        p = [
+            int(r[k])
+            for r in rows
+            if r["date"] == day
+            for k in ("matmul_peak_before", "matmul_peak_after")
+        ]
+        return f"{day}: {min(p)}–{max(p)}"
+
     return _table(
-        f"traffic, {int(rows[0]['envs']):,} envs | lane changes/s per model | MC env-steps/s | "
-        "`sim_throughput.py` env-steps/s | share (target ≥ 50%)",
+        f"date | traffic, {int(rows[0]['envs']):,} envs | lane changes per case | lane changes/s "
+        "per model | MC env-steps/s | `sim_throughput.py` env-steps/s | share (target ≥ 50%)",
         (
-            f"{names[r['traffic']]} | {float(r['lane_changes_per_s']):,.1f} | "
-            f"{int(r['env_steps_per_s']):,} | {int(r['sim_env_steps_per_s']):,} | "
-            f"{100 * float(r['share_of_sim']):.1f}%"
+            f"{r['date']} | {names[r['traffic']]} | {r['chain']} | "
+            f"{float(r['lane_changes_per_s']):,.1f} | "
+            f"{_count(r['env_steps_per_s'])} | "
+            f"{int(r['sim_env_steps_per_s']):,} | {share(r)}"
             for r in rows
         ),
-        f"{rows[0]['date']}, the idle 2-core VM, matmul peak {min(peaks)}–{max(peaks)} GFLOP/s; "
-        "MC's env-steps count the warm-up's traffic-only steps.",
+        "The idle 2-core VM, matmul peak (GFLOP/s) "
+        + "; ".join(peaks(d) for d in dict.fromkeys(r["date"] for r in rows))
+        + ". MC's env-steps count the warm-up's traffic-only steps; a chain's (several lane "
+        "changes per case in one traffic, `validate --chain`) are not counted.",
     )
 
 
