@@ -185,14 +185,18 @@ def test_replay_reproduces_a_case_bit_for_bit(validated):
 
 
 # Hard braking at a high rate with no TTC gap test: many lane changes time out, the second of
-# a chain among them.
+# a chain among them. A step cap under the first approaches' (800-1,500 steps here) cuts one of
+# the first lane changes mid-manoeuvre.
 HARSH_CHAIN = ["env.braking=true", "env.braking_rate=3000", "env.gap_min_ttc=0"]
+CHAIN, CHAIN_STEPS = 3, 1000
 
 
 def test_a_chain_of_lane_changes_begins_with_the_unchained_case_and_replays(smoke_run, tmp_path):
-    """``--chain 2`` (crude MC): each case drives two lane changes in one traffic; the first
-    is the unchained case bit for bit, the second starts where the first left the traffic,
-    and a failure of the second replays from its case's key and place; other methods refuse."""
+    """``--chain 3`` (crude MC): each case drives three lane changes in one traffic; the first
+    is the unchained case bit for bit, the next start where the last left the traffic, a lane
+    change cut by the step cap mid-manoeuvre ends its case's chain (its state never stepped
+    again is no new lane change), and a failure of the second replays from its case's key
+    and place; other methods refuse."""
     import json
 
     from jaxlc import validate
@@ -204,28 +208,35 @@ def test_a_chain_of_lane_changes_begins_with_the_unchained_case_and_replays(smok
     run_dir, chunk = smoke_run[0], 8
     args = [str(run_dir), "--model", "scripted", "--method", "mc", "--kind", "failure"]
     args += ["--chunk", str(chunk), "--traffic", *HARSH_CHAIN, "--out", str(tmp_path)]
-    assert validate.main([*args, "--chain", "2", "--method", "is"]) == 2
-    assert validate.main([*args, "--chain", "2", "--lane-changes", "24"]) == 0
+    args += ["--chain", str(CHAIN), "--max-steps", str(CHAIN_STEPS)]
+    assert validate.main([*args, "--method", "is"]) == 2
+    assert validate.main([*args, "--lane-changes", "24"]) == 0
     doc = json.loads((tmp_path / "validate.json").read_text())
     (model,) = doc["models"]
-    assert doc["chain"] == 2 and model["cases_started"] % (2 * chunk) == 0
+    assert doc["chain"] == CHAIN and model["cases_started"] % (CHAIN * chunk) == 0
     places = np.asarray(model["places"])  # per place: lane changes, each kind's failures
-    assert places.shape == (2, 1 + len(validation.KINDS)) and places[1, 0] > 0
+    assert places.shape == (CHAIN, 1 + len(validation.KINDS)) and places[1, 0] > 0
     assert places[:, 0].sum() == model["lane_changes"]
     failed = places[:, 1:].sum(axis=0)
     assert [int(e["failures"]) for e in model["estimates"].values()] == failed.tolist()
     cases = json.loads((tmp_path / "cases.json").read_text())
     second = [i for i, c in enumerate(cases) if c.get("chain") == 1]
-    assert second and all(c.get("chain", 0) in (0, 1) for c in cases)
+    assert second and all(c.get("chain", 0) in range(CHAIN) for c in cases)
     assert validate.main([*args[:1], "--replay", str(second[0]), "--out", str(tmp_path)]) == 0
     cfg = in_traffic(RunDir(run_dir).load_config(), HARSH_CHAIN)
-    steps, pol = config.EvalConfig().max_steps, validation.policies(cfg, None, 1)
+    pol = validation.policies(cfg, None, 1)
     keys = streams.stream(0, streams.VALIDATE, range(chunk))
-    one = columns(jax.device_get(validation.program(cfg, steps, False)(None, pol, keys)[0]))
-    two = columns(jax.device_get(validation.program(cfg, steps, False, 2)(None, pol, keys)[0]))
+    run = validation.program(cfg, CHAIN_STEPS, False)(None, pol, keys)[0]
+    one = columns(jax.device_get(run))
+    run = validation.program(cfg, CHAIN_STEPS, False, CHAIN)(None, pol, keys)[0]
+    chained = columns(jax.device_get(run))
     for name, col in one.items():
-        np.testing.assert_array_equal(two[name][:, :chunk], col, err_msg=name)
-    assert two["performed"][0, chunk:].any()  # the second lane changes, in their traffic
+        np.testing.assert_array_equal(chained[name][:, :chunk], col, err_msg=name)
+    performed = chained["performed"][0].reshape(CHAIN, chunk)
+    assert performed[1:].any()  # the later lane changes, in their traffic
+    cut = performed & (chained["reason"][0].reshape(CHAIN, chunk) == 0)
+    assert cut[0].any(), "no first lane change cut: lower CHAIN_STEPS"
+    assert not (np.cumsum(cut, axis=0)[:-1] & performed[1:]).any()
 
 
 def test_a_chain_whose_places_fail_at_different_rates_is_told_apart():
