@@ -185,18 +185,18 @@ def test_replay_reproduces_a_case_bit_for_bit(validated):
 
 
 # Hard braking at a high rate with no TTC gap test: many lane changes time out, the second of
-# a chain among them. A step cap under the first approaches' (800-1,500 steps here) cuts one of
-# the first lane changes mid-manoeuvre.
+# a chain among them. The approaches here take 800-1,500 steps: a step cap of 1,450 cuts one of
+# the first lane changes mid-manoeuvre and lets others end.
 HARSH_CHAIN = ["env.braking=true", "env.braking_rate=3000", "env.gap_min_ttc=0"]
-CHAIN, CHAIN_STEPS = 3, 1000
+CHAIN, CHAIN_STEPS = 3, 1450
 
 
 def test_a_chain_of_lane_changes_begins_with_the_unchained_case_and_replays(smoke_run, tmp_path):
     """``--chain 3`` (crude MC): each case drives three lane changes in one traffic; the first
-    is the unchained case bit for bit, the next start where the last left the traffic, a lane
-    change cut by the step cap mid-manoeuvre ends its case's chain (its state never stepped
-    again is no new lane change), and a failure of the second replays from its case's key
-    and place; other methods refuse."""
+    is the unchained case bit for bit, the next start where the last left the traffic, an
+    episode cut by the step cap (in its approach or mid-manoeuvre) ends its case's chain (its
+    state is no new lane change's start), and a failure of the second replays from its case's
+    key and place; other methods refuse."""
     import json
 
     from jaxlc import validate
@@ -234,9 +234,9 @@ def test_a_chain_of_lane_changes_begins_with_the_unchained_case_and_replays(smok
         np.testing.assert_array_equal(chained[name][:, :chunk], col, err_msg=name)
     performed = chained["performed"][0].reshape(CHAIN, chunk)
     assert performed[1:].any()  # the later lane changes, in their traffic
-    cut = performed & (chained["reason"][0].reshape(CHAIN, chunk) == 0)
-    assert cut[0].any(), "no first lane change cut: lower CHAIN_STEPS"
-    assert not (np.cumsum(cut, axis=0)[:-1] & performed[1:]).any()
+    stopped = chained["reason"][0].reshape(CHAIN, chunk) == 0  # no episode's end: cut
+    assert (performed & stopped)[0].any(), "no first lane change cut: lower CHAIN_STEPS"
+    assert not (np.cumsum(stopped, axis=0)[:-1] & performed[1:]).any()
 
 
 def test_a_chain_whose_places_fail_at_different_rates_is_told_apart():

@@ -68,13 +68,14 @@ def program(cfg: config.Config, max_steps: int, tilted: bool, chain: int = 1) ->
         states, run0 = make_resets(p, env, traffic_warmup=True)(keys)  # one warm-up per case
 
         def next_one(c: tuple, j: jax.Array) -> tuple:
-            # ended: no lane change of the case so far cut by max_steps mid-manoeuvre (one
-            # that was leaves its state in the RL phase, never stepped again: the chain ends)
+            # ended: every episode of the case so far ended, so the env's auto-reset spawned
+            # the ego anew; one cut by max_steps (in its approach or mid-manoeuvre) leaves its
+            # state where it stopped, never a new lane change's start: the chain ends there
             last, ended = c
             run = jnp.where(j == 0, run0, jax.vmap(jax.random.fold_in, (0, None))(keys, j))
             cs = start(run, last)
             out, trace, last = rollout(pol, cs.replace(performed=cs.performed & ended), none)
-            ended &= (out["reason"][0] != 0) | ~out["performed"][0]
+            ended &= out["reason"][0] != 0
             return (jax.tree.map(lambda a: a[0], last), ended), (out, trace)
 
         first = (states, jnp.ones(keys.shape[0], bool))
