@@ -305,7 +305,7 @@ def validate_speed_table() -> str:
         "hazards": "MOBIL lane changes and braking events (SPEC's rates)",
     }
 
-    def _count(n: str) -> str:
+    def count(n: str) -> str:
         return f"{int(n):,}" if n else "–"
 
     def share(r: dict) -> str:
@@ -326,7 +326,7 @@ def validate_speed_table() -> str:
         (
             f"{r['date']} | {names[r['traffic']]} | {r['chain']} | "
             f"{float(r['lane_changes_per_s']):,.1f} | "
-            f"{_count(r['env_steps_per_s'])} | "
+            f"{count(r['env_steps_per_s'])} | "
             f"{int(r['sim_env_steps_per_s']):,} | {share(r)}"
             for r in rows
         ),
