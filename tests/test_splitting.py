@@ -217,7 +217,7 @@ def test_no_rounds_is_the_engines_crude_mc_on_the_same_keys(sim):
 @pytest.mark.parametrize(
     "bad",
     [["--particles", "1"], ["--kill", "1.0"], ["--repeats", "1"], ["--margin", "-1"],
-     ["--kind", "failure"], ["--max-rounds", "-1"], ["--span", "0"]],
+     ["--kind", "failure"], ["--max-rounds", "-1"], ["--span", "0"], ["--chain", "2"]],
 )  # fmt: skip
 def test_a_bad_ams_argument_is_one_line_and_exit_2(bad, tmp_path, capsys):
     from jaxlc import validate

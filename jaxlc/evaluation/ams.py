@@ -137,8 +137,7 @@ def check(args: Any) -> None:
         raise EvalError(f"--margin {margin:g}: a margin is >= 0 (0: the failure itself)")
     if rounds < 0:
         raise EvalError(f"--max-rounds {rounds}: >= 0 (0: crude Monte Carlo)")
-    if args.chain != 1:
-        raise EvalError(f"--chain {args.chain}: only crude MC (--method mc) chains lane changes")
+    validation.check_chain("ams", args.chain)
     if not args.span > 0.0:
         raise EvalError(f"--span {args.span:g}: > 0 (the curve is read from m to m + span)")
 

@@ -109,20 +109,27 @@ def spill(
     return jax.lax.while_loop(lambda c: going(c, 0), lambda c: (c[0], *part(c, m, 0)[1:]), c)
 
 
-def _start_parts(
-    base: EnvParams, max_steps: int, env: LaneChangeEnv | None, traffic_warmup: bool = False
-) -> tuple:
-    """``(begin, going, step, finish)`` of one case's start: ``begin(key) -> carry`` resets
-    (``env.reset``'s ``traffic_only`` warm-up with ``traffic_warmup``),
-    ``step`` advances the carry one dt with no action while ``going``, ``finish(carry) ->
-    Cases``. The carry is ``(state, reason, k_run)``."""
-    env = LaneChangeEnv() if env is None else env
-    zero, origin = jnp.zeros(action_dim(base)), origin_lane(base)
+def _begin(base: EnvParams, env: LaneChangeEnv, traffic_warmup: bool) -> Callable:
+    """``begin(key) -> (state, reason, k_run)``: a case's reset (``env.reset``'s
+    ``traffic_only`` warm-up with ``traffic_warmup``) and its run key."""
 
     def begin(key: Array) -> tuple:
         k_reset, k_run = jax.random.split(key)
         _, state = env.reset(k_reset, base, traffic_only=traffic_warmup)
         return state, jnp.int32(0), k_run
+
+    return begin
+
+
+def _start_parts(
+    base: EnvParams, max_steps: int, env: LaneChangeEnv | None, traffic_warmup: bool = False
+) -> tuple:
+    """``(begin, going, step, finish)`` of one case's start: ``begin`` (``_begin``) resets,
+    ``step`` advances the carry one dt with no action while ``going``, ``finish(carry) ->
+    Cases``. The carry is ``(state, reason, k_run)``."""
+    env = LaneChangeEnv() if env is None else env
+    zero, origin = jnp.zeros(action_dim(base)), origin_lane(base)
+    begin = _begin(base, env, traffic_warmup)
 
     def going(c: tuple) -> Array:
         s, reason, *_ = c
@@ -185,7 +192,7 @@ def make_resets(
 ) -> Callable[[Array], tuple[EnvState, Array]]:
     """``keys (n, 2) -> (states, run keys)``: each case's reset as ``make_start_cases`` begins
     it; ``start_cases(run keys, states)`` then goes on as from ``start_cases(keys)``."""
-    begin = _start_parts(base, 0, env, traffic_warmup)[0]
+    begin = _begin(base, LaneChangeEnv() if env is None else env, traffic_warmup)
 
     def resets(keys: Array) -> tuple[EnvState, Array]:
         states, _, run = jax.vmap(begin)(keys)

@@ -226,10 +226,15 @@ class Settings:
     chain: int = 1  # mc: lane changes per case, in one traffic (``program``)
 
 
+def check_chain(method: str, chain: int) -> None:
+    """``EvalError`` in one sentence where a method other than crude MC is asked to chain."""
+    if chain > 1 and method != "mc":
+        raise EvalError(f"--chain {chain}: only crude MC (--method mc) chains lane changes")
+
+
 def check(cfg: config.Config, s: Settings) -> Settings:
     """``s`` where the traffic allows it; else ``EvalError`` in one sentence."""
-    if s.chain > 1 and s.method != "mc":
-        raise EvalError(f"--chain {s.chain}: only crude MC (--method mc) chains lane changes")
+    check_chain(s.method, s.chain)
     if s.method == "is" and s.family == "mixture":
         if not (cfg.env.braking and value_range(cfg.env.braking_rate)[1] > 0):
             raise EvalError(
