@@ -256,7 +256,7 @@ class Result:
     ce: list[dict[str, Any]]
     estimates: dict[str, rare.Estimate]
     lane_changes: int
-    cases_started: int
+    cases_started: int  # with --chain L: places, L per case (lane-change slots, not resets)
     ce_s: float
     wall_s: float
     lane_changes_per_s: float
