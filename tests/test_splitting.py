@@ -149,8 +149,11 @@ def test_the_log_interval_covers_a_skewed_mean_where_t_misses_low():
 
 
 # On the simulator (jaxlc.evaluation.ams): the smoke config's scripted controller, few
-# particles (cases, split from their reset on).
-SIM_N, SIM_KILL, SIM_ROUNDS, SIM_STEPS, SIM_CAP = 12, 0.25, 6, 1500, 2.6
+# particles (cases, split from their reset on). The particles, kill and rounds of
+# tests/test_validate.py's ``--method ams`` and validate's step cap: one AMS program, one
+# replay program and one reset program serve both files (on one worker, or loaded from the
+# suite's compilation cache on the other).
+SIM_N, SIM_KILL, SIM_ROUNDS, SIM_STEPS, SIM_CAP = 12, 0.25, 4, 1500, 2.6
 
 
 @pytest.fixture(scope="module")
@@ -176,8 +179,6 @@ def sim():
 @pytest.mark.slow
 def test_a_case_particle_replays_bit_for_bit_from_its_chain(sim):
     from jaxlc.evaluation import ams as sim_ams
-    from jaxlc.learn.networks import make_networks
-    from jaxlc.sim.env import EnvParams, action_dim
 
     prog = sim["prog"][SIM_ROUNDS]
     res = jax.device_get(prog(jax.random.PRNGKey(3), sim["pol"], sim["cs"], 0.0, SIM_CAP))
@@ -185,11 +186,9 @@ def test_a_case_particle_replays_bit_for_bit_from_its_chain(sim):
     steps = np.asarray(res.chains.steps)
     cloned = np.sum(steps != ams.UNUSED, axis=1) >= 2
     assert cloned.any()
-    cfg = sim["cfg"]
-    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    actor_net, _ = make_networks(cfg.ddpg, action_dim(cfg.env))
-    bind = sim_ams.make_run(base, actor_net.apply, "collision", SIM_STEPS)
-    again = np.asarray(jax.jit(jax.vmap(bind(sim["pol"], sim["cs"], SIM_CAP)))(res.chains))
+    # every final particle run again from its chain alone, as ``ams.replay`` runs a miss
+    replay = sim_ams._case_program(sim["cfg"], "collision", SIM_STEPS, False)
+    again = np.asarray(replay(sim["pol"], sim["cs"], SIM_CAP, res.chains))
     np.testing.assert_array_equal(again, np.asarray(res.paths))
     assert (again.max(axis=1) == res.scores).all()
     # the approach scores below -cap: only a lane change's margin reaches above it
