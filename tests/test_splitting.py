@@ -150,9 +150,9 @@ def test_the_log_interval_covers_a_skewed_mean_where_t_misses_low():
 
 # On the simulator (jaxlc.evaluation.ams): the smoke config's scripted controller, few
 # particles (cases, split from their reset on). The particles, kill and rounds of
-# tests/test_validate.py's ``--method ams`` and validate's step cap: one AMS program, one
-# replay program and one reset program serve both files (on one worker, or loaded from the
-# suite's compilation cache on the other).
+# tests/test_validate.py's ``--method ams`` and validate's step cap: one AMS program and one
+# reset program serve both files (on one worker, or loaded from the suite's compilation cache
+# on the other).
 SIM_N, SIM_KILL, SIM_ROUNDS, SIM_STEPS, SIM_CAP = 12, 0.25, 4, 1500, 2.6
 
 
@@ -186,7 +186,7 @@ def test_a_case_particle_replays_bit_for_bit_from_its_chain(sim):
     steps = np.asarray(res.chains.steps)
     cloned = np.sum(steps != ams.UNUSED, axis=1) >= 2
     assert cloned.any()
-    # every final particle run again from its chain alone, as ``ams.replay`` runs a miss
+    # every final particle run again from its chain, by the program ``ams.replay`` runs a miss on
     replay = sim_ams._case_program(sim["cfg"], "collision", SIM_STEPS, False)
     again = np.asarray(replay(sim["pol"], sim["cs"], SIM_CAP, res.chains))
     np.testing.assert_array_equal(again, np.asarray(res.paths))
