@@ -33,7 +33,7 @@ import numpy as np
 from jaxlc import config
 from jaxlc.evaluation import keys as streams
 from jaxlc.evaluation import measures, numbers, splitting, validation
-from jaxlc.evaluation.engine import Policies
+from jaxlc.evaluation.engine import Policies, make_resets
 from jaxlc.evaluation.heldout import clopper_pearson
 from jaxlc.evaluation.numbers import Record, many
 from jaxlc.evaluation.results import EvalError
@@ -42,6 +42,7 @@ from jaxlc.learn.networks import make_networks
 from jaxlc.sim import collision
 from jaxlc.sim.controller import baseline_action
 from jaxlc.sim.env import CRUISE, RL, WAIT, EnvParams, EnvState, LaneChangeEnv, action_dim
+from jaxlc.sim.observation import observation
 from jaxlc.sim.road import origin_lane, road_curvature
 
 KINDS = tuple(measures.MARGINS)  # collision, timeout, out_of_bounds
@@ -144,20 +145,20 @@ def check(args: Any) -> None:
 
 def starts(cfg: config.Config, n: int, seed: int, lo: int) -> Starts:
     """Cases ``lo .. lo + n - 1`` of ``keys.VALIDATE``'s stream, reset as the validation
-    resets them (``engine._start_parts``: the key split into reset and run keys)."""
+    resets them (``engine.make_resets``: the key split into reset and run keys)."""
     return _reset_program(cfg)(streams.stream(seed, streams.VALIDATE, range(lo, lo + n)))
 
 
 @functools.lru_cache(maxsize=4)
 def _reset_program(cfg: config.Config) -> Any:
-    base, env = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma), LaneChangeEnv()
+    base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
+    resets = make_resets(base, traffic_warmup=True)
 
-    def one(key: jax.Array) -> Starts:
-        k_reset, k_run = jax.random.split(key)
-        obs, state = env.reset(k_reset, base, traffic_only=True)
-        return Starts(state, obs, k_run)
+    def program(keys: jax.Array) -> Starts:
+        states, run = resets(keys)
+        return Starts(states, jax.vmap(observation, (0, None))(states, base), run)
 
-    return jax.jit(jax.vmap(one))
+    return jax.jit(program)
 
 
 def approach_score(s: EnvState, p: EnvParams, cap: jax.Array) -> jax.Array:
