@@ -102,6 +102,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--margin", type=float, default=0.0, help="ams: the margin m (0: failure)")
     ap.add_argument("--span", type=float, default=ams.SPAN, help="ams: the curve's, above m")
     ap.add_argument("--max-rounds", type=int, default=2000, help="ams: 0 is crude MC")
+    ap.add_argument("--noise", type=float, default=0.0, help="ams: exploration sigma on actions")
     args = ap.parse_intermixed_args(argv)
     for name in ("lane_changes", "chunk", "max_steps", "chain"):
         if getattr(args, name) < 1:
@@ -152,11 +153,13 @@ def main(argv: list[str] | None = None) -> int:
             return 0 if same else 1
         if args.method == "ams":
             ams.check(args)
+        elif args.noise != 0.0:
+            raise EvalError(f"--noise {args.noise:g}: only --method ams adds noise to the actions")
         cfg, rows = model_rows(args.run_dir, args.model)
         cfg = heldout.in_traffic(cfg, args.traffic)
         if args.method == "ams":  # all of it in jaxlc.evaluation.ams
             out = io.validate_dir(args.run_dir, args.out)
-            results = ams.command(cfg, rows, args, out, machine.matmul_peak_gflops())
+            results = io.ams_command(cfg, rows, args, out, machine.matmul_peak_gflops())
             plots.ams_curve(results, out / "ams_curve.png")
             print(f"Wrote {plots_scenes.ams_misses(args.run_dir, out)}")
             _report(args)

@@ -49,6 +49,22 @@ def test_a_final_particle_replays_bit_for_bit_from_its_chain(programs):
         np.testing.assert_array_equal(again.max(axis=1), r.scores[i])
 
 
+def test_a_run_that_returns_its_steps_is_counted_and_splits_alike(programs):
+    """``run`` returning ``(path, steps)``: ``env_steps`` sums every trajectory run, re-runs
+    and chunk padding included (here each runs all STEPS), and nothing else changes."""
+    many, _, _ = programs
+    counted = jax.jit(jax.vmap(functools.partial(
+        ams.splitting, lambda c: (walk(c), jnp.int32(STEPS)), particles=N,
+        kill_fraction=FRACTION, max_rounds=ROUNDS), in_axes=(0, None)))  # fmt: skip
+    keys = jax.random.split(jax.random.key(5), 2)
+    a, b = jax.device_get(counted(keys, float(LEVEL))), jax.device_get(many(keys, float(LEVEL)))
+    assert (a.rounds > 0).all() and (a.trajectories > N).all()
+    np.testing.assert_array_equal(a.env_steps, a.trajectories * STEPS)
+    np.testing.assert_array_equal(b.env_steps, 0)  # a path alone: no cost to count
+    np.testing.assert_array_equal(a.estimate, b.estimate)
+    np.testing.assert_array_equal(a.paths, b.paths)
+
+
 def test_zero_rounds_is_crude_mc_on_the_same_first_keys(programs):
     """Nothing killed, nothing cloned: the estimate is the share of the initial particles
     at the target, and those are crude MC's walks on split(split(key)[0], N)."""
@@ -197,6 +213,35 @@ def test_a_case_particle_replays_bit_for_bit_from_its_chain(sim):
 
 
 @pytest.mark.slow
+def test_noise_acts_on_the_manoeuvres_actions_alone_and_replays(sim):
+    """``--noise``: the training's exploration noise on each action, drawn from the step's
+    key: a case with no lane change keeps its path bit for bit, lane changes mostly do not, and
+    a clone branched where its parent's noise first told keeps the parent's path up to there
+    and draws noise of its own after."""
+    from jaxlc.evaluation import ams as sim_ams
+
+    chains = ams.initial_chains(jax.random.PRNGKey(0), SIM_N, 2)  # one segment in force
+    chains = chains.replace(keys=chains.keys.at[:, 0].set(sim["cs"].key))
+    plain = sim_ams._case_program(sim["cfg"], "collision", SIM_STEPS, False)  # replay's
+    run = {0: plain, 0.3: sim_ams._case_program(sim["cfg"], "collision", SIM_STEPS, False, 0.3)}
+    paths = {n: np.asarray(r(sim["pol"], sim["cs"], SIM_CAP, chains)) for n, r in run.items()}
+    lane_change = np.asarray(sim["out"]["performed"][0])
+    assert lane_change.any() and not lane_change.all()
+    np.testing.assert_array_equal(paths[0.3][~lane_change], paths[0][~lane_change])
+    moved = (paths[0.3] != paths[0]).any(axis=1)  # a margin may be set before the noise tells
+    assert moved[lane_change].mean() > 0.5
+    branch = np.where(moved, np.argmax(paths[0.3] != paths[0], axis=1), ams.UNUSED)
+    fresh = jax.random.key_data(jax.random.split(jax.random.PRNGKey(1), SIM_N))
+    clones = chains.replace(steps=chains.steps.at[:, 1].set(branch),
+                            keys=chains.keys.at[:, 1].set(fresh))  # fmt: skip
+    again = np.asarray(run[0.3](sim["pol"], sim["cs"], SIM_CAP, clones))
+    for i in np.flatnonzero(moved):
+        np.testing.assert_array_equal(again[i, : branch[i]], paths[0.3][i, : branch[i]])
+    np.testing.assert_array_equal(again[~moved], paths[0.3][~moved])
+    assert (again[moved] != paths[0.3][moved]).any(axis=1).mean() > 0.5
+
+
+@pytest.mark.slow
 def test_no_rounds_is_the_engines_crude_mc_on_the_same_keys(sim):
     """max_rounds = 0 keeps the first particles: each case's margin (where below the cap) is
     the one the validation's own rollout (jaxlc.evaluation.engine) folds on the same case
@@ -216,7 +261,8 @@ def test_no_rounds_is_the_engines_crude_mc_on_the_same_keys(sim):
 @pytest.mark.parametrize(
     "bad",
     [["--particles", "1"], ["--kill", "1.0"], ["--repeats", "1"], ["--margin", "-1"],
-     ["--kind", "failure"], ["--max-rounds", "-1"], ["--span", "0"], ["--chain", "2"]],
+     ["--kind", "failure"], ["--max-rounds", "-1"], ["--span", "0"], ["--chain", "2"],
+     ["--noise", "1.5"], ["--noise", "-0.1"], ["--noise", "0.2", "--method", "mc"]],
 )  # fmt: skip
 def test_a_bad_ams_argument_is_one_line_and_exit_2(bad, tmp_path, capsys):
     from jaxlc import validate

@@ -11,8 +11,10 @@ is minus the margin from the first RL step on, and before it ``approach_score``,
 -(m + span) (``--span``, ``SPAN`` by default), so {max score >= -m'} is {margin <= m'} for
 every m' < m + span: the curve is read there. The score is a function of the path so far and
 a clone replays its parent's keys to its branch, which is what ``splitting``'s unbiasedness
-needs. Measured: no gain over crude MC; the last rounds branch ~0.7 s into the lane change,
-~1 s before its closest moment (decisions.md).
+needs. Measured: no gain over crude MC where the traffic at the command decides the margin
+(the last rounds branch ~0.7 s into the lane change, ~1 s before its closest moment); with
+``--noise`` (the policy's actions under the training's exploration noise, a draw each step)
+about crude MC's cost on the border margin, 1.2-2.3x fewer env steps at m (decisions.md).
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ import functools
 import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import flax.struct
@@ -32,12 +33,13 @@ import numpy as np
 
 from jaxlc import config
 from jaxlc.evaluation import keys as streams
-from jaxlc.evaluation import measures, numbers, splitting, validation
+from jaxlc.evaluation import measures, splitting, validation
 from jaxlc.evaluation.engine import Policies, make_resets
 from jaxlc.evaluation.heldout import clopper_pearson
 from jaxlc.evaluation.numbers import Record, many
 from jaxlc.evaluation.results import EvalError
 from jaxlc.evaluation.splitting import Chain
+from jaxlc.learn.ddpg import explore
 from jaxlc.learn.networks import make_networks
 from jaxlc.sim import collision
 from jaxlc.sim.controller import baseline_action
@@ -111,6 +113,8 @@ class Estimate(Record):
     traffic: list = dataclasses.field(default_factory=list)
     checkpoint: str | None = None  # relative to the run directory; None: scripted
     k: int = 1
+    env_steps: int = 0  # the trajectories' env steps and the started cases' warm-ups: the work
+    noise: float = 0.0  # --noise: sigma of the training's exploration noise on every action
     curve: list = many(Point)
     nearest: list = many(Miss)
 
@@ -141,6 +145,8 @@ def check(args: Any) -> None:
     validation.check_chain("ams", args.chain)
     if not args.span > 0.0:
         raise EvalError(f"--span {args.span:g}: > 0 (the curve is read from m to m + span)")
+    if not 0.0 <= args.noise <= 1.0:
+        raise EvalError(f"--noise {args.noise:g}: a sigma in [0, 1] (tanh units, as training's)")
 
 
 def starts(cfg: config.Config, n: int, seed: int, lo: int) -> Starts:
@@ -176,11 +182,15 @@ def approach_score(s: EnvState, p: EnvParams, cap: jax.Array) -> jax.Array:
     return -(cap + gap + to_go)
 
 
-def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> Any:
+def make_run(
+    base: EnvParams, actor_apply: Any, kind: str, max_steps: int, noise: float = 0.0
+) -> Any:
     """``(pol, cs, cap) -> run(chain) -> (max_steps,)``: the score path (docstring) of the case
     whose run key is the chain's first (``cs``: ``Starts``) after each env step, held once the
     case ends (``reason``) or reaches ``max_steps``. ``pol``: one policy (no policies axis).
-    ``run(chain, record=True)``: the path and the state after each step ((max_steps, ...))."""
+    ``run(chain, record=True)``: the path and the state after each step ((max_steps, ...));
+    ``count=True``: the path and the env steps the case took. ``noise``: the training's
+    exploration noise (``ddpg.explore``) on each action, drawn from ``fold_in(step key, 1)``."""
     env, origin = LaneChangeEnv(), origin_lane(base)
     fn = {m.name: m for m in measures.BUILTIN}[measures.MARGINS[kind]]
     time_like = fn.reduce == "last"  # the time left: the current value, not the least
@@ -188,17 +198,22 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
     def bind(pol: Policies, cs: Starts, cap: jax.Array) -> Any:
         p = base.replace(k=pol.k)
 
-        def run(chain: Chain, record: bool = False) -> Any:
+        def run(chain: Chain, record: bool = False, count: bool = False) -> Any:
             i = jnp.argmax(jnp.all(cs.key == chain.keys[0], axis=-1))  # the particle's case
             s0, obs0 = jax.tree.map(lambda a: a[i], cs.state), cs.obs[i]
+
+            def act(o):
+                mu = actor_apply(pol.actor, o[None])[0]
+                return jnp.where(pol.scripted, baseline_action(o[None], p)[0], mu)
 
             def body(c):
                 s, obs, margin, _, done, path, seen = c
                 rl = s.ego.phase == RL  # an RL step: the margin folds it, as the engine's
-                mu = actor_apply(pol.actor, obs[None])[0]
-                a = jnp.where(pol.scripted, baseline_action(obs[None], p)[0], mu)
+                key, a = splitting.step_key(chain, s.time), act(obs)
+                if noise > 0.0:  # static: without it the program is the one it always was
+                    a = explore(jax.random.fold_in(key, 1), a, noise)
                 a = jnp.where(rl, a, 0.0)  # the approach steps with no action (engine)
-                obs, new, _, _, _, info = env.step(splitting.step_key(chain, s.time), s, a, p)
+                obs, new, _, _, _, info = env.step(key, s, a, p)
                 reason = info["reason"]
                 side = (new.ego.target - origin).astype(jnp.float32)
                 step = measures.Step(
@@ -222,69 +237,45 @@ def make_run(base: EnvParams, actor_apply: Any, kind: str, max_steps: int) -> An
             c = (*c, seen)
             s, *_, value, _, path, seen = jax.lax.while_loop(lambda c: ~c[4], body, c)
             path = jnp.where(jnp.arange(max_steps) < s.time, path, value)  # held after the end
-            return (path, seen) if record else path
+            return (path, seen) if record else (path, s.time) if count else path
 
         return run
 
     return bind
 
 
-def _bound(cfg: config.Config, kind: str, steps: int) -> Any:
+def _bound(cfg: config.Config, kind: str, steps: int, noise: float) -> Any:
     """``make_run``'s ``bind`` for the run's env and actor network (``program``, ``replay``)."""
     base = EnvParams.from_config(cfg.env, gamma=cfg.ddpg.gamma)
-    return make_run(base, make_networks(cfg.ddpg, action_dim(cfg.env))[0].apply, kind, steps)
+    actor = make_networks(cfg.ddpg, action_dim(cfg.env))[0].apply
+    return make_run(base, actor, kind, steps, noise)
 
 
 @functools.lru_cache(maxsize=4)
-def program(cfg: config.Config, kind: str, particles: int, kill: float, rounds: int, steps: int):
+def program(
+    cfg: config.Config, kind: str, particles: int, kill: float, rounds: int, steps: int,
+    noise: float = 0.0,
+):  # fmt: skip
     """Jitted ``(key, pol, cs (N,), target, cap) -> Splitting``: one AMS run of one policy on
     the cases ``cs``; ``target`` minus the margin sought, ``cap`` the approach's (docstring)."""
-    bind = _bound(cfg, kind, steps)
+    bind = _bound(cfg, kind, steps, noise)
 
     def one(key, pol: Policies, cs: Starts, target, cap) -> splitting.Splitting:
         return splitting.splitting(
-            bind(pol, cs, cap), key, target, particles=particles, kill_fraction=kill,
-            max_rounds=rounds, initial=cs.key,
+            functools.partial(bind(pol, cs, cap), count=True), key, target,
+            particles=particles, kill_fraction=kill, max_rounds=rounds, initial=cs.key,
         )  # fmt: skip
 
     return jax.jit(one)
-
-
-def command(
-    cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, peak: float
-) -> list[Estimate]:
-    """``python -m jaxlc.validate --method ams``'s work on the chosen policies (``rows``:
-    validate's ``model_rows``): each one's estimate printed, the files written (``write``)."""
-    results = []
-    for actor, k, meta in rows:
-        pol = validation.policies(cfg, actor, k)
-        results.append(r := estimate(cfg, meta, args, pol, peak))
-        print(
-            f"{r.label}: P(lane change with {args.kind} margin <= {args.margin:g}) {r.estimate:.3g}"
-            f" [{r.lo:.3g}, {r.hi:.3g}] per case, {r.trajectories} cases simulated, {r.wall_s} s"
-        )
-        if any(r.extinct):
-            print(
-                f"  {sum(r.extinct)} of {len(r.extinct)} runs went extinct: their clones drew no"
-                f" future of their own (distinct final paths {min(r.distinct):.1%} at least)"
-            )
-        least = r.nearest[0].margin if r.nearest else math.inf
-        if args.margin < least < r.cap:  # as ``estimate`` put it on the curve
-            at = min(r.curve, key=lambda c: abs(c.margin - least))
-            print(
-                f"  no run reached {args.margin:g}; the least margin reached {at.margin:.3g}: "
-                f"P(margin <= it) {at.ams:.3g} [{at.ams_lo:.3g}, {at.ams_hi:.3g}] per case"
-            )
-    print(f"Wrote {write(out_dir, results)}")
-    return results
 
 
 def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float) -> Estimate:
     """``a.repeats`` independent AMS runs of one policy (``a``: validate's arguments): the
     estimate of P(lane change with margin <= a.margin) per case with Cox's 95% interval, the
     curve beside crude MC's on the runs' initial particles below the cap, the nearest misses."""
-    run = program(cfg, a.kind, a.particles, a.kill, a.max_rounds, a.max_steps)
+    run = program(cfg, a.kind, a.particles, a.kill, a.max_rounds, a.max_steps, a.noise)
     key, runs, t0, cap = jax.random.PRNGKey(a.seed), [], time.perf_counter(), a.margin + a.span
+    warm = EnvParams.from_config(cfg.env).warmup_steps  # a case's reset, paid once per start
     pol = jax.tree.map(lambda x: x[0], pol)  # one policy, no axis
     for r in range(a.repeats):
         cs = starts(cfg, a.particles, a.seed, r * a.particles)
@@ -315,6 +306,8 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
         extinct=[bool(res.stopped) and float(res.reached) == 0.0 for res in runs],
         cases_started=a.repeats * a.particles,
         trajectories=sum(int(res.trajectories) for res in runs), wall_s=round(wall, 1),
+        env_steps=sum(int(res.env_steps) for res in runs) + a.repeats * a.particles * warm,
+        noise=a.noise,
         matmul_peak_gflops=peak, seed=a.seed, max_steps=a.max_steps, traffic=list(a.traffic),
         checkpoint=meta.get("checkpoint"), k=int(meta.get("k") or 1), curve=curve,
         nearest=_nearest(runs),
@@ -342,8 +335,10 @@ def _nearest(runs: list, keep: int = 5) -> list[Miss]:
 
 
 @functools.lru_cache(maxsize=4)
-def _case_program(cfg: config.Config, kind: str, steps: int, record: bool) -> Any:
-    bind = _bound(cfg, kind, steps)
+def _case_program(
+    cfg: config.Config, kind: str, steps: int, record: bool, noise: float = 0.0
+) -> Any:
+    bind = _bound(cfg, kind, steps, noise)
     return jax.jit(lambda pol, cs, cap, ch: jax.vmap(lambda c: bind(pol, cs, cap)(c, record))(ch))
 
 
@@ -358,20 +353,11 @@ def replay(cfg: config.Config, est: Estimate, miss: Miss, pol: Policies, exact: 
     margin = math.nan
     if exact:
         tiled = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), chain)
-        paths = _case_program(cfg, est.kind, est.max_steps, False)(pol, cs, est.cap, tiled)
+        run = _case_program(cfg, est.kind, est.max_steps, False, est.noise)
+        paths = run(pol, cs, est.cap, tiled)
         margin = float(-np.asarray(paths[0]).max())
     one = jax.tree.map(lambda x: x[None], chain)
-    path, states = jax.device_get(_case_program(cfg, est.kind, est.max_steps, True)(
-        pol, cs, est.cap, one))  # fmt: skip
+    recorded = _case_program(cfg, est.kind, est.max_steps, True, est.noise)
+    path, states = jax.device_get(recorded(pol, cs, est.cap, one))
     end = int(states.time[0].max())  # the steps the case took
     return margin, path[0, :end], jax.tree.map(lambda x: x[0, :end], states)
-
-
-def write(out_dir: Path, results: list[Estimate]) -> Path:
-    """``ams.json`` and ``ams_curve.csv`` (per policy and margin: AMS and crude MC with their
-    95% intervals) in ``out_dir`` (``ams_curve.png``: ``jaxlc.report.plots.ams_curve``); the
-    json's path."""
-    numbers.write(out_dir / "ams.json", Ams(results))
-    rows = [dict(label=r.label, kind=r.kind, **c.as_dict()) for r in results for c in r.curve]
-    numbers.write_csv(out_dir / "ams_curve.csv", rows)
-    return out_dir / "ams.json"

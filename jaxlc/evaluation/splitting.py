@@ -53,6 +53,7 @@ class Splitting:
     reached: Array  # () share of the final particles with score >= target
     stopped: Array  # () bool: stopped by the level reaching the target, not max_rounds
     trajectories: Array  # () int32: trajectories run, chunk padding included (cost / T)
+    env_steps: Array  # () int32: their steps, where ``run`` returns them (else 0)
     chains: Chain  # (N, M) the final particles' chains
     paths: Array  # (N, T) their score paths
     scores: Array  # (N,) their scores (max of the path)
@@ -72,6 +73,7 @@ class _Loop:
     kills: Array
     log_weight: Array  # () log prod_j (1 - K_j / N)
     trajectories: Array
+    env_steps: Array
 
 
 def step_key(chain: Chain, t: Array) -> Array:
@@ -110,6 +112,14 @@ def clone(chains: Chain, paths: Array, parent: Array, level: Array, fresh: Array
     return Chain(steps, keys.astype(par.keys.dtype))
 
 
+def _runs(run: Callable, chains: Chain) -> tuple[Array, Array]:
+    """``((P, T) score paths, () their env steps summed)`` of ``run`` on P chains; ``run``
+    returns a path (steps then count 0) or ``(path, the trajectory's env steps)``."""
+    out = jax.vmap(run)(chains)
+    path, steps = out if isinstance(out, tuple) else (out, jnp.zeros(1, jnp.int32))
+    return path.astype(jnp.float32), jnp.sum(steps).astype(jnp.int32)
+
+
 def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Array, s: _Loop):
     """One round on the loop state ``s``: the level, the kills,
     the clones and their re-runs; a no-op that sets ``stopped`` when the level is at the
@@ -137,13 +147,14 @@ def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Arr
     # re-run only the killed, k at a time (a fixed shape; ties make K_j > k)
     chunks = jnp.where(apply, (n_killed + k - 1) // k, 0)
 
-    def rerun(c, paths):
+    def rerun(c, carry):
+        paths, steps = carry
         slot = c * k + jnp.arange(k)  # (k,) positions in ``order``
         idx = order[jnp.minimum(slot, n - 1)]
-        new = jax.vmap(run)(jax.tree.map(lambda x: x[idx], chains)).astype(jnp.float32)
-        return paths.at[jnp.where(slot < n_killed, idx, n)].set(new, mode="drop")
+        new, taken = _runs(run, jax.tree.map(lambda x: x[idx], chains))
+        return paths.at[jnp.where(slot < n_killed, idx, n)].set(new, mode="drop"), steps + taken
 
-    paths = jax.lax.fori_loop(0, chunks, rerun, paths)
+    paths, env_steps = jax.lax.fori_loop(0, chunks, rerun, (paths, s.env_steps))
     return _Loop(
         rounds=j + apply,
         stopped=~apply,
@@ -154,6 +165,7 @@ def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Arr
         kills=s.kills.at[j].set(jnp.where(apply, n_killed, 0)),
         log_weight=s.log_weight + jnp.where(apply, jnp.log1p(-n_killed / n), 0.0),
         trajectories=s.trajectories + chunks * k,
+        env_steps=env_steps,
     )
 
 
@@ -170,21 +182,22 @@ def splitting(
     """AMS estimate of P(max_t run(chain)[t] >= target); jit with ``run``, ``particles``,
     ``kill_fraction``, ``max_rounds`` static, vmap over ``key`` for independent runs.
 
-    ``run``: one chain -> (T,) score path, drawing step t from ``step_key(chain, t)``.
+    ``run``: one chain -> (T,) score path (or ``(path, env steps)``: ``env_steps`` sums
+    them), drawing step t from ``step_key(chain, t)``.
     The initial particles are ``initial_chains(split(key)[0], N, M)``: on the same key,
     ``max_rounds=0`` is crude MC on those draws. ``initial`` ``(N, 2)``: the initial
     particles' first segment keys instead (raw key data; a caller's chosen draws)."""
     n = particles
     k = max(1, math.ceil(kill_fraction * n))  # particles killed per round, ties aside
     first, rounds_key = jax.random.split(key)
-    horizon = jax.eval_shape(run, jax.tree.map(lambda x: x[0], initial_chains(first, 1, 1)))
-    horizon = horizon.shape[0]
+    shape = jax.eval_shape(run, jax.tree.map(lambda x: x[0], initial_chains(first, 1, 1)))
+    horizon = (shape[0] if isinstance(shape, tuple) else shape).shape[0]
     # branch steps strictly increase along a chain and lie in [0, T]; one segment per round
     segments = min(max_rounds, horizon) + 1
     chains = initial_chains(first, n, segments)
     if initial is not None:
         chains = chains.replace(keys=chains.keys.at[:, 0].set(initial.astype(chains.keys.dtype)))
-    paths = jax.vmap(run)(chains).astype(jnp.float32)  # (N, T)
+    paths, env_steps = _runs(run, chains)  # (N, T), ()
     target = jnp.asarray(target, jnp.float32)
 
     def cond(s):
@@ -200,6 +213,7 @@ def splitting(
         kills=jnp.zeros(max(max_rounds, 1), jnp.int32),
         log_weight=jnp.float32(0.0),
         trajectories=jnp.int32(n),
+        env_steps=env_steps,
     )
     s = jax.lax.while_loop(cond, functools.partial(_round, run, k, target, rounds_key), s)
     scores = s.paths.max(axis=1)
@@ -213,6 +227,7 @@ def splitting(
         reached=reached,
         stopped=s.stopped,
         trajectories=s.trajectories,
+        env_steps=s.env_steps,
         chains=s.chains,
         paths=s.paths,
         scores=scores,

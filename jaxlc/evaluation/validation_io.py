@@ -1,12 +1,14 @@
-"""What ``python -m jaxlc.validate`` writes to ``RUN_DIR/validate/`` (``write_outputs``), and a
-saved case run again (``replay``), AMS's nearest misses read and run again (``misses``,
-``rerun_miss``); its report section and figures are ``jaxlc.report``'s."""
+"""What ``python -m jaxlc.validate`` writes to ``RUN_DIR/validate/`` (``write_outputs``; with
+``--method ams``, ``ams_command`` and ``write_ams``), and a saved case run again (``replay``),
+AMS's nearest misses read and run again (``misses``, ``rerun_miss``); its report section and
+figures are ``jaxlc.report``'s."""
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -173,3 +175,43 @@ def rerun_miss(run_dir: Path, est: ams.Estimate, miss: ams.Miss, exact: bool) ->
     actor = checkpoint.load(Path(run_dir) / est.checkpoint)[0] if est.checkpoint else None
     pol = jax.tree.map(lambda x: x[0], validation.policies(cfg, actor, est.k))
     return *ams.replay(cfg, est, miss, pol, exact), EnvParams.from_config(cfg.env)
+
+
+def ams_command(
+    cfg: config.Config, rows: list[tuple], args: Any, out_dir: Path, peak: float
+) -> list[ams.Estimate]:
+    """``python -m jaxlc.validate --method ams``'s work on the chosen policies (``rows``:
+    validate's ``model_rows``): each one's estimate printed, the files written (``write_ams``)."""
+    results = []
+    for actor, k, meta in rows:
+        pol = validation.policies(cfg, actor, k)
+        results.append(r := ams.estimate(cfg, meta, args, pol, peak))
+        print(
+            f"{r.label}: P(lane change with {args.kind} margin <= {args.margin:g}) {r.estimate:.3g}"
+            f" [{r.lo:.3g}, {r.hi:.3g}] per case, {r.trajectories} cases simulated"
+            f" ({r.env_steps:,} env steps with the warm-ups), {r.wall_s} s"
+        )
+        if any(r.extinct):
+            print(
+                f"  {sum(r.extinct)} of {len(r.extinct)} runs went extinct: their clones drew no"
+                f" future of their own (distinct final paths {min(r.distinct):.1%} at least)"
+            )
+        least = r.nearest[0].margin if r.nearest else math.inf
+        if args.margin < least < r.cap:  # as ``estimate`` put it on the curve
+            at = min(r.curve, key=lambda c: abs(c.margin - least))
+            print(
+                f"  no run reached {args.margin:g}; the least margin reached {at.margin:.3g}: "
+                f"P(margin <= it) {at.ams:.3g} [{at.ams_lo:.3g}, {at.ams_hi:.3g}] per case"
+            )
+    print(f"Wrote {write_ams(out_dir, results)}")
+    return results
+
+
+def write_ams(out_dir: Path, results: list[ams.Estimate]) -> Path:
+    """``ams.json`` and ``ams_curve.csv`` (per policy and margin: AMS and crude MC with their
+    95% intervals) in ``out_dir`` (``ams_curve.png``: ``jaxlc.report.plots.ams_curve``); the
+    json's path."""
+    numbers.write(out_dir / "ams.json", ams.Ams(results))
+    rows = [dict(label=r.label, kind=r.kind, **c.as_dict()) for r in results for c in r.curve]
+    numbers.write_csv(out_dir / "ams_curve.csv", rows)
+    return out_dir / "ams.json"

@@ -198,8 +198,9 @@ def ams_section(run_dir: Path) -> list[str]:
     lines = ["## How close to failure (`python -m jaxlc.validate --method ams`)", ""]
     for e in doc.policies:
         unit = "s" if e.kind == "timeout" else "m"
+        noisy = f" under the training's exploration noise (sigma {e.noise:g})" if e.noise else ""
         lines += [
-            f"{e.label}: P(a lane change with {e.kind} margin <= m) per case started, by "
+            f"{e.label}{noisy}: P(a lane change with {e.kind} margin <= m) per case started, by "
             f"adaptive multilevel splitting: {len(e.repeats)} runs of {e.particles} cases, "
             f"{e.kill:g} killed per round, Cox's 95% interval over the runs; crude Monte Carlo "
             f"on the runs' initial cases beside it (Clopper-Pearson). At m = {e.margin:g} "
