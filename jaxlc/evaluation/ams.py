@@ -14,7 +14,7 @@ a clone replays its parent's keys to its branch, which is what ``splitting``'s u
 needs. Measured: no gain over crude MC where the traffic at the command decides the margin
 (the last rounds branch ~0.7 s into the lane change, ~1 s before its closest moment); with
 ``--noise`` (the policy's actions under the training's exploration noise, a draw each step)
-about crude MC's cost on the border margin, 1.2-2.3x fewer env steps at m (decisions.md).
+about crude MC's cost on the border margin (decisions.md, "AMS under the training's noise").
 """
 
 from __future__ import annotations
