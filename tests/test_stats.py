@@ -191,21 +191,18 @@ def test_the_report_shows_the_ams_curve_where_the_run_has_one(tmp_path: Path) ->
                hi=2e-6, rel_halfwidth=0.75, repeats=[1e-6, 1e-6], particles=100, kill=0.1,
                rounds=[9, 9], stopped=[True, True], distinct=[1.0, 1.0], extinct=[False, False],
                cases_started=200, trajectories=400, wall_s=1.0, matmul_peak_gflops=30)  # fmt: skip
-    numbers.write(run / "validate" / "ams.json", ams.Ams([ams.Estimate(**est, curve=curve)]))
-    lines = report.build_report(run).splitlines()
-    assert not any("under the training's exploration noise" in x for x in lines)  # as it acts
     noisy = ams.Ams([ams.Estimate(**est, curve=curve, noise=0.3)])
-    numbers.write(tmp_path / "noisy.json", noisy)
-    assert numbers.read(tmp_path / "noisy.json", ams.Ams).policies[0].noise == 0.3
-    older = json.loads((tmp_path / "noisy.json").read_text())  # written before the fields
+    numbers.write(run / "validate" / "ams.json", noisy)
+    assert numbers.read(run / "validate" / "ams.json", ams.Ams).policies[0].noise == 0.3
+    assert "④ seed 0 under the training's exploration noise (sigma 0.3)" in report.build_report(run)
+    older = json.loads((run / "validate" / "ams.json").read_text())  # written before the fields
     for name in ("noise", "env_steps"):
         del older["policies"][0][name]
     (tmp_path / "older.json").write_text(json.dumps(older))
     assert numbers.read(tmp_path / "older.json", ams.Ams).policies[0].noise == 0.0
-    numbers.write(run / "validate" / "ams.json", noisy)
-    assert "④ seed 0 under the training's exploration noise (sigma 0.3)" in report.build_report(run)
     numbers.write(run / "validate" / "ams.json", ams.Ams([ams.Estimate(**est, curve=curve)]))
     lines = report.build_report(run).splitlines()
+    assert not any("under the training's exploration noise" in x for x in lines)  # as it acts
     at = lines.index("## How close to failure (`python -m jaxlc.validate --method ams`)")
     end = lines.index("![The exceedance curve](validate/ams_curve.png)", at)
     table = [x.split(" | ") for x in lines[at:end] if x.startswith("| ") and x[2].isdigit()]
