@@ -65,6 +65,43 @@ def test_a_run_that_returns_its_steps_is_counted_and_splits_alike(programs):
     np.testing.assert_array_equal(a.paths, b.paths)
 
 
+SNAP = STEPS // 2  # the resumable walk's snapshot: S before step SNAP
+
+
+def walk_resumable(chain: ams.Chain, start=None):
+    """``walk`` as a run with a snapshot (``splitting``'s docstring): ``(path, steps drawn,
+    (SNAP, S_SNAP))``, from ``start``'s S_SNAP where it is used (SNAP steps fewer)."""
+    up = jax.vmap(jax.random.bernoulli)(ams.step_keys(chain, STEPS))
+    inc = 2 * up.astype(jnp.int32) - 1
+    own = jnp.cumsum(inc)
+    use, base = (False, own[SNAP - 1]) if start is None else (start[0], start[1][1])
+    later = base + jnp.cumsum(jnp.where(jnp.arange(STEPS) >= SNAP, inc, 0))
+    path = jnp.where(use, later, own)
+    return (
+        path,
+        jnp.where(use, STEPS - SNAP, STEPS),
+        (jnp.int32(SNAP), jnp.where(use, base, own[SNAP - 1])),
+    )
+
+
+def test_clones_resumed_from_their_parents_snapshot_split_alike_in_fewer_steps(programs):
+    """A clone whose branch comes after its parent's snapshot starts from it: the run is the
+    one that replays every clone from t = 0, bit for bit, and each resumed clone draws SNAP
+    steps fewer."""
+    many, _, _ = programs
+    resumable = jax.jit(jax.vmap(functools.partial(
+        ams.splitting, walk_resumable, particles=N, kill_fraction=FRACTION,
+        max_rounds=ROUNDS), in_axes=(0, None)))  # fmt: skip
+    keys = jax.random.split(jax.random.key(5), 2)
+    a, b = jax.device_get(resumable(keys, float(LEVEL))), jax.device_get(many(keys, float(LEVEL)))
+    assert (a.resumed > 0).all() and (a.resumed < a.trajectories - N).all()  # some, not all
+    np.testing.assert_array_equal(a.env_steps, a.trajectories * STEPS - a.resumed * SNAP)
+    np.testing.assert_array_equal(a.estimate, b.estimate)
+    np.testing.assert_array_equal(a.paths, b.paths)
+    np.testing.assert_array_equal(a.chains.keys, b.chains.keys)
+    np.testing.assert_array_equal(b.resumed, 0)
+
+
 def test_zero_rounds_is_crude_mc_on_the_same_first_keys(programs):
     """Nothing killed, nothing cloned: the estimate is the share of the initial particles
     at the target, and those are crude MC's walks on split(split(key)[0], N)."""
@@ -201,7 +238,7 @@ def test_a_case_particle_replays_bit_for_bit_from_its_chain(sim):
     assert int(res.rounds) >= 1  # particles were killed and cloned
     steps = np.asarray(res.chains.steps)
     cloned = np.sum(steps != ams.UNUSED, axis=1) >= 2
-    assert cloned.any()
+    assert cloned.any() and int(res.resumed) >= 1  # some clones began at a parent's snapshot
     # every final particle run again from its chain, by the program ``ams.replay`` runs a miss on
     replay = sim_ams._case_program(sim["cfg"], "collision", SIM_STEPS, False)
     again = np.asarray(replay(sim["pol"], sim["cs"], SIM_CAP, res.chains))

@@ -10,11 +10,14 @@ stop at Z_j >= target or after ``max_rounds`` (``stopped`` says which; both unbi
 estimate is ``prod_j (1 - K_j / N) * (share of the final particles at the target)``, 0 on
 extinction. A margin is a score negated: ``run`` returns -margin, the target is -m.
 
-No simulator state is stored: a particle is a chain of (branch step, key) segments, re-run
-from t = 0 by ``run(chain) -> score path (T,)``, step t's key ``step_key(chain, t)`` =
-fold_in(key of the last segment whose branch step <= t, t); a clone keeps its parent's
-segments to the branch and appends (tau + 1, fresh key). The 95% interval (``interval``) is
-over R independent runs, Cox's lognormal (``log=True``) or Student's t.
+A particle is a chain of (branch step, key) segments, re-run from t = 0 by ``run(chain) ->
+score path (T,)``, step t's key ``step_key(chain, t)`` = fold_in(key of the last segment whose
+branch step <= t, t); a clone keeps its parent's segments to the branch and appends (tau + 1,
+fresh key). A ``run`` may also keep one snapshot of its state (``(path, steps, (at, state))``:
+the state before step ``at``) and take one back, ``run(chain, (use, (at, state)))``: a clone
+whose branch comes after its parent's snapshot starts from it, and its path before ``at`` is
+its parent's. The 95% interval (``interval``) is over R independent runs, Cox's lognormal
+(``log=True``) or Student's t.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable
+from typing import Any
 
 import flax.struct
 import jax
@@ -54,6 +58,7 @@ class Splitting:
     stopped: Array  # () bool: stopped by the level reaching the target, not max_rounds
     trajectories: Array  # () int32: trajectories run, chunk padding included (cost / T)
     env_steps: Array  # () int32: their steps, where ``run`` returns them (else 0)
+    resumed: Array  # () int32: of those, clones started from a snapshot (module docstring)
     chains: Chain  # (N, M) the final particles' chains
     paths: Array  # (N, T) their score paths
     scores: Array  # (N,) their scores (max of the path)
@@ -74,6 +79,8 @@ class _Loop:
     log_weight: Array  # () log prod_j (1 - K_j / N)
     trajectories: Array
     env_steps: Array
+    resumed: Array
+    snaps: Any  # (N, ...) each particle's snapshot (``run``'s third output), or None
 
 
 def step_key(chain: Chain, t: Array) -> Array:
@@ -112,12 +119,13 @@ def clone(chains: Chain, paths: Array, parent: Array, level: Array, fresh: Array
     return Chain(steps, keys.astype(par.keys.dtype))
 
 
-def _runs(run: Callable, chains: Chain) -> tuple[Array, Array]:
-    """``((P, T) score paths, () their env steps summed)`` of ``run`` on P chains; ``run``
-    returns a path (steps then count 0) or ``(path, the trajectory's env steps)``."""
-    out = jax.vmap(run)(chains)
-    path, steps = out if isinstance(out, tuple) else (out, jnp.zeros(1, jnp.int32))
-    return path.astype(jnp.float32), jnp.sum(steps).astype(jnp.int32)
+def _runs(run: Callable, chains: Chain, starts: Any = None) -> tuple[Array, Array, Any]:
+    """``((P, T) score paths, () their env steps summed, (P, ...) snapshots or None)`` of
+    ``run`` on P chains (from ``starts`` where given); ``run`` returns a path (steps then
+    count 0), ``(path, the trajectory's env steps)`` or ``(path, steps, snapshot)``."""
+    out = jax.vmap(run)(chains) if starts is None else jax.vmap(run)(chains, starts)
+    path, steps, snaps = (*out, None)[:3] if isinstance(out, tuple) else (out, 0, None)
+    return path.astype(jnp.float32), jnp.sum(steps).astype(jnp.int32), snaps
 
 
 def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Array, s: _Loop):
@@ -139,6 +147,10 @@ def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Arr
     parent = order[jnp.minimum(n_killed + pick, n - 1)]  # (N,) a survivor, uniform
     fresh = jax.random.key_data(jax.random.split(kf, n))  # (N, 2)
     clones = clone(chains, paths, parent, level, fresh)
+    starts = None  # a clone starts from its parent's snapshot where that precedes the branch
+    if s.snaps is not None:
+        snap = jax.tree.map(lambda x: x[parent], s.snaps)  # (N, ...) by slot
+        starts = (snap[0] <= jnp.argmax(paths[parent] > level, axis=1) + 1, snap)
     chains = jax.tree.map(
         lambda c, o: jnp.where(killed.reshape((n,) + (1,) * (c.ndim - 1)), c, o),
         clones,
@@ -148,13 +160,21 @@ def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Arr
     chunks = jnp.where(apply, (n_killed + k - 1) // k, 0)
 
     def rerun(c, carry):
-        paths, steps = carry
+        paths, steps, resumed, snaps = carry
         slot = c * k + jnp.arange(k)  # (k,) positions in ``order``
         idx = order[jnp.minimum(slot, n - 1)]
-        new, taken = _runs(run, jax.tree.map(lambda x: x[idx], chains))
-        return paths.at[jnp.where(slot < n_killed, idx, n)].set(new, mode="drop"), steps + taken
+        start = None if starts is None else jax.tree.map(lambda x: x[idx], starts)
+        new, taken, snap = _runs(run, jax.tree.map(lambda x: x[idx], chains), start)
+        at = jnp.where(slot < n_killed, idx, n)
+        if start is not None:  # the path before the snapshot is the parent's
+            before = start[0][:, None] & (jnp.arange(new.shape[1]) < start[1][0][:, None])
+            new = jnp.where(before, paths[parent[idx]], new)
+            snaps = jax.tree.map(lambda a, b: a.at[at].set(b, mode="drop"), snaps, snap)
+            resumed = resumed + jnp.sum(start[0])  # padding too, as ``trajectories``
+        return paths.at[at].set(new, mode="drop"), steps + taken, resumed, snaps
 
-    paths, env_steps = jax.lax.fori_loop(0, chunks, rerun, (paths, s.env_steps))
+    carry = (paths, s.env_steps, s.resumed, s.snaps)
+    paths, env_steps, resumed, snaps = jax.lax.fori_loop(0, chunks, rerun, carry)
     return _Loop(
         rounds=j + apply,
         stopped=~apply,
@@ -166,6 +186,8 @@ def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Arr
         log_weight=s.log_weight + jnp.where(apply, jnp.log1p(-n_killed / n), 0.0),
         trajectories=s.trajectories + chunks * k,
         env_steps=env_steps,
+        resumed=resumed,
+        snaps=snaps,
     )
 
 
@@ -183,7 +205,8 @@ def splitting(
     ``kill_fraction``, ``max_rounds`` static, vmap over ``key`` for independent runs.
 
     ``run``: one chain -> (T,) score path (or ``(path, env steps)``: ``env_steps`` sums
-    them), drawing step t from ``step_key(chain, t)``.
+    them; or ``(path, steps, snapshot)``: clones start from their parent's, module docstring),
+    drawing step t from ``step_key(chain, t)``.
     The initial particles are ``initial_chains(split(key)[0], N, M)``: on the same key,
     ``max_rounds=0`` is crude MC on those draws. ``initial`` ``(N, 2)``: the initial
     particles' first segment keys instead (raw key data; a caller's chosen draws)."""
@@ -197,7 +220,7 @@ def splitting(
     chains = initial_chains(first, n, segments)
     if initial is not None:
         chains = chains.replace(keys=chains.keys.at[:, 0].set(initial.astype(chains.keys.dtype)))
-    paths, env_steps = _runs(run, chains)  # (N, T), ()
+    paths, env_steps, snaps = _runs(run, chains)  # (N, T), (), (N, ...) or None
     target = jnp.asarray(target, jnp.float32)
 
     def cond(s):
@@ -214,6 +237,8 @@ def splitting(
         log_weight=jnp.float32(0.0),
         trajectories=jnp.int32(n),
         env_steps=env_steps,
+        resumed=jnp.int32(0),
+        snaps=snaps,
     )
     s = jax.lax.while_loop(cond, functools.partial(_round, run, k, target, rounds_key), s)
     scores = s.paths.max(axis=1)
@@ -228,6 +253,7 @@ def splitting(
         stopped=s.stopped,
         trajectories=s.trajectories,
         env_steps=s.env_steps,
+        resumed=s.resumed,
         chains=s.chains,
         paths=s.paths,
         scores=scores,
