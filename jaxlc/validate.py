@@ -28,7 +28,6 @@ import argparse
 import dataclasses
 import math
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -43,13 +42,6 @@ from jaxlc.study import machine
 from jaxlc.study.checkpoint import CheckpointError
 from jaxlc.study.rundir import RunDir
 
-# ``--method``: each a function ``(cfg, actor, k, meta, validation.Settings, model=i) ->
-# validation.Result`` of one policy
-METHODS: dict[str, Callable[..., validation.Result]] = {
-    "mc": validation.estimate,
-    "is": validation.estimate,
-}
-
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(
@@ -59,7 +51,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     ap.add_argument("run_dir", type=Path, help="run directory of jaxlc.sweep")
     ap.add_argument("--model", default="④", help="index, label, tag (④), all or scripted")
-    ap.add_argument("--method", choices=(*METHODS, "ams"), default="is")
+    ap.add_argument("--method", choices=("mc", "is", "ams"), default="is")
     ap.add_argument("--lane-changes", type=int, default=1_000_000, help="most per model")
     ap.add_argument("--rel-halfwidth", type=float, default=0.0, help="stop at this (0: never)")
     ap.add_argument("--kind", choices=validation.KINDS, default="collision")
@@ -171,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         peak = machine.matmul_peak_gflops()
         results = []
         for i, row in enumerate(rows):
-            results.append(METHODS[args.method](cfg, *row, settings, model=i))
+            results.append(validation.estimate(cfg, *row, settings, model=i))
             if results[-1].interrupted:
                 break
         out = io.write_outputs(args, cfg, results, peak)

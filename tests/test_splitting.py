@@ -162,12 +162,13 @@ def test_the_interval_is_students_t_over_the_runs():
 
 
 def test_the_exceedance_curve_ends_at_the_estimate(programs):
-    """One run's curve P(score > Z_j) falls with the level, and its last value times the
-    share at the target is the estimate."""
+    """One run's curve P(score > Z_j) = prod_{i<=j} (1 - K_i / N) falls with the level, and
+    its last value times the share at the target is the estimate."""
     many, _, _ = programs
     r = jax.device_get(many(jax.random.split(jax.random.key(5), 1), float(LEVEL)))
     one = jax.tree.map(lambda x: x[0], r)
-    levels, probs = ams.exceedance(one, N)
+    levels = np.asarray(one.levels[: one.rounds])
+    probs = np.cumprod(1.0 - np.asarray(one.kills[: one.rounds]) / N)
     assert levels.size == one.rounds > 0 and (np.diff(levels) > 0).all()  # ties all killed
     assert (np.diff(probs) < 0).all() and levels[-1] < LEVEL
     assert probs[-1] * one.reached == pytest.approx(float(one.estimate), rel=1e-5)

@@ -30,6 +30,7 @@ from jaxlc.evaluation.results import (
     HeldoutRow,
     Policy,
     heldout_fields,
+    mean_or_nan,
 )
 from jaxlc.evaluation.safety import HAZARDS, NORMS, PARTNERS, VEHICLES
 from jaxlc.evaluation.stats import CONFIDENCE, RESAMPLES, expanded_level
@@ -61,7 +62,7 @@ def _summary(m: measures.Measure, values: np.ndarray, ok: np.ndarray) -> float:
     """A registered measure's held-out column from its values on the lane changes
     ``(lane changes,)`` (``ok``: the successful ones)."""
     if m.heldout == "mean":
-        return _mean(values[ok])
+        return mean_or_nan(values[ok])
     return _p5(values) if m.heldout == "p5" else float(values.sum())
 
 
@@ -123,10 +124,6 @@ def _margins(out: dict[str, np.ndarray], p: int, perf: np.ndarray) -> dict[str, 
     return {f"{m}_p{q}": _p5(out[m][p][perf], q) for m in names for q in (5, 50)}
 
 
-def _mean(x: np.ndarray) -> float:
-    return float(np.mean(x)) if x.size else math.nan
-
-
 def model_row(
     out: dict[str, np.ndarray],
     info: CaseInfo,
@@ -148,7 +145,7 @@ def model_row(
     for name in ("ttc", "thw"):
         bound = BOUNDS[f"min_{name}_s"]
         for i, v in enumerate(VEHICLES):
-            crit[f"{name}_crit_{v}"] = _mean(out[f"min_{name}"][p][perf][:, i] < bound)
+            crit[f"{name}_crit_{v}"] = mean_or_nan(out[f"min_{name}"][p][perf][:, i] < bound)
     s_lo, s_hi = clopper_pearson(wins, n)
     c_lo, c_hi = clopper_pearson(hits, n)
     cuts, brakes = out["cut_ins"][p][perf], out["brakes_near"][p][perf]
@@ -163,10 +160,10 @@ def model_row(
         collision_rate=hits / n if n else math.nan,
         collision_lo=c_lo,
         collision_hi=c_hi,
-        **{k: _mean(m[k][ok]) for k in MEANS},
+        **{k: mean_or_nan(m[k][ok]) for k in MEANS},
         # The low tail is what safety is about: 5th percentiles over the lane changes.
         **{k: _p5(m[k]) for k in ("min_ttc_s", "min_thw_s")},
-        **{k: _mean(m[k]) for k in NORM_KEYS},
+        **{k: mean_or_nan(m[k]) for k in NORM_KEYS},
         **crit,
         cut_ins=int(cuts.sum()),
         met_cut_in=int((cuts > 0).sum()),

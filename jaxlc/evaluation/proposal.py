@@ -129,16 +129,16 @@ def roles(state: EnvState, p: EnvParams) -> Array:
     return jnp.concatenate([near, others[None]])
 
 
-def _fire(t: Tilt, role: Array, so_far: Record, p_fire: Array) -> tuple[Array, Array]:
-    """``(q_fire (rows, slots), q_cond (4,))``: each vehicle's per-step probability of a
-    braking event under ``t`` (the traffic's away from the ego) and each role's conditional."""
+def _fire(t: Tilt, role: Array, so_far: Record, p_fire: Array) -> Array:
+    """``(rows, slots)``: each vehicle's per-step probability of a braking event under ``t``
+    (the traffic's away from the ego; a conditional role's given its events so far)."""
     # A rate within 1 ppm of the traffic's is the traffic's (eager and compiled expm1 differ
     # in the last bit): its weight is exactly 1.
     q_role = jnp.where(jnp.abs(t.brake - p_fire) <= 1e-6 * p_fire, p_fire, t.brake)
     q_cond = first_event_hazard(p_fire, t.horizon, so_far.trials, so_far.events)
     q_role = jnp.where(t.conditional > 0.5, q_cond, q_role)
     q_fire = jnp.max(jnp.where(role, q_role[:, None, None], 0.0), axis=0)
-    return jnp.where(jnp.any(role, axis=0), jnp.maximum(q_fire, 1e-12), p_fire), q_cond
+    return jnp.where(jnp.any(role, axis=0), jnp.maximum(q_fire, 1e-12), p_fire)
 
 
 def _draws(q: Proposal, key: Array, state: EnvState, p: EnvParams) -> tuple:
@@ -158,7 +158,7 @@ def _draws(q: Proposal, key: Array, state: EnvState, p: EnvParams) -> tuple:
     ut = TrafficDraws.draw(key, p.lanes, p.slots_per_lane)
     role = roles(state, p) & (state.ego.phase >= q.first)  # (roles, rows, slots)
     near, p_fire = jnp.any(role, axis=0), start_probability(p)
-    q_fire, _ = _fire(t, role, so_far, p_fire)
+    q_fire = _fire(t, role, so_far, p_fire)
     acc, time = (jnp.where(own, 0.0, th) for th in (t.brake_acc, t.brake_time))
     ut = ut._replace(
         brake_fire=rare.tilt_bernoulli(ut.brake_fire, p_fire, jnp.where(own, p_fire, q_fire)),
@@ -197,7 +197,7 @@ class TiltedEnv(LaneChangeEnv):
             eligible = started | (~fired & tr.active & (tr.brake_left <= 0.0))
 
             def braking_log_ratio(t: Tilt) -> Array:
-                q_fire = _fire(t, role, so_far, p_fire)[0]
+                q_fire = _fire(t, role, so_far, p_fire)
                 fire = rare.bernoulli_log_ratio(ut.brake_fire, p_fire, q_fire)
                 cont = rare.exponential_log_ratio(ut.brake_acc, t.brake_acc)
                 cont += rare.exponential_log_ratio(ut.brake_time, t.brake_time)

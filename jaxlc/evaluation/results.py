@@ -141,7 +141,7 @@ def summarise(
         policy = metas[p] if metas is not None else SCRIPTED
 
         def mean(key: str, where: np.ndarray, p: int = p) -> float:
-            return _mean(out[key][p][where])
+            return mean_or_nan(out[key][p][where])
 
         rows.append(
             Row(
@@ -151,7 +151,7 @@ def summarise(
                 **{name: int((reason == code).sum()) for code, name in enumerate(OUTCOMES)},
                 success_rate=float(ok.sum() / n_perf) if n_perf else math.nan,
                 avg_return=mean("ret", perf),
-                duration_s=_mean(out["steps"][p][ok] * dt),
+                duration_s=mean_or_nan(out["steps"][p][ok] * dt),
                 peak_lat_acc=mean("peak_lat_acc", ok),
                 peak_yaw_rate=mean("peak_yaw_rate", ok),
                 overshoot_m=mean("overshoot", ok),
@@ -164,7 +164,7 @@ def summarise(
     return rows
 
 
-def _mean(values: np.ndarray) -> float:
+def mean_or_nan(values: np.ndarray) -> float:
     return float(np.mean(values)) if values.size else math.nan
 
 

@@ -53,10 +53,9 @@ def ttc(gap: Array, v_follower: Array, v_leader: Array, present: Array) -> Array
 
 
 def headway(gap: Array, v_follower: Array, present: Array) -> Array:
-    """Time headway, s: ``gap / v_follower``; inf for a standing follower or no vehicle, 0 at a
-    gap <= 0."""
-    h = jnp.where(v_follower > 0.0, gap / jnp.where(v_follower > 0.0, v_follower, 1.0), jnp.inf)
-    return jnp.where(present, jnp.where(gap <= 0.0, 0.0, h), jnp.inf)
+    """Time headway, s: ``gap / v_follower``, the ``ttc`` to a standing leader (inf for a
+    standing follower or no vehicle, 0 at a gap <= 0)."""
+    return ttc(gap, v_follower, 0.0, present)
 
 
 def conflicts(state, p) -> tuple[Array, Array]:
@@ -65,23 +64,13 @@ def conflicts(state, p) -> tuple[Array, Array]:
     eg, nb = state.ego, state.nb
     lead_gap, lag_gap = target_gaps(state, p)  # metres along the target lane
     has_own = state.leader_gap < NO_LEADER_GAP
-    t = jnp.stack(
-        [
-            ttc(lead_gap, eg.v, nb.a1_v, nb.has_a1),
-            ttc(lag_gap, nb.b1_v, eg.v, nb.has_b1),
-            ttc(state.leader_gap, eg.v, state.leader_v, has_own),
-        ],
-        axis=-1,
+    pairs = (  # (gap, follower's speed, leader's speed, present) per vehicle of VEHICLES
+        (lead_gap, eg.v, nb.a1_v, nb.has_a1),
+        (lag_gap, nb.b1_v, eg.v, nb.has_b1),
+        (state.leader_gap, eg.v, state.leader_v, has_own),
     )
-    h = jnp.stack(
-        [
-            headway(lead_gap, eg.v, nb.has_a1),
-            headway(lag_gap, nb.b1_v, nb.has_b1),
-            headway(state.leader_gap, eg.v, has_own),
-        ],
-        axis=-1,
-    )
-    return t, h
+    t = jnp.stack([ttc(*q) for q in pairs], axis=-1)
+    return t, jnp.stack([headway(g, vf, ok) for g, vf, _, ok in pairs], axis=-1)
 
 
 def counted(state, p, entered: Array) -> tuple[Array, Array]:

@@ -261,14 +261,6 @@ def splitting(
     )
 
 
-def exceedance(result: Splitting, particles: int) -> tuple[np.ndarray, np.ndarray]:
-    """The curve one run gives: P(score > Z_j) ~ prod_{i<=j} (1 - K_i / N) at each applied
-    level Z_j (one run, no batch axis)."""
-    j = int(result.rounds)
-    kills = np.asarray(result.kills[:j], float)
-    return np.asarray(result.levels[:j]), np.cumprod(1.0 - kills / particles)
-
-
 def exceedance_at(result: Splitting, particles: int, z: np.ndarray) -> np.ndarray:
     """P(score >= z) at each of ``z``, each unbiased: the run with target z stops at the
     first round J whose level Z_J >= z (the same draws), so p(z) = prod_{j<J} (1 - K_j / N)

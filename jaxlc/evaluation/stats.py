@@ -153,23 +153,16 @@ def _finite(x: Any) -> np.ndarray:
 
 def describe(x: np.ndarray, seed: int = 0) -> dict[str, float]:
     """Mean and IQM of ``x`` ``(seeds,)`` (NaNs dropped) with their intervals."""
-    x = _finite(x)
+    x, keys = _finite(x), ("mean", "mean_lo", "mean_hi", "iqm", "iqm_lo", "iqm_hi")
     if x.size == 0:
-        return dict.fromkeys(("mean", "mean_lo", "mean_hi", "iqm", "iqm_lo", "iqm_hi"), math.nan)
+        return dict.fromkeys(keys, math.nan)
     est = _mean_iqm(x)
     if 2 <= x.size < RANGE_BELOW:
         # No bootstrap covers at so few seeds; say plainly that this is the seeds' range.
         lo, hi = np.full(2, x.min()), np.full(2, x.max())
     else:
         lo, hi = interval([x], _mean_iqm, seed)
-    return {
-        "mean": float(est[0]),
-        "mean_lo": float(lo[0]),
-        "mean_hi": float(hi[0]),
-        "iqm": float(est[1]),
-        "iqm_lo": float(lo[1]),
-        "iqm_hi": float(hi[1]),
-    }
+    return dict(zip(keys, (float(v[i]) for i in (0, 1) for v in (est, lo, hi)), strict=True))
 
 
 def prob_improvement(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
