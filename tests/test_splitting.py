@@ -65,40 +65,47 @@ def test_a_run_that_returns_its_steps_is_counted_and_splits_alike(programs):
     np.testing.assert_array_equal(a.paths, b.paths)
 
 
-SNAP = STEPS // 2  # the resumable walk's snapshot: S before step SNAP
+SNAP = STEPS // 2  # the resumable walk's first snapshot: S before step SNAP
 
 
-def walk_resumable(chain: ams.Chain, start=None):
-    """``walk`` as a run with a snapshot (``splitting``'s docstring): ``(path, steps drawn,
-    (SNAP, S_SNAP))``, from ``start``'s S_SNAP where it is used (SNAP steps fewer)."""
+def walk_resumable(chain: ams.Chain, start=None, slots: int = 1):
+    """``walk`` as a run with snapshots (``splitting``'s docstring), S before step SNAP and,
+    with ``slots=2``, before the chain's last branch: ``(path, steps drawn, (at (slots,),
+    S (slots,)))``, from ``start``'s snapshot where it is used (``at`` steps fewer)."""
     up = jax.vmap(jax.random.bernoulli)(ams.step_keys(chain, STEPS))
     inc = 2 * up.astype(jnp.int32) - 1
-    own = jnp.cumsum(inc)
-    use, base = (False, own[SNAP - 1]) if start is None else (start[0], start[1][1])
-    later = base + jnp.cumsum(jnp.where(jnp.arange(STEPS) >= SNAP, inc, 0))
-    path = jnp.where(use, later, own)
-    return (
-        path,
-        jnp.where(use, STEPS - SNAP, STEPS),
-        (jnp.int32(SNAP), jnp.where(use, base, own[SNAP - 1])),
-    )
+    at, base, first = jnp.int32(0), jnp.int32(0), jnp.int32(0)
+    if start is not None:  # the parent's S before SNAP is this chain's when SNAP <= the branch
+        use, j, (ats, values) = start
+        at, base, first = jnp.where(use, ats[j], 0), jnp.where(use, values[j], 0), values[0]
+    path = base + jnp.cumsum(jnp.where(jnp.arange(STEPS) >= at, inc, 0))  # right from at - 1
+    used = chain.steps < ams.UNUSED
+    branch = jnp.where(used.sum() > 1, jnp.max(jnp.where(used, chain.steps, 0)), ams.UNUSED)
+    ats = jnp.asarray([SNAP, branch], jnp.int32)[:slots]
+    values = jnp.stack([jnp.where(at > SNAP, first, path[SNAP - 1]), path[branch - 1]])[:slots]
+    return path, STEPS - at, (ats, values)
 
 
 def test_clones_resumed_from_their_parents_snapshot_split_alike_in_fewer_steps(programs):
-    """A clone whose branch comes after its parent's snapshot starts from it: the run is the
-    one that replays every clone from t = 0, bit for bit, and each resumed clone draws SNAP
-    steps fewer."""
+    """A clone starts from its parent's latest snapshot before the branch: the run is the one
+    that replays every clone from t = 0, bit for bit; with one snapshot each resumed clone
+    draws SNAP steps fewer, and a second, at each clone's own branch, saves more."""
     many, _, _ = programs
-    resumable = jax.jit(jax.vmap(functools.partial(
-        ams.splitting, walk_resumable, particles=N, kill_fraction=FRACTION,
-        max_rounds=ROUNDS), in_axes=(0, None)))  # fmt: skip
     keys = jax.random.split(jax.random.key(5), 2)
-    a, b = jax.device_get(resumable(keys, float(LEVEL))), jax.device_get(many(keys, float(LEVEL)))
-    assert (a.resumed > 0).all() and (a.resumed < a.trajectories - N).all()  # some, not all
-    np.testing.assert_array_equal(a.env_steps, a.trajectories * STEPS - a.resumed * SNAP)
-    np.testing.assert_array_equal(a.estimate, b.estimate)
-    np.testing.assert_array_equal(a.paths, b.paths)
-    np.testing.assert_array_equal(a.chains.keys, b.chains.keys)
+    b = jax.device_get(many(keys, float(LEVEL)))
+    one, two = (
+        jax.device_get(jax.jit(jax.vmap(functools.partial(
+            ams.splitting, functools.partial(walk_resumable, slots=slots), particles=N,
+            kill_fraction=FRACTION, max_rounds=ROUNDS), in_axes=(0, None)))(keys, float(LEVEL)))
+        for slots in (1, 2)
+    )  # fmt: skip
+    assert (one.resumed > 0).all() and (one.resumed < one.trajectories - N).all()  # some, not all
+    np.testing.assert_array_equal(one.env_steps, one.trajectories * STEPS - one.resumed * SNAP)
+    assert (two.env_steps < one.env_steps).all()
+    for a in (one, two):
+        np.testing.assert_array_equal(a.estimate, b.estimate)
+        np.testing.assert_array_equal(a.paths, b.paths)
+        np.testing.assert_array_equal(a.chains.keys, b.chains.keys)
     np.testing.assert_array_equal(b.resumed, 0)
 
 

@@ -7,17 +7,17 @@ its path is the ego's wait, cruise, gap search and lane change, env step t keyed
 ``splitting.step_key(chain, t)`` (unbranched: the engine's ``fold_in(case key, t)``, so
 ``max_rounds=0`` is the validation's crude MC on the same cases). The estimand is per case
 started: P(a lane change whose margin of ``--kind`` (``measures.MARGINS``) is <= m). The score
-is minus the margin from the first RL step on, and before it ``approach_score``, below
--(m + span) (``--span``, ``SPAN`` by default), so {max score >= -m'} is {margin <= m'} for
-every m' < m + span: the curve is read there. The score is a function of the path so far and
-a clone replays its parent's keys to its branch, which is what ``splitting``'s unbiasedness
-needs; a clone that branches in the lane change starts from its parent's state before the
-first RL step (``splitting``'s snapshot): the same path in fewer env steps. Measured: no gain
-over crude MC where the traffic at the command decides the margin (the last rounds branch
-~0.7 s into the lane change, ~1 s before its closest moment); with ``--noise`` (the policy's
-actions under the training's exploration noise, a draw each step) 1.9-3.7x fewer env steps
-than crude MC for its half-width on the border margin at p ~ 9e-4 (decisions.md, "AMS under
-the training's noise").
+is minus the margin from the first RL step on, and before it ``approach_score``, below -(m +
+span) (``--span``, ``SPAN`` by default), so {max score >= -m'} is {margin <= m'} for every m' <
+m + span: the curve is read there. The score is a function of the path so far and a clone
+replays its parent's keys to its branch, which is what ``splitting``'s unbiasedness needs; a
+clone starts from its parent's latest saved state before the branch (before the parent's first
+RL step or its own last branch: ``splitting``'s snapshots), the same path in fewer env steps.
+Measured: no gain over crude MC where the traffic at the command decides the margin (the last
+rounds branch ~0.7 s into the lane change, ~1 s before its closest moment); with ``--noise``
+(the policy's actions under the training's exploration noise, a draw each step) 2.7-5.2x fewer
+env steps than crude MC for its half-width on the border margin at p ~ 9e-4 (decisions.md, "AMS
+under the training's noise").
 """
 
 from __future__ import annotations
@@ -192,9 +192,10 @@ def make_run(
     whose run key is the chain's first (``cs``: ``Starts``) after each env step, held once the
     case ends (``reason``) or reaches ``max_steps``. ``pol``: one policy (no policies axis).
     ``run(chain, record=True)``: the path and the state after each step ((max_steps, ...));
-    ``count=True``: the path and the env steps the case took. ``resume=True``: also its
-    snapshot, the state before its first RL step, for ``splitting``'s clones to start from
-    (``run(chain, (use, snapshot))``; the steps counted from there). ``noise``: the training's
+    ``count=True``: the path and the env steps the case took. ``resume=True``: also its two
+    snapshots, the state before its first RL step and before its chain's last branch, for
+    ``splitting``'s clones to start from (``run(chain, (use, slot, snapshots))``; the steps
+    counted from there). ``noise``: the training's
     exploration noise (``ddpg.explore``) on each action, drawn from ``fold_in(step key, 1)``."""
     env, origin = LaneChangeEnv(), origin_lane(base)
     fn = {m.name: m for m in measures.BUILTIN}[measures.MARGINS[kind]]
@@ -217,10 +218,10 @@ def make_run(
             def body(c):
                 s, obs, margin, value, done, path, seen, snap = c
                 rl = s.ego.phase == RL  # an RL step: the margin folds it, as the engine's
-                if resume:  # the state before the first RL step: where the margin's rounds begin
-                    take = rl & (snap[0] == splitting.UNUSED)
-                    now = (s.time, (s, obs, margin, value))
-                    snap = jax.tree.map(lambda a, b: jnp.where(take, a, b), now, snap)
+                if resume:  # before the first RL step, where the margin's rounds begin, and
+                    # before the chain's own branch, where its descendants' rounds go on
+                    take = jnp.stack([rl & (snap[0][0] == splitting.UNUSED), s.time == branch])
+                    snap = splitting.snapshot(snap, take, s.time, (s, obs, margin, value))
                 key, a = splitting.step_key(chain, s.time), act(obs)
                 if noise > 0.0:  # static: without it the program is the one it always was
                     a = explore(jax.random.fold_in(key, 1), a, noise)
@@ -245,10 +246,8 @@ def make_run(
             seen = ()
             if record:
                 seen = jax.tree.map(lambda x: jnp.zeros((max_steps, *x.shape), x.dtype), s0)
-            snap = (jnp.int32(splitting.UNUSED), (s0, obs0, inf, -inf))  # none taken yet
-            if start is not None:  # ``splitting``'s (use, snapshot): go on from it where used
-                snap = jax.tree.map(lambda a, b: jnp.where(start[0], a, b), start[1], snap)
-            s1, obs1, margin1, value1 = snap[1]
+            here, snap, branch = splitting.begin(chain, start, (s0, obs0, inf, -inf))
+            s1, obs1, margin1, value1 = here
             c = (s1, obs1, margin1, value1, s1.time >= max_steps, jnp.zeros(max_steps, jnp.float32))
             c = jax.lax.while_loop(lambda c: ~c[4], body, (*c, seen, snap))
             s, value, path, seen = c[0], c[3], c[5], c[6]

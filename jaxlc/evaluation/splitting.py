@@ -13,11 +13,12 @@ extinction. A margin is a score negated: ``run`` returns -margin, the target is 
 A particle is a chain of (branch step, key) segments, re-run from t = 0 by ``run(chain) ->
 score path (T,)``, step t's key ``step_key(chain, t)`` = fold_in(key of the last segment whose
 branch step <= t, t); a clone keeps its parent's segments to the branch and appends (tau + 1,
-fresh key). A ``run`` may also keep one snapshot of its state (``(path, steps, (at, state))``:
-the state before step ``at``) and take one back, ``run(chain, (use, (at, state)))``: a clone
-whose branch comes after its parent's snapshot starts from it, and its path before ``at`` is
-its parent's. The 95% interval (``interval``) is over R independent runs, Cox's lognormal
-(``log=True``) or Student's t.
+fresh key). A ``run`` may also keep snapshots of its state (``(path, steps, (at (S,), states
+(S, ...)))``: the state before step ``at``) and take one back, ``run(chain, (use, slot, its
+parent's snapshots))``: a clone starts from its parent's latest snapshot that comes before the
+branch, and its path before that ``at`` is its parent's (``begin`` and ``snapshot`` keep two:
+one where the run chooses, one before its chain's last branch). The 95% interval (``interval``) is
+over R independent runs, Cox's lognormal (``log=True``) or Student's t.
 """
 
 from __future__ import annotations
@@ -80,7 +81,7 @@ class _Loop:
     trajectories: Array
     env_steps: Array
     resumed: Array
-    snaps: Any  # (N, ...) each particle's snapshot (``run``'s third output), or None
+    snaps: Any  # (N, S, ...) each particle's snapshots (``run``'s third output), or None
 
 
 def step_key(chain: Chain, t: Array) -> Array:
@@ -119,10 +120,36 @@ def clone(chains: Chain, paths: Array, parent: Array, level: Array, fresh: Array
     return Chain(steps, keys.astype(par.keys.dtype))
 
 
+def begin(chain: Chain, start: Any, here: tuple) -> tuple:
+    """For a ``run`` with two snapshots (module docstring): ``(here, snapshots, branch)``,
+    where it begins (``here``: its state at t = 0, or ``start`` = (use, slot, the parent's
+    snapshots) where used), its snapshots so far (``(at (2,), states (2, ...))``: slot 0 at a
+    point of the run's choosing, the parent's where that precedes this chain's branch; slot 1
+    before the chain's last branch; UNUSED: none yet) and that branch's step (-1: none)."""
+    snap = (jnp.full(2, UNUSED, jnp.int32), jax.tree.map(lambda x: jnp.stack([x, x]), here))
+    used = chain.steps < UNUSED  # (M,) segments in force somewhere
+    branch = jnp.where(used.sum() > 1, jnp.max(jnp.where(used, chain.steps, 0)), -1)
+    if start is not None:
+        use, j, (at, states) = start
+        keep = at[0] <= branch  # the parent's slot 0 is this chain's too
+        first = jax.tree.map(lambda q, o: o.at[0].set(jnp.where(keep, q[0], o[0])), states, snap[1])
+        snap = (snap[0].at[0].set(jnp.where(keep, at[0], UNUSED)), first)
+        here = jax.tree.map(lambda q, h: jnp.where(use, q[j], h), states, here)
+    return here, snap, branch
+
+
+def snapshot(snap: tuple, take: Array, t: Array, now: tuple) -> tuple:
+    """``snap`` with ``now``, the state before step ``t``, in the slots where ``take`` (2,)."""
+    at, states = snap
+    return jnp.where(take, t, at), jax.tree.map(
+        lambda n, o: jnp.where(take.reshape((2,) + (1,) * n.ndim), n, o), now, states
+    )
+
+
 def _runs(run: Callable, chains: Chain, starts: Any = None) -> tuple[Array, Array, Any]:
-    """``((P, T) score paths, () their env steps summed, (P, ...) snapshots or None)`` of
+    """``((P, T) score paths, () their env steps summed, (P, S, ...) snapshots or None)`` of
     ``run`` on P chains (from ``starts`` where given); ``run`` returns a path (steps then
-    count 0), ``(path, the trajectory's env steps)`` or ``(path, steps, snapshot)``."""
+    count 0), ``(path, the trajectory's env steps)`` or ``(path, steps, snapshots)``."""
     out = jax.vmap(run)(chains) if starts is None else jax.vmap(run)(chains, starts)
     path, steps, snaps = (*out, None)[:3] if isinstance(out, tuple) else (out, 0, None)
     return path.astype(jnp.float32), jnp.sum(steps).astype(jnp.int32), snaps
@@ -147,10 +174,11 @@ def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Arr
     parent = order[jnp.minimum(n_killed + pick, n - 1)]  # (N,) a survivor, uniform
     fresh = jax.random.key_data(jax.random.split(kf, n))  # (N, 2)
     clones = clone(chains, paths, parent, level, fresh)
-    starts = None  # a clone starts from its parent's snapshot where that precedes the branch
+    starts = None  # a clone starts from its parent's latest snapshot that precedes the branch
     if s.snaps is not None:
-        snap = jax.tree.map(lambda x: x[parent], s.snaps)  # (N, ...) by slot
-        starts = (snap[0] <= jnp.argmax(paths[parent] > level, axis=1) + 1, snap)
+        snap = jax.tree.map(lambda x: x[parent], s.snaps)  # (N, S, ...) by slot
+        ok = snap[0] <= (jnp.argmax(paths[parent] > level, axis=1) + 1)[:, None]  # (N, S)
+        starts = (ok.any(axis=1), jnp.argmax(jnp.where(ok, snap[0], -1), axis=1), snap)
     chains = jax.tree.map(
         lambda c, o: jnp.where(killed.reshape((n,) + (1,) * (c.ndim - 1)), c, o),
         clones,
@@ -167,7 +195,8 @@ def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Arr
         new, taken, snap = _runs(run, jax.tree.map(lambda x: x[idx], chains), start)
         at = jnp.where(slot < n_killed, idx, n)
         if start is not None:  # the path before the snapshot is the parent's
-            before = start[0][:, None] & (jnp.arange(new.shape[1]) < start[1][0][:, None])
+            begin = jnp.take_along_axis(start[2][0], start[1][:, None], axis=1)  # (k, 1)
+            before = start[0][:, None] & (jnp.arange(new.shape[1]) < begin)
             new = jnp.where(before, paths[parent[idx]], new)
             snaps = jax.tree.map(lambda a, b: a.at[at].set(b, mode="drop"), snaps, snap)
             resumed = resumed + jnp.sum(start[0])  # padding too, as ``trajectories``
@@ -205,7 +234,7 @@ def splitting(
     ``kill_fraction``, ``max_rounds`` static, vmap over ``key`` for independent runs.
 
     ``run``: one chain -> (T,) score path (or ``(path, env steps)``: ``env_steps`` sums
-    them; or ``(path, steps, snapshot)``: clones start from their parent's, module docstring),
+    them; or ``(path, steps, snapshots)``: clones start from their parent's, module docstring),
     drawing step t from ``step_key(chain, t)``.
     The initial particles are ``initial_chains(split(key)[0], N, M)``: on the same key,
     ``max_rounds=0`` is crude MC on those draws. ``initial`` ``(N, 2)``: the initial
