@@ -192,11 +192,11 @@ def make_run(
     whose run key is the chain's first (``cs``: ``Starts``) after each env step, held once the
     case ends (``reason``) or reaches ``max_steps``. ``pol``: one policy (no policies axis).
     ``run(chain, record=True)``: the path and the state after each step ((max_steps, ...));
-    ``count=True``: the path and the env steps the case took. ``resume=True``: also its two
-    snapshots, the state before its first RL step and before its chain's last branch, for
-    ``splitting``'s clones to start from (``run(chain, (use, slot, snapshots))``; the steps
-    counted from there). ``noise``: the training's
-    exploration noise (``ddpg.explore``) on each action, drawn from ``fold_in(step key, 1)``."""
+    ``resume=True``: the path, the env steps it took and its two snapshots, the state before
+    its first RL step and before its chain's last branch, for ``splitting``'s clones to start
+    from (``run(chain, (use, slot, snapshots), resume=True)``; the steps counted from there).
+    ``noise``: the training's exploration noise (``ddpg.explore``) on each action, drawn from
+    ``fold_in(step key, 1)``."""
     env, origin = LaneChangeEnv(), origin_lane(base)
     fn = {m.name: m for m in measures.BUILTIN}[measures.MARGINS[kind]]
     time_like = fn.reduce == "last"  # the time left: the current value, not the least
@@ -204,10 +204,7 @@ def make_run(
     def bind(pol: Policies, cs: Starts, cap: jax.Array) -> Any:
         p = base.replace(k=pol.k)
 
-        def run(
-            chain: Chain, start: Any = None, record: bool = False, count: bool = False,
-            resume: bool = False,
-        ) -> Any:  # fmt: skip
+        def run(chain: Chain, start: Any = None, record: bool = False, resume: bool = False) -> Any:
             i = jnp.argmax(jnp.all(cs.key == chain.keys[0], axis=-1))  # the particle's case
             s0, obs0 = jax.tree.map(lambda a: a[i], cs.state), cs.obs[i]
 
@@ -246,7 +243,9 @@ def make_run(
             seen = ()
             if record:
                 seen = jax.tree.map(lambda x: jnp.zeros((max_steps, *x.shape), x.dtype), s0)
-            here, snap, branch = splitting.begin(chain, start, (s0, obs0, inf, -inf))
+            here, snap, branch = (s0, obs0, inf, -inf), (), -1  # no snapshots: replays
+            if resume:
+                here, snap, branch = splitting.begin(chain, start, here)
             s1, obs1, margin1, value1 = here
             c = (s1, obs1, margin1, value1, s1.time >= max_steps, jnp.zeros(max_steps, jnp.float32))
             c = jax.lax.while_loop(lambda c: ~c[4], body, (*c, seen, snap))
@@ -254,7 +253,7 @@ def make_run(
             path = jnp.where(jnp.arange(max_steps) < s.time, path, value)  # held after the end
             if resume:
                 return path, s.time - s1.time, c[7]
-            return (path, seen) if record else (path, s.time) if count else path
+            return (path, seen) if record else path
 
         return run
 

@@ -195,8 +195,8 @@ def _round(run: Callable[[Chain], Array], k: int, target: Array, rounds_key: Arr
         new, taken, snap = _runs(run, jax.tree.map(lambda x: x[idx], chains), start)
         at = jnp.where(slot < n_killed, idx, n)
         if start is not None:  # the path before the snapshot is the parent's
-            begin = jnp.take_along_axis(start[2][0], start[1][:, None], axis=1)  # (k, 1)
-            before = start[0][:, None] & (jnp.arange(new.shape[1]) < begin)
+            at_start = jnp.take_along_axis(start[2][0], start[1][:, None], axis=1)  # (k, 1)
+            before = start[0][:, None] & (jnp.arange(new.shape[1]) < at_start)
             new = jnp.where(before, paths[parent[idx]], new)
             snaps = jax.tree.map(lambda a, b: a.at[at].set(b, mode="drop"), snaps, snap)
             resumed = resumed + jnp.sum(start[0])  # padding too, as ``trajectories``
