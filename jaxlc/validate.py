@@ -92,7 +92,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--kill", type=float, default=0.1, help="ams: share killed per round")
     ap.add_argument("--repeats", type=int, default=10, help="ams: independent runs (interval)")
     ap.add_argument("--margin", type=float, default=0.0, help="ams: the margin m (0: failure)")
-    ap.add_argument("--span", type=float, default=ams.SPAN, help="ams: the curve's, above m")
+    ap.add_argument("--span", type=float, default=None, help="ams: the curve's, above m"
+                    " (default: by --kind, ams.cap_of)")  # fmt: skip
     ap.add_argument("--max-rounds", type=int, default=2000, help="ams: 0 is crude MC")
     ap.add_argument("--noise", type=float, default=0.0, help="ams: exploration sigma on actions")
     args = ap.parse_intermixed_args(argv)

@@ -303,6 +303,24 @@ def test_no_rounds_is_the_engines_crude_mc_on_the_same_keys(sim):
         assert float(est) == np.float32(np.mean(engine <= m)) > 0  # in float32
 
 
+@pytest.mark.slow
+def test_the_default_cap_leaves_the_border_and_time_to_the_lane_change(sim):
+    """Without --span the cap is m + SPAN for collisions (the approach foretells the gap) and
+    above every lane change's border and time margin for the others, so no approach score
+    (<= -cap) outranks the lane change's own margin; a given span is m + span."""
+    from jaxlc.evaluation import ams as sim_ams
+    from jaxlc.evaluation.measures import MARGINS
+
+    out, cfg = sim["out"], sim["cfg"]
+    lane_change = np.asarray(out["performed"][0])
+    assert sim_ams.cap_of(cfg, "collision", 1.0, None) == pytest.approx(1.0 + sim_ams.SPAN)
+    for kind in ("out_of_bounds", "timeout"):
+        margins = np.asarray(out[MARGINS[kind]][0])[lane_change]
+        assert (margins > 1.0 + sim_ams.SPAN).any()  # a cap of m + SPAN would sit below them
+        assert (margins < sim_ams.cap_of(cfg, kind, 1.0, None)).all()
+        assert sim_ams.cap_of(cfg, kind, 1.0, 0.3) == pytest.approx(1.3)
+
+
 @pytest.mark.parametrize(
     "bad",
     [["--particles", "1"], ["--kill", "1.0"], ["--repeats", "1"], ["--margin", "-1"],

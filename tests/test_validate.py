@@ -661,6 +661,7 @@ def test_ams_writes_its_estimate_and_curve(ams_validated):
     assert len(doc.repeats) == 2 and doc.lo <= doc.estimate <= doc.hi
     assert doc.trajectories >= doc.cases_started == 2 * 12 and doc.cap == doc.margin + 3
     assert all(isinstance(c, ams.Point) and c.margin < doc.cap for c in doc.curve)
+    assert sum(c.margin < doc.margin + ams.SPAN for c in doc.curve) >= 6  # the rare end drawn
     least = doc.nearest[0].margin  # no run reached m: the least margin reached is on the curve
     assert least <= doc.margin or any(abs(c.margin - least) < 1e-6 and c.ams > 0 for c in doc.curve)
     rows = list(csv.DictReader((out / "ams_curve.csv").open()))

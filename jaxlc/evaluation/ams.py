@@ -7,17 +7,17 @@ its path is the ego's wait, cruise, gap search and lane change, env step t keyed
 ``splitting.step_key(chain, t)`` (unbranched: the engine's ``fold_in(case key, t)``, so
 ``max_rounds=0`` is the validation's crude MC on the same cases). The estimand is per case
 started: P(a lane change whose margin of ``--kind`` (``measures.MARGINS``) is <= m). The score
-is minus the margin from the first RL step on, and before it ``approach_score``, below -(m +
-span) (``--span``, ``SPAN`` by default), so {max score >= -m'} is {margin <= m'} for every m' <
-m + span: the curve is read there. The score is a function of the path so far and a clone
+is minus the margin from the first RL step on, and before it ``approach_score``, below -cap
+(m + ``--span``; by default by kind, ``cap_of``), so {max score >= -m'} is {margin <= m'} for
+every m' < cap: the curve is read there. The score is a function of the path so far and a clone
 replays its parent's keys to its branch, which is what ``splitting``'s unbiasedness needs; a
 clone starts from its parent's latest saved state before the branch (before the parent's first
 RL step or its own last branch: ``splitting``'s snapshots), the same path in fewer env steps.
 Measured: no gain over crude MC where the traffic at the command decides the margin (the last
 rounds branch ~0.7 s into the lane change, ~1 s before its closest moment); with ``--noise``
-(the policy's actions under the training's exploration noise, a draw each step) 2.7-5.2x fewer
-env steps than crude MC for its half-width on the border margin at p ~ 9e-4 (decisions.md, "AMS
-under the training's noise").
+(the policy's actions under the training's exploration noise, a draw each step) and the cap by
+kind, 9.4-11x fewer env steps than crude MC for its half-width on the border margin at p ~ 9e-4,
+66-83x at p ~ 6e-5 (decisions.md, "The approach's cap by kind").
 """
 
 from __future__ import annotations
@@ -48,10 +48,11 @@ from jaxlc.sim import collision
 from jaxlc.sim.controller import baseline_action
 from jaxlc.sim.env import CRUISE, RL, WAIT, EnvParams, EnvState, LaneChangeEnv, action_dim
 from jaxlc.sim.observation import observation
+from jaxlc.sim.reward import step_limit
 from jaxlc.sim.road import origin_lane, road_curvature
 
 KINDS = tuple(measures.MARGINS)  # collision, timeout, out_of_bounds
-SPAN = 0.6  # m (s for timeouts): --span's default; the approach scores below -(m + span)
+SPAN = 0.6  # m (s for timeouts): the cap's room above m or the margin's start (``cap_of``)
 FAR = 100.0  # m: the approach's gap when no body is near
 
 
@@ -146,10 +147,25 @@ def check(args: Any) -> None:
     if rounds < 0:
         raise EvalError(f"--max-rounds {rounds}: >= 0 (0: crude Monte Carlo)")
     validation.check_chain("ams", args.chain)
-    if not args.span > 0.0:
+    if args.span is not None and not args.span > 0.0:
         raise EvalError(f"--span {args.span:g}: > 0 (the curve is read from m to m + span)")
     if not 0.0 <= args.noise <= 1.0:
         raise EvalError(f"--noise {args.noise:g}: a sigma in [0, 1] (tanh units, as training's)")
+
+
+def cap_of(cfg: config.Config, kind: str, margin: float, span: float | None) -> float:
+    """The approach's cap: m + ``span``, or without one, ``SPAN`` above what only the lane change
+    decides. The approach's gap foretells a collision margin, so for collisions that is m; it
+    says nothing of the border or the time, so for those it is the margin every lane change
+    starts from (the border past the target lane plus the lane's width; the manoeuvre's time
+    limit): their own margin is the score from the first RL step on and no approach outranks
+    it (a cap of m + 0.3 left ~1% of cases above the approach's ties: decisions.md, "The
+    approach's cap by kind")."""
+    if span is not None:
+        return margin + span
+    p = EnvParams.from_config(cfg.env)
+    start = {"collision": margin, "out_of_bounds": p.border + p.lane_width}
+    return max(float(start.get(kind, step_limit(p) * p.dt)), margin) + SPAN
 
 
 def starts(cfg: config.Config, n: int, seed: int, lo: int) -> Starts:
@@ -290,7 +306,8 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
     estimate of P(lane change with margin <= a.margin) per case with Cox's 95% interval, the
     curve beside crude MC's on the runs' initial particles below the cap, the nearest misses."""
     run = program(cfg, a.kind, a.particles, a.kill, a.max_rounds, a.max_steps, a.noise)
-    key, runs, t0, cap = jax.random.PRNGKey(a.seed), [], time.perf_counter(), a.margin + a.span
+    key, runs, t0 = jax.random.PRNGKey(a.seed), [], time.perf_counter()
+    cap = cap_of(cfg, a.kind, a.margin, a.span)
     warm = EnvParams.from_config(cfg.env).warmup_steps  # a case's reset, paid once per start
     pol = jax.tree.map(lambda x: x[0], pol)  # one policy, no axis
     for r in range(a.repeats):
@@ -304,7 +321,8 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
     # the runs can say is how likely a lane change comes that close
     least = min(-float(np.max(res.scores)) for res in runs)
     grid = np.linspace(a.margin, cap, 7)[:-1]
-    grid = np.unique(np.concatenate([grid, [least] if a.margin < least < cap else []]))
+    near = np.linspace(a.margin, min(cap, a.margin + SPAN), 7)[:-1]  # where it is rare
+    grid = np.unique(np.concatenate([grid, near, [least] if a.margin < least < cap else []]))
     per = np.asarray([splitting.exceedance_at(res, a.particles, -grid) for res in runs])
     curve = []
     for j, m in enumerate(grid):
