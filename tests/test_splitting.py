@@ -310,15 +310,16 @@ def test_the_default_cap_leaves_the_border_and_time_to_the_lane_change(sim):
     (<= -cap) outranks the lane change's own margin; a given span is m + span."""
     from jaxlc.evaluation import ams as sim_ams
     from jaxlc.evaluation.measures import MARGINS
+    from jaxlc.sim.env import EnvParams
 
-    out, cfg = sim["out"], sim["cfg"]
+    out, p = sim["out"], EnvParams.from_config(sim["cfg"].env)
     lane_change = np.asarray(out["performed"][0])
-    assert sim_ams.cap_of(cfg, "collision", 1.0, None) == pytest.approx(1.0 + sim_ams.SPAN)
+    assert sim_ams.cap_of(p, "collision", 1.0, None) == pytest.approx(1.0 + sim_ams.SPAN)
     for kind in ("out_of_bounds", "timeout"):
         margins = np.asarray(out[MARGINS[kind]][0])[lane_change]
         assert (margins > 1.0 + sim_ams.SPAN).any()  # a cap of m + SPAN would sit below them
-        assert (margins < sim_ams.cap_of(cfg, kind, 1.0, None)).all()
-        assert sim_ams.cap_of(cfg, kind, 1.0, 0.3) == pytest.approx(1.3)
+        assert (margins < sim_ams.cap_of(p, kind, 1.0, None)).all()
+        assert sim_ams.cap_of(p, kind, 1.0, 0.3) == pytest.approx(1.3)
 
 
 @pytest.mark.parametrize(

@@ -153,7 +153,7 @@ def check(args: Any) -> None:
         raise EvalError(f"--noise {args.noise:g}: a sigma in [0, 1] (tanh units, as training's)")
 
 
-def cap_of(cfg: config.Config, kind: str, margin: float, span: float | None) -> float:
+def cap_of(p: EnvParams, kind: str, margin: float, span: float | None) -> float:
     """The approach's cap: m + ``span``, or without one, ``SPAN`` above what only the lane change
     decides. The approach's gap foretells a collision margin, so for collisions that is m; it
     says nothing of the border or the time, so for those it is the margin every lane change
@@ -163,7 +163,6 @@ def cap_of(cfg: config.Config, kind: str, margin: float, span: float | None) -> 
     approach's cap by kind")."""
     if span is not None:
         return margin + span
-    p = EnvParams.from_config(cfg.env)
     start = {"collision": margin, "out_of_bounds": p.border + p.lane_width}
     return max(float(start.get(kind, step_limit(p) * p.dt)), margin) + SPAN
 
@@ -307,8 +306,9 @@ def estimate(cfg: config.Config, meta: dict, a: Any, pol: Policies, peak: float)
     curve beside crude MC's on the runs' initial particles below the cap, the nearest misses."""
     run = program(cfg, a.kind, a.particles, a.kill, a.max_rounds, a.max_steps, a.noise)
     key, runs, t0 = jax.random.PRNGKey(a.seed), [], time.perf_counter()
-    cap = cap_of(cfg, a.kind, a.margin, a.span)
-    warm = EnvParams.from_config(cfg.env).warmup_steps  # a case's reset, paid once per start
+    p = EnvParams.from_config(cfg.env)
+    cap = cap_of(p, a.kind, a.margin, a.span)
+    warm = p.warmup_steps  # a case's reset, paid once per start
     pol = jax.tree.map(lambda x: x[0], pol)  # one policy, no axis
     for r in range(a.repeats):
         cs = starts(cfg, a.particles, a.seed, r * a.particles)
